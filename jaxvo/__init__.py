@@ -1,0 +1,30 @@
+"""jaxvo: robust RGB-D visual odometry for dynamic scenes via rigid motion segmentation.
+
+The pipeline, in the order data flows (one module per stage):
+
+``io`` (TUM sequences, trajectories) -> ``flow`` (grid LK flow, host) ->
+``spatial`` (hypotheses + clustering, device) -> ``temporal`` (label matching + grid
+model, device) -> ``egomotion`` -> ``pipeline`` (per-frame step, scan, streaming) ->
+``metrics`` (ATE, RPE, segmentation scores).
+"""
+
+from jaxvo.camera import PRESETS, Intrinsics, preset, read_camera_file
+from jaxvo.config import Config, Params, default_params, grid_shape, params_as_arrays
+from jaxvo.errors import InputError
+from jaxvo.status import Status
+
+__version__ = "0.1.0"
+
+__all__ = [
+    "Config",
+    "InputError",
+    "Intrinsics",
+    "PRESETS",
+    "Params",
+    "Status",
+    "default_params",
+    "grid_shape",
+    "params_as_arrays",
+    "preset",
+    "read_camera_file",
+]

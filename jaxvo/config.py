@@ -1,0 +1,91 @@
+"""Configuration of the whole pipeline.
+
+Two objects, following the house style:
+
+* :class:`Config` is a frozen dataclass of plain Python values. Everything that sets an
+  array shape or a loop trip count lives here, and it is passed to jitted functions as a
+  static argument (changing it recompiles).
+* :class:`Params` is a ``NamedTuple`` of numeric values that a parameter study sweeps. Its
+  fields may be Python floats or JAX arrays; ``jax.vmap`` can batch any of them without a
+  recompile. :func:`default_params` gives the thesis's values.
+
+Units: metres, pixels, frames.
+"""
+
+from __future__ import annotations
+
+import dataclasses
+from typing import NamedTuple
+
+import jax.numpy as jnp
+
+
+@dataclasses.dataclass(frozen=True)
+class Config:
+    """Shape-setting settings (static under ``jax.jit``)."""
+
+    # --- grid-based optical flow (thesis section 2.2) ---
+    cell: int = 16  # grid cell size in pixels (thesis: 16 x 16)
+    lk_window: int = 21  # Lucas-Kanade window side, pixels
+    lk_levels: int = 3  # pyramid levels above the base image
+    patch: int = 7  # side of the patches compared by the similarity check, pixels
+
+    # --- spatial segmentation (thesis chapter 3, Algorithms 1 and 2) ---
+    num_hypotheses: int = 20  # H
+    sample_size: int = 4  # m, points per minimal sample
+    sample_radius: int = 3  # neighbourhood of the seed point, in grid cells
+    num_candidates: int = 16  # candidate samples drawn (vmapped) per hypothesis step
+    refine_iters: int = 4  # fixed trip count of the inlier refinement loop
+    cluster_refine_iters: int = 3  # refinement of each cluster's motion (Algorithm 2)
+    max_segments: int = 8  # most distinct motions kept per frame
+
+    # --- temporal segmentation (thesis chapter 4, Algorithm 3) ---
+    max_ids: int = 8  # identifiers (m of section 4.1); identifier 1 is the static background
+    match_window: int = 5  # tMinSize: previous frames the label matching looks back over
+
+    # --- ego-motion ---
+    ego_iters: int = 5  # robust re-weighting iterations
+
+
+class Params(NamedTuple):
+    """Numeric settings a parameter study may batch over (any field may be an array)."""
+
+    # spatial segmentation
+    lam: float = 1e3  # lambda of the entropy, thesis eq. (3.1), 1/m^2
+    delta: float = 1e-2  # delta of the entropy, thesis eq. (3.1)
+    s_min: float = 0.05  # stop when the mean entropy falls below this (Algorithm 1, line 3)
+    inlier_dist: float = 0.02  # inlier distance at 1 m depth, metres
+    inlier_depth_coeff: float = 0.01  # extra inlier distance per m^2 of depth (noise ~ z^2)
+    sample_dist: float = 0.015  # max residual of the m sample points themselves, at 1 m, metres
+    cluster_eps: float = 0.5  # DBSCAN radius on the inlier-set (Jaccard) distance
+    cluster_min_samples: float = 1.0  # DBSCAN core-point threshold (count, incl. itself)
+    min_segment_points: float = 12.0  # N_threshold of Algorithm 2, grid points
+
+    # temporal segmentation
+    min_match_corr: float = 0.3  # weakest correlation (eq. 4.1) that still counts as a match
+    max_age: float = 30.0  # saturation of the grid-model age, frames
+    id_retention: float = 15.0  # frames before an unseen identifier may be reused
+
+    # ego-motion
+    ego_huber: float = 0.02  # Huber threshold of the robust refinement at 1 m depth, metres
+    min_static_points: float = 12.0  # fewer static points than this: the frame is skipped
+
+
+def default_params() -> Params:
+    """The thesis's defaults (lambda 1e3, delta 1e-2), the rest tuned on synthetic scenes."""
+    return Params()
+
+
+def params_as_arrays(params: Params) -> Params:
+    """Float32 arrays for every field, so the values are traced rather than baked in."""
+    return Params(*(jnp.asarray(v, jnp.float32) for v in params))
+
+
+def grid_shape(height: int, width: int, cell: int) -> tuple[int, int]:
+    """Rows and columns of the flow grid for an image of ``height`` x ``width`` pixels."""
+    if cell <= 0:
+        raise ValueError(f"grid cell must be a positive number of pixels, got {cell}")
+    rows, cols = height // cell, width // cell
+    if rows < 2 or cols < 2:
+        raise ValueError(f"image {width}x{height} is too small for {cell}-pixel grid cells")
+    return rows, cols
