@@ -8,6 +8,9 @@ from typing import NamedTuple
 
 import numpy as np
 
+from jaxvo.camera import PRESETS, Intrinsics, preset, read_camera_file
+from jaxvo.errors import InputError
+
 
 def data_root() -> Path:
     """Where the real sequences live: ``$JAXVO_DATA``, else ``../shared/data`` beside the repo."""
@@ -35,3 +38,373 @@ class Trajectory(NamedTuple):
 
     def __len__(self) -> int:
         return len(self.timestamps)
+
+
+# --- trajectories: TUM format "timestamp tx ty tz qx qy qz qw", camera-to-world ---------
+
+# Printed precision of write_trajectory: timestamps to the microsecond (as TUM files), metres
+# and quaternion components to 1e-9 (well below any sensor's accuracy).
+_TIME_FMT = "%.6f"
+_VALUE_FMT = "%.9f"
+# A quaternion whose norm is further than this from 1 is not a rotation that was merely
+# rounded when printed: the file is wrong, and guessing would hide it.
+QUAT_NORM_TOL = 1e-3
+
+
+def _read_text(path: Path) -> str:
+    if not path.exists():
+        raise InputError(f"file not found: {path}")
+    if not path.is_file():
+        raise InputError(f"not a file: {path}")
+    try:
+        return path.read_text()
+    except UnicodeDecodeError:
+        raise InputError(f"{path}: not a text file") from None
+    except OSError as exc:
+        raise InputError(f"{path}: cannot read ({exc.strerror})") from None
+
+
+def _data_lines(path: Path) -> list[tuple[int, list[str]]]:
+    """Non-empty, non-comment lines of a text file, split on whitespace or commas."""
+    out = []
+    for lineno, raw in enumerate(_read_text(path).splitlines(), start=1):
+        line = raw.split("#", 1)[0].replace(",", " ").strip()
+        if line:
+            out.append((lineno, line.split()))
+    return out
+
+
+def read_trajectory(path: str | Path) -> Trajectory:
+    """Read a TUM trajectory file ``timestamp tx ty tz qx qy qz qw`` (``#`` comments).
+
+    Poses are sorted by time. Raises :class:`InputError` (``file:line: ...``) for a line
+    that is not eight numbers, a non-finite value, a quaternion whose norm is not 1 within
+    :data:`QUAT_NORM_TOL`, a repeated timestamp, or a file with no poses.
+
+    Args:
+      path: the file.
+    Returns:
+      a :class:`Trajectory`, timestamps (N,) seconds, poses (N, 4, 4) ``T_w_c`` metres.
+    """
+    from jaxvo.transforms import pose_from_tq
+
+    path = Path(path)
+    rows, linenos = [], []
+    for lineno, parts in _data_lines(path):
+        if len(parts) != 8:
+            raise InputError(
+                f"{path}:{lineno}: expected 8 values 'timestamp tx ty tz qx qy qz qw', "
+                f"got {len(parts)}"
+            )
+        try:
+            values = [float(p) for p in parts]
+        except ValueError:
+            bad = next(p for p in parts if not _is_float(p))
+            raise InputError(f"{path}:{lineno}: {bad!r} is not a number") from None
+        if not all(np.isfinite(values)):
+            raise InputError(f"{path}:{lineno}: non-finite value")
+        norm = float(np.linalg.norm(values[4:]))
+        if abs(norm - 1.0) > QUAT_NORM_TOL:
+            raise InputError(
+                f"{path}:{lineno}: quaternion qx qy qz qw has norm {norm:.6g}, not 1 "
+                f"(tolerance {QUAT_NORM_TOL:g})"
+            )
+        rows.append(values)
+        linenos.append(lineno)
+    if not rows:
+        raise InputError(f"{path}: empty trajectory (no pose lines)")
+    data = np.asarray(rows, np.float64)
+    order = np.argsort(data[:, 0], kind="stable")
+    data = data[order]
+    dup = np.flatnonzero(np.diff(data[:, 0]) == 0)
+    if dup.size:
+        lineno = linenos[order[dup[0] + 1]]
+        raise InputError(f"{path}:{lineno}: repeated timestamp {data[dup[0], 0]:.6f}")
+    return Trajectory(data[:, 0].copy(), pose_from_tq(data[:, 1:4], data[:, 4:8]))
+
+
+def _is_float(text: str) -> bool:
+    try:
+        float(text)
+    except ValueError:
+        return False
+    return True
+
+
+def write_trajectory(path: str | Path, traj: Trajectory, *, comment: str = "") -> None:
+    """Write a TUM trajectory file: timestamps ``%.6f`` s, translation and quaternion ``%.9f``.
+
+    Reading the file back gives timestamps within 5e-7 s, translations within 5e-10 m and
+    rotations within about 1e-9 of the written ones (the printed precision).
+
+    Args:
+      path: the file to write (overwritten).
+      traj: timestamps (N,) seconds, poses (N, 4, 4) ``T_w_c``.
+      comment: an optional first line (written after ``# ``).
+    """
+    from jaxvo.transforms import rotation_to_quat
+
+    poses = np.asarray(traj.poses, np.float64)
+    stamps = np.asarray(traj.timestamps, np.float64)
+    if poses.ndim != 3 or poses.shape[1:] != (4, 4) or len(stamps) != len(poses):
+        raise ValueError(
+            f"trajectory needs (N,) timestamps and (N, 4, 4) poses, got {stamps.shape} "
+            f"and {poses.shape}"
+        )
+    q = rotation_to_quat(poses[:, :3, :3])
+    lines = [f"# {line}" for line in comment.splitlines()] if comment else []
+    lines.append("# timestamp tx ty tz qx qy qz qw")
+    fmt = " ".join([_TIME_FMT] + [_VALUE_FMT] * 7)
+    for t, T, qi in zip(stamps, poses, q):
+        lines.append(fmt % (t, *T[:3, 3], *qi))
+    Path(path).write_text("\n".join(lines) + "\n")
+
+
+def associate(
+    t_a: np.ndarray,
+    t_b: np.ndarray,
+    max_diff: float,
+    *,
+    names: tuple[str, str] = ("first", "second"),
+) -> tuple[np.ndarray, np.ndarray]:
+    """Pair timestamps of two lists by nearest time, one-to-one (TUM ``associate.py``).
+
+    Every pair of stamps closer than ``max_diff`` is a candidate; candidates are taken in
+    order of increasing time difference, skipping any whose stamp is already used. Where
+    the stamps of each list are further apart than ``2 * max_diff`` this is the same as
+    evo's nearest-neighbour association.
+
+    Args:
+      t_a: (N,) seconds.
+      t_b: (M,) seconds.
+      max_diff: largest accepted time difference, seconds.
+      names: what to call the two lists in the error message (e.g. the file names).
+    Returns:
+      ``(idx_a, idx_b)``, int arrays of equal length, sorted by ``t_a``.
+    Raises:
+      InputError: no pair matches; the message gives both time ranges.
+    """
+    t_a = np.asarray(t_a, np.float64)
+    t_b = np.asarray(t_b, np.float64)
+    if max_diff < 0:
+        raise InputError(f"max time difference must be >= 0 s, got {max_diff}")
+    order_b = np.argsort(t_b, kind="stable")
+    sb = t_b[order_b]
+    lo = np.searchsorted(sb, t_a - max_diff, side="left")
+    hi = np.searchsorted(sb, t_a + max_diff, side="right")
+    counts = hi - lo
+    ia = np.repeat(np.arange(len(t_a)), counts)
+    starts = np.repeat(lo - np.concatenate([[0], np.cumsum(counts)[:-1]]), counts)
+    ib = order_b[np.arange(len(ia)) + starts] if len(ia) else np.zeros(0, np.int64)
+    diff = np.abs(t_a[ia] - t_b[ib])
+    keep = diff <= max_diff
+    ia, ib, diff = ia[keep], ib[keep], diff[keep]
+    used_a = np.zeros(len(t_a), bool)
+    used_b = np.zeros(len(t_b), bool)
+    pairs = []
+    for k in np.lexsort((ib, ia, diff)):
+        a, b = ia[k], ib[k]
+        if not used_a[a] and not used_b[b]:
+            used_a[a] = used_b[b] = True
+            pairs.append((a, b))
+    if not pairs:
+        raise InputError(
+            f"no timestamps match within {max_diff:g} s: {names[0]} spans "
+            f"{_time_range(t_a)}, {names[1]} spans {_time_range(t_b)}"
+        )
+    pairs.sort()
+    out = np.asarray(pairs, np.int64)
+    return out[:, 0], out[:, 1]
+
+
+def _time_range(t: np.ndarray) -> str:
+    if len(t) == 0:
+        return "nothing (0 stamps)"
+    return f"{t.min():.6f} .. {t.max():.6f} s ({len(t)} stamps)"
+
+
+# --- RGB-D sequences in the TUM layout -------------------------------------------------
+
+
+def _read_list(path: Path, columns: int) -> list[tuple[int, list[str]]]:
+    rows = _data_lines(path)
+    for lineno, parts in rows:
+        if len(parts) < columns or not all(_is_float(parts[c]) for c in range(0, columns, 2)):
+            want = "timestamp filename" if columns == 2 else "timestamp rgb timestamp depth"
+            raise InputError(f"{path}:{lineno}: expected '{want}', got {' '.join(parts)!r}")
+    return rows
+
+
+def _read_image(path: Path, flags: int) -> np.ndarray:
+    import cv2  # only where images are read: `jaxvo eval` never pays for OpenCV
+
+    if not path.is_file():
+        raise InputError(f"image not found: {path}")
+    img = cv2.imread(str(path), flags)
+    if img is None:
+        raise InputError(f"cannot read image: {path}")
+    return img
+
+
+class TumSequence:
+    """An RGB-D sequence in the TUM layout, frames read from disk only when asked for.
+
+    The folder holds ``rgb.txt`` and ``depth.txt`` (``timestamp filename``), optionally
+    ``associations.txt`` (``t_rgb rgb t_depth depth``; otherwise colour and depth are
+    paired by nearest timestamp within ``max_diff``), ``groundtruth.txt`` (TUM
+    trajectory), ``camera.txt`` (see :func:`jaxvo.camera.read_camera_file`) and, for
+    synthetic data, ``mask.txt`` (``timestamp filename`` of uint8 object-id images, the
+    same timestamps as ``rgb.txt``).
+
+    Args:
+      path: the folder.
+      camera: a preset name of :data:`jaxvo.camera.PRESETS` or an :class:`Intrinsics`;
+        overrides ``camera.txt``. One of the two is required.
+      max_diff: largest colour-depth time difference when pairing them, seconds.
+    """
+
+    def __init__(
+        self,
+        path: str | Path,
+        *,
+        camera: str | Intrinsics | None = None,
+        max_diff: float = 0.02,
+    ) -> None:
+        root = Path(path)
+        if not root.is_dir():
+            raise InputError(f"sequence folder not found: {root}")
+        self.path = root
+        self.name = root.resolve().name
+        self.intrinsics = self._intrinsics(root, camera)
+
+        assoc = root / "associations.txt"
+        if assoc.is_file():
+            rows = _read_list(assoc, 4)
+            self.timestamps = np.array([float(p[0]) for _, p in rows], np.float64)
+            self._rgb = [root / p[1] for _, p in rows]
+            self._depth = [root / p[3] for _, p in rows]
+        else:
+            rgb = _read_list(root / "rgb.txt", 2)
+            depth = _read_list(root / "depth.txt", 2)
+            t_rgb = np.array([float(p[0]) for _, p in rgb], np.float64)
+            t_depth = np.array([float(p[0]) for _, p in depth], np.float64)
+            ia, ib = associate(
+                t_rgb, t_depth, max_diff, names=(str(root / "rgb.txt"), str(root / "depth.txt"))
+            )
+            self.timestamps = t_rgb[ia]
+            self._rgb = [root / rgb[i][1][1] for i in ia]
+            self._depth = [root / depth[j][1][1] for j in ib]
+        if len(self.timestamps) == 0:
+            raise InputError(f"{root}: no frames listed")
+
+        self._mask: list[Path] | None = None
+        mask_list = root / "mask.txt"
+        if mask_list.is_file():
+            rows = _read_list(mask_list, 2)
+            t_mask = np.array([float(p[0]) for _, p in rows], np.float64)
+            # Masks carry the colour image's own stamps: match them to the microsecond.
+            ia, ib = associate(self.timestamps, t_mask, 5e-7, names=("frames", str(mask_list)))
+            if len(ia) != len(self.timestamps):
+                missing = self.timestamps[np.setdiff1d(np.arange(len(self)), ia)[0]]
+                raise InputError(f"{mask_list}: no mask for the frame at {missing:.6f} s")
+            self._mask = [root / rows[j][1][1] for j in ib]
+
+        gt = root / "groundtruth.txt"
+        self.groundtruth = read_trajectory(gt) if gt.is_file() else None
+
+        first = _read_image(self._rgb[0], _imread_color())
+        self.height, self.width = first.shape[:2]
+
+    @staticmethod
+    def _intrinsics(root: Path, camera: str | Intrinsics | None) -> Intrinsics:
+        if isinstance(camera, Intrinsics):
+            return camera
+        if camera is not None:
+            try:
+                return preset(camera)
+            except ValueError as exc:
+                raise InputError(str(exc)) from None
+        cam_file = root / "camera.txt"
+        if not cam_file.is_file():
+            raise InputError(
+                f"{root}: no camera.txt; pass a camera preset "
+                f"({', '.join(sorted(PRESETS))}) or write a camera.txt"
+            )
+        try:
+            return read_camera_file(cam_file)
+        except ValueError as exc:
+            raise InputError(str(exc)) from None
+
+    def __len__(self) -> int:
+        return len(self.timestamps)
+
+    def __getitem__(self, index: int) -> Frame:
+        """Read frame ``index`` from disk (negative indices count from the end)."""
+        n = len(self)
+        if not -n <= index < n:
+            raise IndexError(f"frame {index} out of range for {n} frames")
+        index = int(index) % n
+        bgr = _read_image(self._rgb[index], _imread_color())
+        raw = _read_image(self._depth[index], _imread_unchanged())
+        if raw.ndim != 2 or raw.dtype != np.uint16:
+            raise InputError(
+                f"{self._depth[index]}: depth must be a 16-bit single-channel image, got "
+                f"{raw.dtype} with shape {raw.shape}"
+            )
+        for p, img in ((self._rgb[index], bgr), (self._depth[index], raw)):
+            if img.shape[:2] != (self.height, self.width):
+                raise InputError(
+                    f"{p}: image is {img.shape[1]}x{img.shape[0]}, the sequence is "
+                    f"{self.width}x{self.height}"
+                )
+        # 0 stays 0 (no reading) under the division.
+        depth = raw.astype(np.float32) / np.float32(self.intrinsics.depth_scale)
+        mask = self._read_mask(index) if self._mask is not None else None
+        return Frame(index, float(self.timestamps[index]), bgr, depth, mask)
+
+    def _read_mask(self, index: int) -> np.ndarray:
+        path = self._mask[index]
+        mask = _read_image(path, _imread_unchanged())
+        if mask.ndim != 2 or mask.shape != (self.height, self.width):
+            raise InputError(
+                f"{path}: mask must be a single-channel {self.width}x{self.height} image, "
+                f"got shape {mask.shape}"
+            )
+        if mask.dtype != np.uint8:
+            if not np.issubdtype(mask.dtype, np.integer) or mask.max() > 255:
+                raise InputError(f"{path}: mask ids must fit in uint8, got {mask.dtype}")
+            mask = mask.astype(np.uint8)
+        return mask
+
+    def __iter__(self):
+        for i in range(len(self)):
+            yield self[i]
+
+    def __repr__(self) -> str:
+        gt = "with" if self.groundtruth is not None else "without"
+        return (
+            f"TumSequence({self.name!r}, {len(self)} frames, {self.width}x{self.height}, "
+            f"{gt} ground truth)"
+        )
+
+
+def _imread_color() -> int:
+    import cv2
+
+    return cv2.IMREAD_COLOR
+
+
+def _imread_unchanged() -> int:
+    import cv2
+
+    return cv2.IMREAD_UNCHANGED
+
+
+def open_sequence(path: str | Path, **kwargs) -> TumSequence:
+    """Open the RGB-D sequence in folder ``path`` (TUM layout); ``kwargs`` go to the reader."""
+    root = Path(path)
+    if not root.is_dir():
+        raise InputError(f"sequence folder not found: {root}")
+    if not (root / "associations.txt").is_file() and not (root / "rgb.txt").is_file():
+        raise InputError(f"{root}: not a TUM RGB-D sequence (no rgb.txt or associations.txt)")
+    return TumSequence(root, **kwargs)
