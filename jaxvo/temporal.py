@@ -1,0 +1,422 @@
+"""Motion temporal segmentation: label matching and the dual-mode grid model (thesis ch. 4).
+
+The spatial stage numbers its segments afresh every frame; this stage gives them
+identifiers that persist over time (section 4.1, Algorithm 3) and filters the per-cell
+labels with a dual-mode simple Gaussian model (section 4.2, eqs. 4.4-4.9).
+
+Anchoring (docs/architecture.md): the labels of a step live on the grid of the *previous*
+image of the pair (the points whose flow was measured). The state enters a step aligned with
+that grid, is matched and updated there, and is then compensated forward to the current
+image's grid with the grid flow, ready for the next step.
+
+Identifiers are ``1 .. cfg.max_ids``; identifier ``1`` is the static background and ``0``
+means unknown / unlabelled. Probability vectors index identifier ``j`` at position ``j - 1``.
+
+Design decisions where the thesis leaves room (each also noted where it is implemented):
+
+* The identifier maps of the matching window are the matched measurements ``G`` of
+  Algorithm 3; cells without a measurement carry the grid's retained temporal label, so a
+  region that is temporarily unmeasured keeps its identifier for the matching ("how long grid
+  retains its identifier", section 4.1).
+* The score of eq. (4.2) divides by the size of *all* current segments, so an unmatched
+  segment counts as correlation 0 and a window frame that matches more of the image wins.
+* A new identifier is the least observed (frames with a segment carrying it) among the free
+  ones; the background identifier ``1`` is preferred whenever it is free (first frame, or
+  background lost for ``id_retention`` frames), so the largest unmatched segment takes it.
+* After a swap the demoted model is cleared, as in the model the thesis builds on
+  (Yi et al., MCD5.8ms, ref. [20]); keeping it would let a single erroneous label swap back.
+  The swap is checked only on frames where the candidate was updated.
+* The output ``ids`` are on the grid of the previous image of the pair, like ``matched`` and
+  the segmentation, so they index the same point pairs the ego-motion stage uses.
+"""
+
+from __future__ import annotations
+
+from typing import Any, NamedTuple
+
+import jax
+import jax.numpy as jnp
+
+from jaxvo.config import Config, Params
+from jaxvo.status import Status
+
+_NEVER = -(2**30)  # last_seen of an identifier never observed: always free
+_BIG = 1e30  # sort key of masked-out lanes (finite, so no inf - inf can appear)
+
+
+class TemporalOut(NamedTuple):
+    ids: jax.Array  # (n,) int32 temporal identifier per grid cell: 0 unknown, 1 static background
+    matched: jax.Array  # (n,) int32 the measurement after label matching (Fig. 5.1 "Group")
+    segment_ids: jax.Array  # (max_segments,) int32 identifier given to each spatial segment
+
+
+class TemporalState(NamedTuple):
+    # dual-mode simple Gaussian model of every grid cell (section 4.2)
+    app_prob: jax.Array  # (n, max_ids) float32 apparent model's probability vector
+    app_age: jax.Array  # (n,) float32 apparent model's age, 0 = empty, <= max_age
+    cand_prob: jax.Array  # (n, max_ids) float32 candidate model's probability vector
+    cand_age: jax.Array  # (n,) float32 candidate model's age, 0 = empty
+    ids: jax.Array  # (n,) int32 temporal label map, 0 = unknown
+    # window of Algorithm 3 (tMinSize), aligned with the same grid as the models
+    history: jax.Array  # (match_window, n) int32 identifier maps, most recent first
+    history_valid: jax.Array  # (match_window,) bool slot holds a past frame
+    # identifier management (section 4.1)
+    obs_count: jax.Array  # (max_ids,) int32 frames in which each identifier was observed
+    last_seen: jax.Array  # (max_ids,) int32 update index of the last observation
+    frame: jax.Array  # () int32 number of updates so far
+    initialised: jax.Array  # () bool some segment has received an identifier
+
+
+def init_temporal(*, cfg: Config, grid: tuple[int, int]) -> TemporalState:
+    """Empty grid models (age 0), no identifier in use, empty matching window.
+
+    Args:
+      cfg: static configuration (``max_ids``, ``match_window``).
+      grid: ``(rows, cols)`` of the flow grid.
+
+    Returns:
+      The initial :class:`TemporalState`.
+    """
+    n = grid[0] * grid[1]
+    m = cfg.max_ids
+    return TemporalState(
+        app_prob=jnp.zeros((n, m), jnp.float32),
+        app_age=jnp.zeros((n,), jnp.float32),
+        cand_prob=jnp.zeros((n, m), jnp.float32),
+        cand_age=jnp.zeros((n,), jnp.float32),
+        ids=jnp.zeros((n,), jnp.int32),
+        history=jnp.zeros((cfg.match_window, n), jnp.int32),
+        history_valid=jnp.zeros((cfg.match_window,), bool),
+        obs_count=jnp.zeros((m,), jnp.int32),
+        last_seen=jnp.full((m,), _NEVER, jnp.int32),
+        frame=jnp.zeros((), jnp.int32),
+        initialised=jnp.zeros((), bool),
+    )
+
+
+# --------------------------------------------------------------------------------------
+# Label matching (section 4.1)
+# --------------------------------------------------------------------------------------
+
+
+def label_correlation(seg_labels, id_map, *, num_segments: int, num_ids: int):
+    """Correlation coefficients between current segments and the identifiers of one frame.
+
+    thesis eq. (4.1): ``C_ij = N_ij / sqrt(N_i N_j)``; 0 where a segment or an identifier is
+    absent (no division by zero).
+
+    Args:
+      seg_labels: (n,) int32 current segment per grid cell, 0 = none, 1..num_segments.
+      id_map: (n,) int32 identifier per grid cell of a past frame, 0 = none, 1..num_ids.
+      num_segments, num_ids: static sizes.
+
+    Returns:
+      ``(corr (num_segments, num_ids) float32, n_seg (num_segments,) float32,
+      n_id (num_ids,) float32)`` with the point counts ``N_i`` and ``N_j``.
+    """
+    seg_1h = jax.nn.one_hot(seg_labels - 1, num_segments, dtype=jnp.float32)
+    id_1h = jax.nn.one_hot(id_map - 1, num_ids, dtype=jnp.float32)
+    n_ij = seg_1h.T @ id_1h
+    n_seg = seg_1h.sum(axis=0)
+    n_id = id_1h.sum(axis=0)
+    denom2 = n_seg[:, None] * n_id[None, :]
+    ok = denom2 > 0
+    corr = jnp.where(ok, n_ij / jnp.sqrt(jnp.where(ok, denom2, 1.0)), 0.0)
+    return corr, n_seg, n_id
+
+
+def match_segments(corr, n_seg, min_corr):
+    """Match pairs of one window frame and their score (Algorithm 3 lines 5-7).
+
+    Each segment takes the identifier of highest correlation along its row; a match needs
+    ``corr >= min_corr``; when several segments pick the same identifier the strongest
+    correlation wins (ties: the lower segment number) and the others stay unmatched.
+
+    Args:
+      corr: (S, M) float32 correlations of eq. (4.1).
+      n_seg: (S,) float32 grid points of each current segment ``N_i``.
+      min_corr: () weakest correlation that counts as a match (may be traced).
+
+    Returns:
+      ``(assign (S,) int32 identifier per segment, 0 = unmatched, score () float32)``, the
+      score of eq. (4.2): ``sum_i C_i,m(i) N_i / sum_i N_i`` over the matched pairs, the
+      denominator running over all current segments.
+    """
+    s = corr.shape[0]
+    best = jnp.argmax(corr, axis=1)
+    cbest = jnp.max(corr, axis=1)
+    ok = (n_seg > 0) & (cbest >= min_corr) & (cbest > 0)
+    idx = jnp.arange(s)
+    same = best[:, None] == best[None, :]
+    # [i, j]: segment j takes the identifier from segment i
+    beats = (cbest[None, :] > cbest[:, None]) | (
+        (cbest[None, :] == cbest[:, None]) & (idx[None, :] < idx[:, None])
+    )
+    lost = jnp.any(same & ok[None, :] & beats & (idx[None, :] != idx[:, None]), axis=1)
+    win = ok & ~lost
+    assign = jnp.where(win, best + 1, 0).astype(jnp.int32)
+    total = n_seg.sum()
+    score = jnp.sum(jnp.where(win, cbest, 0.0) * n_seg) / jnp.maximum(total, 1.0)
+    return assign, score
+
+
+def _assign_identifiers(state: TemporalState, seg_labels, params: Params, *, cfg: Config):
+    """Algorithm 3 and the identifier management of section 4.1.
+
+    Returns ``(segment_ids (S,) int32, n_seg (S,) float32)``.
+    """
+    s, m = cfg.max_segments, cfg.max_ids
+
+    def one_frame(id_map):
+        corr, n_seg, _ = label_correlation(seg_labels, id_map, num_segments=s, num_ids=m)
+        return match_segments(corr, n_seg, params.min_match_corr)
+
+    assign_w, score_w = jax.vmap(one_frame)(state.history)  # (W, S), (W,)
+    score_w = jnp.where(state.history_valid, score_w, -1.0)
+    # first maximum = the most recent frame on ties (Algorithm 3 line 8 uses '>')
+    best_w = jnp.argmax(score_w)
+    assign = jnp.where(score_w[best_w] > 0, assign_w[best_w], 0)
+
+    n_seg = jax.nn.one_hot(seg_labels - 1, s, dtype=jnp.float32).sum(axis=0)
+    used = jnp.any(jax.nn.one_hot(assign - 1, m, dtype=bool), axis=0)
+    unseen_for = (state.frame - state.last_seen).astype(jnp.float32)
+    # an identifier unobserved for id_retention frames may be given to a new object
+    free = ~used & (unseen_for - 1.0 >= params.id_retention)
+    unmatched = (n_seg > 0) & (assign == 0)
+
+    # unmatched segments, largest first ...
+    seg_order = jnp.argsort(jnp.where(unmatched, -n_seg, _BIG), stable=True)
+    seg_rank = jnp.argsort(seg_order, stable=True)
+    # ... receive free identifiers, least observed first; the background identifier 1 goes
+    # first whenever it is free, so the region covering most of the image takes it
+    id_key = jnp.where(free, state.obs_count.astype(jnp.float32), _BIG)
+    id_key = id_key.at[0].set(jnp.where(free[0], -1.0, id_key[0]))
+    id_order = jnp.argsort(id_key, stable=True)
+    num_free = jnp.sum(free)
+    new_id = jnp.where(
+        unmatched & (seg_rank < num_free),
+        id_order[jnp.clip(seg_rank, 0, m - 1)] + 1,
+        0,
+    )
+    segment_ids = jnp.where(assign > 0, assign, new_id).astype(jnp.int32)
+    return segment_ids, n_seg
+
+
+# --------------------------------------------------------------------------------------
+# Dual-mode simple Gaussian model (section 4.2.1)
+# --------------------------------------------------------------------------------------
+
+
+def _blend(prob, age, meas_1h, max_age):
+    """thesis eqs. (4.4), (4.5); with age 0 this is the direct initialisation."""
+    a = age[:, None]
+    new_prob = a / (a + 1.0) * prob + 1.0 / (a + 1.0) * meas_1h
+    return new_prob, jnp.minimum(age + 1.0, max_age)
+
+
+def _update_models(state: TemporalState, meas, max_age, *, cfg: Config):
+    """Apply the update criteria of section 4.2.1 with the matched label ``meas`` (n,).
+
+    Returns the new ``(app_prob, app_age, cand_prob, cand_age, ids)``.
+    """
+    m = cfg.max_ids
+    has = meas > 0
+    meas_1h = jax.nn.one_hot(meas - 1, m, dtype=jnp.float32)
+    app_empty = state.app_age <= 0
+    app_label = jnp.argmax(state.app_prob, axis=1) + 1
+    # apparent: initialised when empty, updated when its label equals the measurement
+    app_touch = has & (app_empty | (app_label == meas))
+    # candidate: initialised / updated when the apparent model is not
+    cand_touch = has & ~app_touch
+
+    app_p, app_a = _blend(state.app_prob, state.app_age, meas_1h, max_age)
+    cand_p, cand_a = _blend(state.cand_prob, state.cand_age, meas_1h, max_age)
+    app_p = jnp.where(app_touch[:, None], app_p, state.app_prob)
+    app_a = jnp.where(app_touch, app_a, state.app_age)
+    cand_p = jnp.where(cand_touch[:, None], cand_p, state.cand_prob)
+    cand_a = jnp.where(cand_touch, cand_a, state.cand_age)
+
+    # swap when the candidate saturates or outgrows the apparent model; the demoted model
+    # is cleared (as in [20]) so a lone erroneous label cannot swap it straight back
+    swap = cand_touch & ((cand_a >= max_age) | (cand_a > app_a))
+    app_p = jnp.where(swap[:, None], cand_p, app_p)
+    app_a = jnp.where(swap, cand_a, app_a)
+    cand_p = jnp.where(swap[:, None], 0.0, cand_p)
+    cand_a = jnp.where(swap, 0.0, cand_a)
+
+    # temporal label: only where the apparent model was initialised / updated (or replaced)
+    label = (jnp.argmax(app_p, axis=1) + 1).astype(jnp.int32)
+    ids = jnp.where(app_touch | swap, label, state.ids)
+    return app_p, app_a, cand_p, cand_a, ids
+
+
+# --------------------------------------------------------------------------------------
+# Model compensation (section 4.2.2)
+# --------------------------------------------------------------------------------------
+
+
+def _masked_median(x, mask):
+    """Median of ``x[mask]`` (0 when the mask is empty), fixed shape, no NaN."""
+    n = x.shape[0]
+    k = jnp.sum(mask)
+    srt = jnp.sort(jnp.where(mask, x, _BIG))
+    lo = srt[jnp.clip((k - 1) // 2, 0, n - 1)]
+    hi = srt[jnp.clip(k // 2, 0, n - 1)]
+    return jnp.where(k > 0, 0.5 * (lo + hi), 0.0)
+
+
+def compensation_weights(disp, flow_valid, *, cfg: Config, grid: tuple[int, int]):
+    """Where each current cell's model comes from: thesis eqs. (4.8), (4.9).
+
+    Current cell ``i`` looks back to ``p_i - d_i`` (``d_i`` = displacement at cell ``i``;
+    invalid flow takes the median displacement of the valid cells). A cell-sized square
+    centred there overlaps at most four previous cells; the overlap areas, normalised to sum
+    1 over the cells inside the grid, are the bilinear weights. A source centre outside the
+    area the grid covers leaves the cell empty.
+
+    Args:
+      disp: (n, 2) float32 ``uv_cur - uv_prev`` per grid point, pixels (x, y).
+      flow_valid: (n,) bool.
+      cfg, grid: static; ``cfg.cell`` is the cell size in pixels.
+
+    Returns:
+      ``(idx (n, 4) int32 previous cells, w (n, 4) float32 weights, nearest (n,) int32
+      cell of largest overlap, inside (n,) bool)``; weights are 0 where ``inside`` is False.
+    """
+    rows, cols = grid
+    n = rows * cols
+    ok = flow_valid & jnp.all(jnp.isfinite(disp), axis=1)
+    d_safe = jnp.where(ok[:, None], disp, 0.0)
+    med = jnp.stack([_masked_median(d_safe[:, 0], ok), _masked_median(d_safe[:, 1], ok)])
+    d = jnp.where(ok[:, None], d_safe, med[None, :]) / cfg.cell
+
+    r = (jnp.arange(n) // cols).astype(jnp.float32)
+    c = (jnp.arange(n) % cols).astype(jnp.float32)
+    sr = r - d[:, 1]
+    sc = c - d[:, 0]
+    inside = (sr >= -0.5) & (sr < rows - 0.5) & (sc >= -0.5) & (sc < cols - 0.5)
+    sr = jnp.clip(sr, -1.0, rows)
+    sc = jnp.clip(sc, -1.0, cols)
+
+    r0 = jnp.floor(sr)
+    c0 = jnp.floor(sc)
+    fr = sr - r0
+    fc = sc - c0
+    rr = jnp.stack([r0, r0, r0 + 1, r0 + 1], axis=1).astype(jnp.int32)
+    cc = jnp.stack([c0, c0 + 1, c0, c0 + 1], axis=1).astype(jnp.int32)
+    w = jnp.stack([(1 - fr) * (1 - fc), (1 - fr) * fc, fr * (1 - fc), fr * fc], axis=1)
+    in_grid = (rr >= 0) & (rr < rows) & (cc >= 0) & (cc < cols)
+    w = jnp.where(in_grid, w, 0.0)
+    wsum = w.sum(axis=1, keepdims=True)
+    w = jnp.where(inside[:, None] & (wsum > 0), w / jnp.where(wsum > 0, wsum, 1.0), 0.0)
+    idx = jnp.clip(rr, 0, rows - 1) * cols + jnp.clip(cc, 0, cols - 1)
+
+    rn = jnp.clip(jnp.floor(sr + 0.5), 0, rows - 1).astype(jnp.int32)
+    cn = jnp.clip(jnp.floor(sc + 0.5), 0, cols - 1).astype(jnp.int32)
+    nearest = rn * cols + cn
+    return idx.astype(jnp.int32), w.astype(jnp.float32), nearest, inside
+
+
+def compensate_models(prob, age, idx, w):
+    """thesis eqs. (4.6), (4.7): area-weighted interpolation of probability vectors and ages.
+
+    Args:
+      prob: (n, M) float32; age: (n,) float32; idx, w: (n, 4) from
+        :func:`compensation_weights`.
+
+    Returns:
+      ``(prob (n, M), age (n,))`` on the current grid; cells with all-zero weights are empty.
+    """
+    new_prob = jnp.einsum("nk,nkm->nm", w, prob[idx])
+    new_age = jnp.sum(w * age[idx], axis=1)
+    return new_prob, new_age
+
+
+def _compensate_state(state: TemporalState, disp, flow_valid, *, cfg: Config, grid):
+    idx, w, nearest, inside = compensation_weights(disp, flow_valid, cfg=cfg, grid=grid)
+    app_p, app_a = compensate_models(state.app_prob, state.app_age, idx, w)
+    cand_p, cand_a = compensate_models(state.cand_prob, state.cand_age, idx, w)
+    # label maps are categorical: nearest neighbour instead of interpolation
+    ids = jnp.where(inside, state.ids[nearest], 0)
+    history = jnp.where(inside[None, :], state.history[:, nearest], 0)
+    return state._replace(
+        app_prob=app_p,
+        app_age=app_a,
+        cand_prob=cand_p,
+        cand_age=cand_a,
+        ids=ids,
+        history=history,
+    )
+
+
+# --------------------------------------------------------------------------------------
+# The per-frame update
+# --------------------------------------------------------------------------------------
+
+
+def update_temporal(
+    state: TemporalState,
+    seg: Any,
+    disp,
+    flow_valid,
+    params: Params,
+    *,
+    cfg: Config,
+    grid: tuple[int, int],
+) -> tuple[TemporalState, TemporalOut]:
+    """One frame of motion temporal segmentation (Algorithm 3, eqs. 4.1-4.9).
+
+    Args:
+      state: aligned with the grid of the previous image of the pair.
+      seg: the spatial stage's ``Segmentation`` (any object with ``labels`` (n,) int32,
+        0 = unlabelled / 1..max_segments, and ``status`` () int32); labels on the grid of
+        the previous image. A status other than OK counts as no measurement.
+      disp: (n, 2) float32 ``uv_cur - uv_prev`` of each grid point, pixels.
+      flow_valid: (n,) bool; cells with invalid flow carry no measurement.
+      params: ``min_match_corr``, ``max_age`` (frames), ``id_retention`` (frames); floats or
+        traced arrays.
+      cfg, grid: static.
+
+    Returns:
+      ``(state, out)``: the state compensated to the current image's grid, and a
+      :class:`TemporalOut` on the previous image's grid (the grid of ``seg.labels``).
+    """
+    s = cfg.max_segments
+    labels = jnp.asarray(seg.labels, jnp.int32)
+    seg_ok = jnp.asarray(seg.status) == Status.OK
+    measured = seg_ok & flow_valid & (labels > 0) & (labels <= s)
+    labels = jnp.where(measured, labels, 0)
+
+    # 4.1: identifiers for the segments
+    segment_ids, _ = _assign_identifiers(state, labels, params, cfg=cfg)
+    matched = jnp.where(measured, segment_ids[jnp.clip(labels - 1, 0, s - 1)], 0)
+    seen = jnp.any(jax.nn.one_hot(segment_ids - 1, cfg.max_ids, dtype=bool), axis=0)
+    obs_count = state.obs_count + seen.astype(jnp.int32)
+    last_seen = jnp.where(seen, state.frame, state.last_seen)
+
+    # 4.2.1: update the grid models with the matched label as measurement
+    app_p, app_a, cand_p, cand_a, ids = _update_models(state, matched, params.max_age, cfg=cfg)
+
+    # the window keeps this frame's identifier map; unmeasured cells keep the grid's label
+    id_map = jnp.where(matched > 0, matched, ids)
+    history = jnp.concatenate([id_map[None], state.history[:-1]], axis=0)
+    history_valid = jnp.concatenate([jnp.ones((1,), bool), state.history_valid[:-1]])
+
+    updated = TemporalState(
+        app_prob=app_p,
+        app_age=app_a,
+        cand_prob=cand_p,
+        cand_age=cand_a,
+        ids=ids,
+        history=history,
+        history_valid=history_valid,
+        obs_count=obs_count,
+        last_seen=last_seen,
+        frame=state.frame + 1,
+        initialised=state.initialised | jnp.any(seen),
+    )
+    out = TemporalOut(ids=ids, matched=matched.astype(jnp.int32), segment_ids=segment_ids)
+
+    # 4.2.2: carry the models to the current image's grid for the next step
+    new_state = _compensate_state(updated, disp, flow_valid, cfg=cfg, grid=grid)
+    return new_state, out
