@@ -1,0 +1,33 @@
+"""Shared fixtures: where the real data lives, and skipping cleanly when it is absent.
+
+Use ``data_root`` for the folder itself, or ``require_data("name", ...)`` for a path under
+it; either skips the test, naming the missing path, when the data is not there (set
+``JAXVO_DATA`` to point elsewhere).
+"""
+
+from __future__ import annotations
+
+from pathlib import Path
+
+import pytest
+
+from jaxvo.io import data_root as _data_root
+
+
+def _require(*parts: str) -> Path:
+    path = _data_root().joinpath(*parts)
+    if not path.exists():
+        pytest.skip(f"real data not found at {path} (set JAXVO_DATA to the shared data folder)")
+    return path
+
+
+@pytest.fixture
+def data_root() -> Path:
+    """The real-data folder (``jaxvo.io.data_root()``); skips the test when it is absent."""
+    return _require()
+
+
+@pytest.fixture
+def require_data():
+    """``require_data(*parts) -> Path`` under the data folder; skips when that path is absent."""
+    return _require

@@ -1,0 +1,317 @@
+"""Tests of jaxvo.io and jaxvo.transforms: trajectory files, association, TUM sequences."""
+
+from __future__ import annotations
+
+import cv2
+import numpy as np
+import pytest
+
+from jaxvo.camera import PRESETS, write_camera_file
+from jaxvo.errors import InputError
+from jaxvo.io import (
+    Frame,
+    Trajectory,
+    TumSequence,
+    associate,
+    open_sequence,
+    read_trajectory,
+    write_trajectory,
+)
+from jaxvo.transforms import (
+    invert_pose,
+    pose_from_tq,
+    quat_to_rotation,
+    rotation_angle,
+    rotation_to_quat,
+)
+
+
+def random_quats(rng, n):
+    q = rng.normal(size=(n, 4))
+    return q / np.linalg.norm(q, axis=1, keepdims=True)
+
+
+def random_trajectory(rng, n=20, t0=1341846434.710184):
+    t = t0 + np.arange(n) / 30.0 + rng.uniform(0, 1e-3, n)
+    return Trajectory(t, pose_from_tq(rng.normal(size=(n, 3)), random_quats(rng, n)))
+
+
+# --- transforms -------------------------------------------------------------------------
+
+
+def test_quat_to_rotation_matches_axis_angle():
+    # Independent reference: OpenCV's Rodrigues formula for a rotation of angle a about u.
+    rng = np.random.default_rng(0)
+    for _ in range(20):
+        u = rng.normal(size=3)
+        u /= np.linalg.norm(u)
+        a = rng.uniform(0, np.pi)
+        q = np.concatenate([u * np.sin(a / 2), [np.cos(a / 2)]])
+        R_ref, _ = cv2.Rodrigues(u * a)
+        np.testing.assert_allclose(quat_to_rotation(q), R_ref, atol=1e-12)  # tol 1e-12
+        np.testing.assert_allclose(rotation_angle(R_ref), a, atol=1e-12)  # tol 1e-12 rad
+
+
+def test_rotation_quat_round_trip_all_branches():
+    rng = np.random.default_rng(1)
+    q = random_quats(rng, 500)
+    # Near 180 degrees about each axis: the branches of Shepperd's method with small qw.
+    q = np.concatenate([q, [[1, 0, 0, 1e-3], [0, 1, 0, 1e-3], [0, 0, 1, 1e-3]]])
+    q /= np.linalg.norm(q, axis=1, keepdims=True)
+    q_back = rotation_to_quat(quat_to_rotation(q))
+    q_canon = np.where(q[:, 3:] < 0, -q, q)
+    np.testing.assert_allclose(q_back, q_canon, atol=1e-12)  # tol 1e-12
+
+
+def test_rotation_angle_small_angles_accurate():
+    # arccos of the trace loses ~1e-8 rad here; the atan2 form must not.
+    for a in (1e-9, 1e-7, 1e-5):
+        R, _ = cv2.Rodrigues(np.array([0.0, a, 0.0]))
+        assert abs(rotation_angle(R) - a) <= 1e-15 + 1e-9 * a  # tol relative 1e-9
+
+
+def test_invert_pose():
+    rng = np.random.default_rng(2)
+    T = pose_from_tq(rng.normal(size=(5, 3)), random_quats(rng, 5))
+    np.testing.assert_allclose(invert_pose(T) @ T, np.broadcast_to(np.eye(4), T.shape), atol=1e-12)
+
+
+# --- trajectory files -------------------------------------------------------------------
+
+
+def test_trajectory_round_trip_to_printed_precision(tmp_path):
+    rng = np.random.default_rng(3)
+    traj = random_trajectory(rng)
+    path = tmp_path / "traj.txt"
+    write_trajectory(path, traj, comment="test\nsecond line")
+    back = read_trajectory(path)
+    # Printed precision: %.6f seconds, %.9f metres and quaternion components.
+    np.testing.assert_allclose(back.timestamps, traj.timestamps, rtol=0, atol=5e-7 + 1e-9)
+    np.testing.assert_allclose(back.poses[:, :3, 3], traj.poses[:, :3, 3], rtol=0, atol=5e-10)
+    np.testing.assert_allclose(back.poses[:, :3, :3], traj.poses[:, :3, :3], rtol=0, atol=4e-9)
+    # Writing what was read gives the same timestamps and translations, character for character.
+    path2 = tmp_path / "traj2.txt"
+    write_trajectory(path2, back, comment="test\nsecond line")
+    cols = [[ln.split()[:4] for ln in p.read_text().splitlines()] for p in (path, path2)]
+    assert cols[0] == cols[1]
+
+
+def test_read_trajectory_comments_sorting_and_normalisation(tmp_path):
+    path = tmp_path / "t.txt"
+    path.write_text(
+        "# timestamp tx ty tz qx qy qz qw\n\n"
+        "2.0 1 2 3 0 0 0 1.0005\n"
+        "1.0 0 0 0 0 0 0 1  # trailing comment\n"
+    )
+    traj = read_trajectory(path)
+    np.testing.assert_array_equal(traj.timestamps, [1.0, 2.0])
+    np.testing.assert_allclose(traj.poses[1, :3, 3], [1, 2, 3], atol=0)  # tol exact
+    # A quaternion off by less than the tolerance is normalised into a rotation.
+    np.testing.assert_allclose(traj.poses[1, :3, :3], np.eye(3), atol=1e-15)  # tol 1e-15
+
+
+@pytest.mark.parametrize(
+    "body, expect",
+    [
+        ("0 0 0 0 0 0 0 1\n1 0 0 0 0 0 1\n", ":2: expected 8 values"),
+        ("0 0 0 0 0 0 0 1\n1 0 0 x 0 0 0 1\n", ":2: 'x' is not a number"),
+        ("0 0 0 0 0 0 0 1\n1 0 0 0 0 0 0 1.1\n", ":2: quaternion qx qy qz qw has norm 1.1"),
+        ("0 0 0 0 0 0 0 1\n1 0 0 nan 0 0 0 1\n", ":2: non-finite value"),
+        ("0 0 0 0 0 0 0 1\n0 0 0 0 0 0 0 1\n", ":2: repeated timestamp"),
+        ("# only a comment\n\n", "empty trajectory"),
+    ],
+)
+def test_read_trajectory_bad_input(tmp_path, body, expect):
+    path = tmp_path / "bad.txt"
+    path.write_text(body)
+    with pytest.raises(InputError) as info:
+        read_trajectory(path)
+    msg = str(info.value)
+    assert expect in msg and str(path) in msg and "\n" not in msg
+
+
+def test_read_trajectory_missing_file(tmp_path):
+    with pytest.raises(InputError, match="file not found"):
+        read_trajectory(tmp_path / "nope.txt")
+
+
+# --- association ------------------------------------------------------------------------
+
+
+def brute_force_associate(t_a, t_b, max_diff):
+    """TUM associate.py, written out: all candidates, smallest difference first, greedy."""
+    cands = sorted(
+        (abs(a - b), i, j)
+        for i, a in enumerate(t_a)
+        for j, b in enumerate(t_b)
+        if abs(a - b) <= max_diff
+    )
+    used_a, used_b, pairs = set(), set(), []
+    for _, i, j in cands:
+        if i not in used_a and j not in used_b:
+            used_a.add(i)
+            used_b.add(j)
+            pairs.append((i, j))
+    return sorted(pairs)
+
+
+def test_associate_matches_brute_force_and_is_one_to_one():
+    rng = np.random.default_rng(4)
+    for _ in range(30):
+        t_a = np.sort(rng.uniform(0, 2, rng.integers(1, 40)))
+        t_b = rng.uniform(0, 2, rng.integers(1, 40))  # unsorted on purpose
+        max_diff = rng.uniform(0.005, 0.1)
+        try:
+            ia, ib = associate(t_a, t_b, max_diff)
+        except InputError:
+            assert brute_force_associate(t_a, t_b, max_diff) == []
+            continue
+        assert list(zip(ia.tolist(), ib.tolist())) == brute_force_associate(t_a, t_b, max_diff)
+        assert len(set(ib.tolist())) == len(ib)
+        assert np.all(np.abs(t_a[ia] - t_b[ib]) <= max_diff)
+
+
+def test_associate_nearest_wins_and_respects_max_diff():
+    t_a = np.array([0.0, 1.0, 2.0])
+    t_b = np.array([0.015, 0.004, 1.03, 2.0])
+    ia, ib = associate(t_a, t_b, 0.02)
+    assert ia.tolist() == [0, 2] and ib.tolist() == [1, 3]
+
+
+def test_associate_no_match_names_both_ranges():
+    with pytest.raises(InputError) as info:
+        associate(np.array([0.0, 1.0]), np.array([5.0, 6.0]), 0.02, names=("gt.txt", "est.txt"))
+    msg = str(info.value)
+    assert "gt.txt spans 0.000000 .. 1.000000 s" in msg
+    assert "est.txt spans 5.000000 .. 6.000000 s" in msg
+
+
+# --- TUM sequences ------------------------------------------------------------------------
+
+
+def make_sequence(root, n=4, h=24, w=32, *, camera=True, assoc=False, mask=True, gt=True):
+    root.mkdir(parents=True, exist_ok=True)
+    (root / "rgb").mkdir()
+    (root / "depth").mkdir()
+    rgb_lines, depth_lines, mask_lines, assoc_lines = [], [], [], []
+    rng = np.random.default_rng(5)
+    depths = []
+    for i in range(n):
+        t = 100.0 + i / 30
+        bgr = rng.integers(0, 255, (h, w, 3), dtype=np.uint8)
+        raw = rng.integers(0, 20000, (h, w), dtype=np.uint16)
+        raw[0, :] = 0
+        depths.append(raw)
+        cv2.imwrite(str(root / f"rgb/{i}.png"), bgr)
+        cv2.imwrite(str(root / f"depth/{i}.png"), raw)
+        rgb_lines.append(f"{t:.6f} rgb/{i}.png")
+        depth_lines.append(f"{t + 0.003:.6f} depth/{i}.png")
+        assoc_lines.append(f"{t:.6f} rgb/{i}.png {t + 0.003:.6f} depth/{i}.png")
+        if mask:
+            (root / "mask").mkdir(exist_ok=True)
+            m = np.zeros((h, w), np.uint8)
+            m[4:8, 4 + i : 8 + i] = 2
+            cv2.imwrite(str(root / f"mask/{i}.png"), m)
+            mask_lines.append(f"{t:.6f} mask/{i}.png")
+    (root / "rgb.txt").write_text("# timestamp filename\n" + "\n".join(rgb_lines) + "\n")
+    (root / "depth.txt").write_text("\n".join(depth_lines) + "\n")
+    if assoc:
+        (root / "associations.txt").write_text("\n".join(assoc_lines) + "\n")
+    if mask:
+        (root / "mask.txt").write_text("\n".join(mask_lines) + "\n")
+    if camera:
+        write_camera_file(root / "camera.txt", PRESETS["tum_fr3"])
+    if gt:
+        stamps = 100.0 + np.arange(n) / 30
+        poses = np.broadcast_to(np.eye(4), (n, 4, 4)).copy()
+        write_trajectory(root / "groundtruth.txt", Trajectory(stamps, poses))
+    return depths
+
+
+@pytest.mark.parametrize("assoc", [False, True])
+def test_tum_sequence_synthetic_folder(tmp_path, assoc):
+    depths = make_sequence(tmp_path / "seq", assoc=assoc)
+    seq = open_sequence(tmp_path / "seq")
+    assert len(seq) == 4 and (seq.height, seq.width) == (24, 32)
+    assert seq.name == "seq" and seq.intrinsics == PRESETS["tum_fr3"]
+    np.testing.assert_allclose(seq.timestamps, 100.0 + np.arange(4) / 30, atol=5e-7)  # tol 5e-7 s
+    assert seq.groundtruth is not None and len(seq.groundtruth) == 4
+    frames = list(seq)
+    assert all(isinstance(f, Frame) for f in frames)
+    f = seq[-1]
+    assert f.index == 3 and f.bgr.shape == (24, 32, 3) and f.bgr.dtype == np.uint8
+    assert f.depth.dtype == np.float32 and f.depth.shape == (24, 32)
+    np.testing.assert_allclose(f.depth, depths[3] / 5000.0, rtol=1e-6)  # tol rel 1e-6 (float32)
+    assert np.all(f.depth[0] == 0)
+    assert f.mask.dtype == np.uint8 and f.mask[5, 7] == 2 and f.mask[0, 0] == 0
+    with pytest.raises(IndexError):
+        seq[4]
+
+
+def test_tum_sequence_camera_rules(tmp_path):
+    make_sequence(tmp_path / "seq", camera=False, mask=False, gt=False)
+    with pytest.raises(InputError, match="pass a camera preset"):
+        TumSequence(tmp_path / "seq")
+    seq = TumSequence(tmp_path / "seq", camera="tum_fr1")
+    assert seq.intrinsics == PRESETS["tum_fr1"] and seq.groundtruth is None
+    assert seq[0].mask is None
+    with pytest.raises(InputError, match="unknown camera preset"):
+        TumSequence(tmp_path / "seq", camera="kinect9")
+
+
+def test_tum_sequence_lazy_and_missing_image(tmp_path):
+    make_sequence(tmp_path / "seq")
+    (tmp_path / "seq/depth/2.png").unlink()
+    seq = TumSequence(tmp_path / "seq")  # opening reads no depth image
+    seq[1]
+    with pytest.raises(InputError, match="depth/2.png"):
+        seq[2]
+    (tmp_path / "seq/rgb/3.png").write_bytes(b"not a png")
+    with pytest.raises(InputError, match="cannot read image: .*rgb/3.png"):
+        seq[3]
+
+
+def test_tum_sequence_bad_lists(tmp_path):
+    make_sequence(tmp_path / "seq")
+    (tmp_path / "seq/mask.txt").write_text("100.000000 mask/0.png\n")
+    with pytest.raises(InputError, match="mask.txt: no mask for the frame at 100.033333"):
+        TumSequence(tmp_path / "seq")
+    (tmp_path / "seq/rgb.txt").write_text("100.0\n")
+    with pytest.raises(InputError, match=r"rgb.txt:1: expected 'timestamp filename'"):
+        TumSequence(tmp_path / "seq")
+    with pytest.raises(InputError, match="sequence folder not found"):
+        open_sequence(tmp_path / "nowhere")
+
+
+# --- real data ------------------------------------------------------------------------------
+
+
+def test_tum_walking_sequence(require_data):
+    seq = open_sequence(require_data("tum_fr3_walking_halfsphere_50"))
+    assert len(seq) == 49  # associations.txt pairs 49 of the 50 colour images
+    assert (seq.height, seq.width) == (480, 640)
+    assert seq.intrinsics.fx == pytest.approx(535.4, abs=1e-9)  # tol 1e-9 px
+    assert seq.groundtruth is None
+    f = seq[10]
+    assert f.bgr.shape == (480, 640, 3) and f.depth.dtype == np.float32
+    valid = f.depth[f.depth > 0]
+    # 16-bit at 5000 per metre: indoor readings between 0.2 m and 13.1 m.
+    assert valid.size > 0.3 * f.depth.size and 0.2 < valid.min() and valid.max() <= 65535 / 5000
+    assert np.all(np.diff(seq.timestamps) > 0)
+
+
+def test_sevenscenes_sequence(require_data):
+    seq = open_sequence(require_data("7scenes_static_0000_0299"))
+    assert len(seq) == 300 and (seq.height, seq.width) == (480, 640)
+    assert seq.intrinsics.depth_scale == pytest.approx(1000.0, abs=0)  # tol exact
+    np.testing.assert_allclose(seq.timestamps, np.arange(300) / 30, atol=5e-7)  # tol 5e-7 s
+    assert seq.groundtruth is not None and len(seq.groundtruth) == 300
+    R = seq.groundtruth.poses[:, :3, :3]
+    np.testing.assert_allclose(
+        R @ R.transpose(0, 2, 1), np.broadcast_to(np.eye(3), R.shape), atol=1e-12
+    )  # tol 1e-12: rotations are orthonormal
+    f = seq[150]
+    assert f.timestamp == pytest.approx(5.0, abs=5e-7)  # tol 5e-7 s
+    valid = f.depth[f.depth > 0]
+    # Millimetres at scale 1000: a room seen from a hand-held Kinect, 0.3 m to 8 m.
+    assert 0.3 < np.median(valid) < 8.0
