@@ -11,6 +11,16 @@ model, device) -> ``egomotion`` -> ``pipeline`` (per-frame step, scan, streaming
 from jaxvo.camera import PRESETS, Intrinsics, preset, read_camera_file
 from jaxvo.config import Config, Params, default_params, grid_shape, params_as_arrays
 from jaxvo.errors import InputError
+from jaxvo.io import (
+    Frame,
+    Trajectory,
+    TumSequence,
+    associate,
+    open_sequence,
+    read_trajectory,
+    write_trajectory,
+)
+from jaxvo.metrics import SegmentationScores, align_umeyama, ate, rpe
 from jaxvo.status import Status
 
 __version__ = "0.1.0"
@@ -27,4 +37,16 @@ __all__ = [
     "params_as_arrays",
     "preset",
     "read_camera_file",
+    # io, metrics
+    "Frame",
+    "SegmentationScores",
+    "Trajectory",
+    "TumSequence",
+    "align_umeyama",
+    "associate",
+    "ate",
+    "open_sequence",
+    "read_trajectory",
+    "rpe",
+    "write_trajectory",
 ]
