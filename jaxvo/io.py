@@ -408,3 +408,57 @@ def open_sequence(path: str | Path, **kwargs) -> TumSequence:
     if not (root / "associations.txt").is_file() and not (root / "rgb.txt").is_file():
         raise InputError(f"{root}: not a TUM RGB-D sequence (no rgb.txt or associations.txt)")
     return TumSequence(root, **kwargs)
+
+
+class TrajectoryWriter:
+    """Writes a TUM trajectory one pose at a time, flushed, so nothing computed is lost
+    when a long run is interrupted. Same format as :func:`write_trajectory`.
+
+    Example::
+
+        with TrajectoryWriter("traj.txt") as w:
+            for t, T in poses:
+                w.write(t, T)
+    """
+
+    def __init__(self, path: str | Path, *, comment: str = ""):
+        self.path = Path(path)
+        if self.path.parent and not self.path.parent.exists():
+            raise InputError(f"folder of the output trajectory does not exist: {self.path.parent}")
+        self._fh = open(self.path, "w")
+        for line in comment.splitlines():
+            self._fh.write(f"# {line}\n")
+        self._fh.write("# timestamp tx ty tz qx qy qz qw\n")
+        self._fmt = " ".join([_TIME_FMT] + [_VALUE_FMT] * 7) + "\n"
+
+    def write(self, timestamp: float, T_w_c: np.ndarray) -> None:
+        from jaxvo.transforms import rotation_to_quat
+
+        T = np.asarray(T_w_c, np.float64)
+        q = rotation_to_quat(T[:3, :3])
+        self._fh.write(self._fmt % (timestamp, *T[:3, 3], *q))
+        self._fh.flush()
+
+    def close(self) -> None:
+        self._fh.close()
+
+    def __enter__(self):
+        return self
+
+    def __exit__(self, *exc):
+        self.close()
+
+
+def check_depth_scale(depth: np.ndarray, K, *, where: str) -> None:
+    """Raise :class:`InputError` when a depth image in metres is implausible for an RGB-D
+    sensor (median of the valid readings outside 0.1 to 15 m): the usual cause is a wrong
+    ``depth_scale`` (e.g. 1000 for millimetres vs 5000 for TUM's units)."""
+    valid = depth[depth > 0]
+    if valid.size == 0:
+        return  # an all-invalid frame is reported per frame by the pipeline, not here
+    med = float(np.median(valid))
+    if not 0.1 <= med <= 15.0:
+        raise InputError(
+            f"{where}: median depth is {med:.3g} m with depth_scale {K.depth_scale:g}; "
+            "the depth scale looks wrong (TUM uses 5000 per metre, millimetre sensors 1000)"
+        )

@@ -1,0 +1,117 @@
+"""Grid label maps <-> pixel masks, and label overlays people can look at (host side).
+
+The segmentation labels one point per grid cell; users and peers want pixel masks. A cell's
+label covers its ``cell x cell`` block; the strip of pixels right and below the last full
+cell takes the nearest cell's label.
+"""
+
+from __future__ import annotations
+
+import cv2
+import numpy as np
+
+# Identifier colours (BGR): 0 unknown = none, 1 static = grey-blue, then distinct hues.
+_PALETTE = np.array(
+    [
+        [0, 0, 0],
+        [160, 110, 60],
+        [40, 40, 230],
+        [40, 200, 40],
+        [230, 60, 200],
+        [30, 200, 230],
+        [230, 200, 30],
+        [120, 40, 160],
+        [0, 140, 255],
+        [200, 200, 200],
+    ],
+    np.uint8,
+)
+
+
+def palette(labels: np.ndarray) -> np.ndarray:
+    """BGR colour per label (labels beyond the palette wrap around, skipping 0)."""
+    labels = np.asarray(labels)
+    idx = np.where(labels <= 0, 0, (labels - 1) % (len(_PALETTE) - 1) + 1)
+    return _PALETTE[idx]
+
+
+def grid_to_pixels(values: np.ndarray, height: int, width: int, cell: int) -> np.ndarray:
+    """Per-cell values ``(rows * cols,)`` -> ``(height, width)`` image, each cell a block."""
+    rows, cols = height // cell, width // cell
+    grid = np.asarray(values).reshape(rows, cols)
+    block = np.repeat(np.repeat(grid, cell, axis=0), cell, axis=1)
+    pad = ((0, height - block.shape[0]), (0, width - block.shape[1]))
+    return np.pad(block, pad, mode="edge")
+
+
+def moving_at_grid(mask: np.ndarray, cell: int) -> np.ndarray:
+    """Ground-truth ``(H, W)`` object-id mask sampled at the grid cell centres -> ``(n,)`` bool."""
+    rows, cols = mask.shape[0] // cell, mask.shape[1] // cell
+    ys = (np.arange(rows) * cell + cell // 2).astype(int)
+    xs = (np.arange(cols) * cell + cell // 2).astype(int)
+    return (mask[np.ix_(ys, xs)] > 0).ravel()
+
+
+def dynamic_pixels(ids: np.ndarray, height: int, width: int, cell: int, *, grow: int = 1):
+    """Pixels to ignore for ego-motion: cells with a moving identifier (>= 2), grown by
+    ``grow`` cells so that object borders between grid points are covered too.
+
+    Returns ``(H, W)`` bool, True = dynamic.
+    """
+    rows, cols = height // cell, width // cell
+    dyn = (np.asarray(ids).reshape(rows, cols) >= 2).astype(np.uint8)
+    if grow > 0:
+        dyn = cv2.dilate(dyn, np.ones((2 * grow + 1, 2 * grow + 1), np.uint8))
+    return grid_to_pixels(dyn, height, width, cell).astype(bool)
+
+
+def overlay(bgr: np.ndarray, ids: np.ndarray, cell: int, *, alpha: float = 0.45) -> np.ndarray:
+    """The image with each grid cell tinted by its identifier (static cells lightly)."""
+    h, w = bgr.shape[:2]
+    lab = grid_to_pixels(ids, h, w, cell)
+    colour = palette(lab)
+    a = np.where(lab >= 2, alpha, np.where(lab == 1, alpha * 0.35, 0.0))[..., None]
+    out = bgr.astype(np.float32) * (1 - a) + colour.astype(np.float32) * a
+    return np.clip(out, 0, 255).astype(np.uint8)
+
+
+def label_image(ids: np.ndarray, height: int, width: int, cell: int) -> np.ndarray:
+    """Identifiers as a colour image (black = unknown)."""
+    return palette(grid_to_pixels(ids, height, width, cell))
+
+
+def flow_arrows(bgr, uv_prev, uv_cur, valid, *, step: int = 1) -> np.ndarray:
+    """Grid flow drawn as arrows from the previous grid point to its tracked position."""
+    out = bgr.copy()
+    for (x0, y0), (x1, y1), v in zip(uv_prev[::step], uv_cur[::step], valid[::step]):
+        if v:
+            cv2.arrowedLine(
+                out, (int(x0), int(y0)), (int(round(x1)), int(round(y1))), (255, 255, 255), 1,
+                tipLength=0.3,
+            )
+    return out
+
+
+def overlay_panel(bgr: np.ndarray, out, cell: int, *, scale: float = 0.5) -> np.ndarray:
+    """Thesis Fig. 5.1-style panel of one frame pair's internal stages, side by side:
+    image with the temporal labels ("Model"), raw hypotheses ("Hypotheses"), spatial
+    segments ("Segments") and segments after label matching ("Group").
+
+    Args:
+      bgr: (H, W, 3) the previous image of the pair (labels are anchored there).
+      out: a :class:`~jaxvo.pipeline.StepOutput` of host arrays.
+    """
+    h, w = bgr.shape[:2]
+    tiles = [
+        ("Model", overlay(bgr, out.ids, cell)),
+        ("Hypotheses", label_image(out.hyp_labels, h, w, cell)),
+        ("Segments", label_image(out.labels, h, w, cell)),
+        ("Group", label_image(out.matched, h, w, cell)),
+    ]
+    small = []
+    for title, img in tiles:
+        img = cv2.resize(img, (int(w * scale), int(h * scale)), interpolation=cv2.INTER_AREA)
+        cv2.putText(img, title, (6, 18), cv2.FONT_HERSHEY_SIMPLEX, 0.55, (255, 255, 255), 1,
+                    cv2.LINE_AA)
+        small.append(img)
+    return np.concatenate(small, axis=1)
