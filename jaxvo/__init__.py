@@ -22,6 +22,7 @@ from jaxvo.io import (
 )
 from jaxvo.metrics import SegmentationScores, align_umeyama, ate, rpe
 from jaxvo.status import Status
+from jaxvo.temporal import TemporalOut, TemporalState, init_temporal, update_temporal
 
 __version__ = "0.1.0"
 
@@ -49,4 +50,9 @@ __all__ = [
     "read_trajectory",
     "rpe",
     "write_trajectory",
+    # temporal
+    "TemporalOut",
+    "TemporalState",
+    "init_temporal",
+    "update_temporal",
 ]
