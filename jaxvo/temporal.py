@@ -370,7 +370,9 @@ def update_temporal(
       state: aligned with the grid of the previous image of the pair.
       seg: the spatial stage's ``Segmentation`` (any object with ``labels`` (n,) int32,
         0 = unlabelled / 1..max_segments, and ``status`` () int32); labels on the grid of
-        the previous image. A status other than OK counts as no measurement.
+        the previous image. A status other than OK counts as no measurement. The point
+        counts ``N_i`` of eq. (4.1) are taken from ``labels`` (``sizes`` counts inliers,
+        which may differ), so ``sizes`` and ``num_segments`` are not read.
       disp: (n, 2) float32 ``uv_cur - uv_prev`` of each grid point, pixels.
       flow_valid: (n,) bool; cells with invalid flow carry no measurement.
       params: ``min_match_corr``, ``max_age`` (frames), ``id_retention`` (frames); floats or

@@ -160,7 +160,7 @@ def test_empty_segments_and_ids_give_zero_not_nan():
 def test_ids_stable_when_spatial_stage_permutes_segments(step):
     """Two objects move one cell per frame in opposite directions; segment numbers shuffle."""
     rng = np.random.default_rng(3)
-    seen = []
+    frames, truth = [], []
     for k in range(8):
         a = (2, 6, 1 + k, 6 + k)  # 4 x 5 cells, moves right
         b = (7, 11, 11 - k, 15 - k)  # 4 x 4 cells, moves left
@@ -169,10 +169,10 @@ def test_ids_stable_when_spatial_stage_permutes_segments(step):
         disp = np.zeros(GRID + (2,), np.float32)
         disp[box(*a), 0] = CELL
         disp[box(*b), 0] = -CELL
-        seen.append((perm[base], jnp.asarray(disp.reshape(N, 2)), jnp.ones((N,), bool)))
-        seen[-1] = seen[-1] + (base,)
-    _, outs = run(step, [f[:3] for f in seen], params())
-    for (lab, _, _, base), out in zip(seen, outs):
+        frames.append((perm[base], jnp.asarray(disp.reshape(N, 2)), jnp.ones((N,), bool)))
+        truth.append(base)
+    _, outs = run(step, frames, params())
+    for (lab, _, _), base, out in zip(frames, truth, outs):
         assert region_ids(out.matched, base == 1) == {1}
         assert region_ids(out.matched, base == 2) == {2}  # larger object: next identifier
         assert region_ids(out.matched, base == 3) == {3}
