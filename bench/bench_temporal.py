@@ -99,7 +99,6 @@ def main():
     print(f"  compile   {compile_s * 1e3:.0f} ms (first call: trace + compile + run)")
     q1, med, q3 = np.percentile(ms, [25, 50, 75])
     print(f"  steady    median {med:.3f} ms  (q1 {q1:.3f}, q3 {q3:.3f}, n={len(ms)})")
-    print(f"  ids used  {sorted(set(np.asarray(out.segment_ids).tolist()) - {0})}")
 
 
 if __name__ == "__main__":
