@@ -1,0 +1,379 @@
+"""Tests of the grid flow front end (thesis 2.2) against independent references."""
+
+from __future__ import annotations
+
+import dataclasses
+from typing import NamedTuple
+
+import cv2
+import numpy as np
+import pytest
+
+from jaxvo.camera import Intrinsics, backproject, grid_pixels, read_camera_file
+from jaxvo.config import Config
+from jaxvo.flow import (
+    GridFlow,
+    GridFlowTracker,
+    bilinear_depth,
+    flows_for_sequence,
+    grid_flow,
+    patch_correlation,
+    refine_depth,
+    sample_patches,
+)
+from jaxvo.io import data_root
+from jaxvo.status import Status
+
+H, W = 480, 640
+K = Intrinsics(525.0, 525.0, 319.5, 239.5, 5000.0)
+CFG = Config()
+
+
+def texture(seed: int, h: int = H, w: int = W) -> np.ndarray:
+    """Smooth random multi-scale noise, float32 grey in [0, 255] of size (h, w)."""
+    rng = np.random.default_rng(seed)
+    img = np.zeros((h, w), np.float32)
+    for scale, amp in ((4, 1.0), (8, 1.0), (16, 0.8), (32, 0.6)):
+        small = rng.standard_normal((h // scale + 2, w // scale + 2)).astype(np.float32)
+        img += (
+            amp
+            * cv2.resize(small, (w + 2 * scale, h + 2 * scale), interpolation=cv2.INTER_CUBIC)[
+                scale : scale + h, scale : scale + w
+            ]
+        )
+    img = cv2.GaussianBlur(img, (0, 0), 1.0)
+    img = (img - img.min()) / (img.max() - img.min())
+    return 20 + 215 * img
+
+
+def warp(img: np.ndarray, A: np.ndarray) -> np.ndarray:
+    """The image seen after moving its content by the 2x3 affine map A (x' = A [x, y, 1])."""
+    return cv2.warpAffine(
+        img, A, (img.shape[1], img.shape[0]), flags=cv2.INTER_CUBIC, borderMode=cv2.BORDER_REFLECT
+    )
+
+
+def bgr(grey: np.ndarray) -> np.ndarray:
+    g = np.clip(np.rint(grey), 0, 255).astype(np.uint8)
+    return cv2.cvtColor(g, cv2.COLOR_GRAY2BGR)
+
+
+def plane(z: float) -> np.ndarray:
+    return np.full((H, W), z, np.float32)
+
+
+def interior(uv: np.ndarray, margin: float = 24.0) -> np.ndarray:
+    return (
+        (uv[:, 0] > margin) & (uv[:, 0] < W - 1 - margin)
+        & (uv[:, 1] > margin) & (uv[:, 1] < H - 1 - margin)
+    )  # fmt: skip
+
+
+def check_shapes(flow: GridFlow, n: int) -> None:
+    assert flow.pts_prev.shape == (n, 3) and flow.pts_prev.dtype == np.float32
+    assert flow.pts_cur.shape == (n, 3) and flow.pts_cur.dtype == np.float32
+    assert flow.uv_prev.shape == (n, 2) and flow.uv_prev.dtype == np.float32
+    assert flow.uv_cur.shape == (n, 2) and flow.uv_cur.dtype == np.float32
+    assert flow.valid.shape == (n,) and flow.valid.dtype == bool
+    assert np.shape(flow.status) == () and np.asarray(flow.status).dtype == np.int32
+    for a in (flow.pts_prev, flow.pts_cur, flow.uv_prev, flow.uv_cur):
+        assert np.isfinite(a).all()
+    assert not flow.pts_prev[~flow.valid].any() and not flow.pts_cur[~flow.valid].any()
+
+
+@pytest.fixture(scope="module")
+def tex0() -> np.ndarray:
+    return texture(0)
+
+
+# ----------------------------------------------------------------------------- tracking
+
+
+@pytest.mark.parametrize(
+    "A, med_tol, p95_tol",
+    [
+        # sub-pixel translation; tolerances in pixels (uint8 images, LK eps 0.03 px)
+        (np.array([[1, 0, 2.37], [0, 1, -1.61]]), 0.05, 0.15),
+        # small rotation (0.6 deg) + 1 % zoom about the centre + shift; tolerances in pixels
+        (None, 0.1, 0.25),
+    ],
+)
+def test_tracks_known_warp(tex0, A, med_tol, p95_tol):
+    if A is None:
+        A = cv2.getRotationMatrix2D((W / 2, H / 2), 0.6, 1.01)
+        A[:, 2] += (1.3, 0.7)
+    A = A.astype(np.float64)
+    cur = warp(tex0, A)
+    flow = grid_flow(bgr(tex0), plane(2.0), bgr(cur), plane(2.0), K, CFG)
+    n = grid_pixels(H, W, CFG.cell).shape[0]
+    check_shapes(flow, n)
+    assert flow.status == Status.OK
+    expected = flow.uv_prev @ A[:, :2].T + A[:, 2]
+    keep = interior(flow.uv_prev)
+    assert flow.valid[keep].mean() > 0.9
+    err = np.linalg.norm(flow.uv_cur - expected, axis=1)[keep & flow.valid]
+    assert np.median(err) < med_tol
+    assert np.percentile(err, 95) < p95_tol
+
+
+def test_constant_depth_plane_backprojects_in_closed_form(tex0):
+    A = np.array([[1, 0, -0.8], [0, 1, 1.4]])
+    flow = grid_flow(bgr(tex0), plane(1.7), bgr(warp(tex0, A)), plane(1.7), K, CFG)
+    v = flow.valid
+    assert v.mean() > 0.8
+    # closed form x = (u - cx) z / fx, y = (v - cy) z / fy, z; tolerance 1e-5 m (float32)
+    u, w = flow.uv_prev[v].astype(np.float64).T
+    ref_prev = np.stack(
+        [(u - K.cx) * 1.7 / K.fx, (w - K.cy) * 1.7 / K.fy, np.full_like(u, 1.7)], -1
+    )
+    np.testing.assert_allclose(flow.pts_prev[v], ref_prev, atol=1e-5)
+    ref_cur = backproject(flow.uv_cur[v].astype(np.float64), np.full(v.sum(), 1.7), K)
+    np.testing.assert_allclose(flow.pts_cur[v], ref_cur, atol=1e-5)
+
+
+def test_forward_backward_rejects_replaced_region(tex0):
+    cur = tex0.copy()
+    y0, y1, x0, x1 = 160, 320, 240, 400
+    cur[y0:y1, x0:x1] = texture(7)[y0:y1, x0:x1]  # content unrelated to the previous image
+    cfg = dataclasses.replace(CFG, min_similarity=-1.0)  # only the forward-backward check
+    flow = grid_flow(bgr(tex0), plane(2.0), bgr(cur), plane(2.0), K, cfg)
+    uv = flow.uv_prev
+    inside = (uv[:, 0] > x0 + 8) & (uv[:, 0] < x1 - 8) & (uv[:, 1] > y0 + 8) & (uv[:, 1] < y1 - 8)
+    far = interior(uv) & ~(
+        (uv[:, 0] > x0 - 24) & (uv[:, 0] < x1 + 24) & (uv[:, 1] > y0 - 24) & (uv[:, 1] < y1 + 24)
+    )
+    assert inside.sum() >= 50
+    assert flow.valid[inside].mean() < 0.2
+    assert flow.valid[far].mean() > 0.95
+
+
+def test_similarity_rejects_changed_patch(tex0):
+    # Invert a 5x5 block at the centre of some grid cells: the rest of each LK window still
+    # matches, so LK and the forward-backward check mostly pass, but the patches differ.
+    uv = grid_pixels(H, W, CFG.cell)
+    changed = np.arange(200, 1000, 37)
+    cur = tex0.copy()
+    for x, y in uv[changed]:
+        xi, yi = int(x + 0.5), int(y + 0.5)
+        cur[yi - 2 : yi + 3, xi - 2 : xi + 3] = 255 - cur[yi - 2 : yi + 3, xi - 2 : xi + 3]
+    loose = dataclasses.replace(CFG, min_similarity=-1.0)
+    a = grid_flow(bgr(tex0), plane(2.0), bgr(cur), plane(2.0), K, loose)
+    b = grid_flow(bgr(tex0), plane(2.0), bgr(cur), plane(2.0), K, CFG)
+    others = np.ones(len(uv), bool)
+    others[changed] = False
+    others &= interior(uv)
+    assert a.valid[changed].mean() > 0.3  # what the other checks let through
+    assert b.valid[changed].mean() < 0.1
+    assert b.valid[others].mean() > 0.95
+
+
+def test_patch_correlation_matches_numpy_corrcoef():
+    rng = np.random.default_rng(3)
+    a = rng.standard_normal((20, 49)).astype(np.float32)
+    b = (0.5 * a + rng.standard_normal((20, 49))).astype(np.float32)
+    ref = [np.corrcoef(x, y)[0, 1] for x, y in zip(a.astype(np.float64), b.astype(np.float64))]
+    np.testing.assert_allclose(patch_correlation(a, b), ref, atol=1e-5)  # tolerance: float32
+    flat = np.full((1, 49), 7.0, np.float32)
+    assert patch_correlation(flat, a[:1])[0] == 0.0  # flat patch: no evidence, no NaN
+
+
+def test_sample_patches_is_bilinear():
+    rng = np.random.default_rng(4)
+    g = rng.integers(0, 256, (40, 50)).astype(np.uint8)
+    uv = np.array([[10.25, 12.5], [30.0, 20.75]], np.float32)
+    p = sample_patches(g, uv, 3)
+    # reference: explicit bilinear interpolation at the 3x3 offsets, tolerance 0.1 grey level
+    # (OpenCV interpolates with 5-bit fixed-point weights on uint8 inputs converted to float)
+    ref = []
+    for x, y in uv.astype(np.float64):
+        row = []
+        for dy in (-1, 0, 1):
+            for dx in (-1, 0, 1):
+                xx, yy = x + dx, y + dy
+                x0, y0 = int(np.floor(xx)), int(np.floor(yy))
+                ax, ay = xx - x0, yy - y0
+                gf = g.astype(np.float64)
+                row.append(
+                    (1 - ay) * ((1 - ax) * gf[y0, x0] + ax * gf[y0, x0 + 1])
+                    + ay * ((1 - ax) * gf[y0 + 1, x0] + ax * gf[y0 + 1, x0 + 1])
+                )
+        ref.append(row)
+    np.testing.assert_allclose(p, ref, atol=0.1 * 255 / 32)
+
+
+# ----------------------------------------------------------------------------- depth
+
+
+def test_refine_fills_isolated_hole_and_drops_flying_pixel():
+    d = np.full((40, 60), 2.0, np.float32)
+    d[:, 30:] = 3.0  # a depth edge
+    d[:, 29] = 2.5  # flying pixels between the two sides
+    d[10, 10] = 0.0  # isolated hole on a smooth surface
+    d[20, 12] = 2.04  # a little sensor noise near the hole stays
+    r = refine_depth(d, CFG)
+    # hole filled with the mean of its valid 5x5 neighbours; tolerance 1e-6 m (float32)
+    nb = d[8:13, 8:13]
+    np.testing.assert_allclose(r[10, 10], nb[nb > 0].mean(), atol=1e-6)
+    assert (r[:, 29] == 0).all()  # the flying column is dropped
+    assert r[20, 12] == np.float32(2.04)
+    assert (r[:, 5:25] > 0).all() and (r[:, 35:55] > 0).all()  # away from the edge: all kept
+    np.testing.assert_array_equal(r[:, 35:55], 3.0)
+
+
+def test_refine_drops_out_of_range_and_nan_and_keeps_big_holes_empty():
+    d = np.full((30, 30), 2.0, np.float32)
+    d[5, 5] = np.nan
+    d[6, 20] = 50.0  # beyond depth_max
+    d[15:25, 10:20] = 0.0  # a big hole: its centre has no valid neighbours
+    r = refine_depth(d, CFG)
+    assert np.isfinite(r).all()
+    np.testing.assert_allclose(r[5, 5], 2.0, atol=1e-6)  # NaN treated as a hole, filled; m
+    np.testing.assert_allclose(r[6, 20], 2.0, atol=1e-6)  # out of range, filled; m
+    assert r[20, 15] == 0
+
+
+def test_bilinear_depth_on_planar_ramp():
+    ys, xs = np.mgrid[0:H, 0:W].astype(np.float64)
+    ramp = (1.5 + 0.002 * xs + 0.001 * ys).astype(np.float32)
+    rng = np.random.default_rng(5)
+    uv = rng.uniform((0, 0), (W - 1.001, H - 1.001), (500, 2)).astype(np.float32)
+    z, ok = bilinear_depth(ramp, uv, CFG)
+    assert ok.all()
+    ref = 1.5 + 0.002 * uv[:, 0].astype(np.float64) + 0.001 * uv[:, 1].astype(np.float64)
+    np.testing.assert_allclose(z, ref, atol=1e-5)  # bilinear is exact on a plane; float32, m
+    # out of the image, or one tap without depth, or taps across an edge: not ok, z = 0
+    bad = ramp.copy()
+    bad[100, 101] = 0.0
+    bad[200:, 300:] += 1.0
+    uv2 = np.array([[-0.5, 10], [W - 0.5, 10], [100.5, 99.5], [299.5, 199.5]], np.float32)
+    z2, ok2 = bilinear_depth(bad, uv2, CFG)
+    assert not ok2.any() and not z2.any()
+
+
+# ----------------------------------------------------------------------------- bad input
+
+
+def test_different_sizes_give_bad_input(tex0):
+    small = bgr(tex0)[: H // 2, : W // 2]
+    flow = grid_flow(bgr(tex0), plane(2.0), small, np.full((H // 2, W // 2), 2.0, np.float32), K)
+    check_shapes(flow, grid_pixels(H, W, CFG.cell).shape[0])
+    assert flow.status == Status.BAD_INPUT and not flow.valid.any()
+    none = grid_flow(bgr(tex0), plane(2.0), None, None, K)
+    assert none.status == Status.BAD_INPUT and not none.valid.any()
+    raw = grid_flow(bgr(tex0), plane(2.0), bgr(tex0), np.full((H, W), 10000, np.uint16), K)
+    assert raw.status == Status.BAD_INPUT  # integer depth: units unknown, contract is metres
+
+
+def test_zero_depth_all_invalid_without_nan(tex0):
+    A = np.array([[1, 0, 1.0], [0, 1, 0.5]])
+    flow = grid_flow(bgr(tex0), plane(0.0), bgr(warp(tex0, A)), plane(0.0), K)
+    check_shapes(flow, grid_pixels(H, W, CFG.cell).shape[0])
+    assert flow.status == Status.OK and not flow.valid.any()
+
+
+def test_textureless_frame_mostly_invalid():
+    flat = np.full((H, W), 128.0, np.float32)
+    flow = grid_flow(bgr(flat), plane(2.0), bgr(flat), plane(2.0), K)
+    check_shapes(flow, grid_pixels(H, W, CFG.cell).shape[0])
+    assert flow.status == Status.OK and flow.valid.mean() < 0.05
+
+
+# ----------------------------------------------------------------------------- sequences
+
+
+class _Frame(NamedTuple):
+    index: int
+    timestamp: float
+    bgr: np.ndarray
+    depth: np.ndarray
+    mask: None = None
+
+
+class _Seq:
+    """A tiny in-memory sequence: a texture panning right by 1.5 px per frame."""
+
+    name = "pan"
+    intrinsics = K
+    height, width = H, W
+
+    def __init__(self, tex, n=4, bad=None):
+        self.tex, self.n, self.bad = tex, n, bad
+
+    def __len__(self):
+        return self.n
+
+    def __getitem__(self, i):
+        if i == self.bad:
+            raise OSError(f"frame {i} unreadable")
+        img = warp(self.tex, np.array([[1, 0, 1.5 * i], [0, 1, 0]], np.float64))
+        return _Frame(i, i / 30, bgr(img), plane(2.0))
+
+
+def test_flows_for_sequence_stacks_pairs_and_skips_bad_frames(tex0):
+    calls = []
+    flows = flows_for_sequence(
+        _Seq(tex0, 5, bad=2), CFG, progress=lambda d, t: calls.append((d, t))
+    )
+    n = grid_pixels(H, W, CFG.cell).shape[0]
+    assert flows.valid.shape == (4, n) and flows.pts_cur.shape == (4, n, 3)
+    np.testing.assert_array_equal(flows.status, [0, Status.BAD_INPUT, 0, 0])
+    assert calls[-1] == (4, 4)
+    keep = interior(flows.uv_prev[0])
+    disp = (flows.uv_cur - flows.uv_prev)[:, :, 0]
+    # pair 3 spans the unreadable frame 2 (frames 1 -> 3): 3 px; tolerance 0.1 px (median)
+    for k, shift in ((0, 1.5), (2, 3.0), (3, 1.5)):
+        v = flows.valid[k] & keep
+        assert v.mean() > 0.5 * keep.mean()
+        assert abs(np.median(disp[k][v]) - shift) < 0.1
+
+
+def test_streaming_matches_function_form(tex0):
+    A = np.array([[1, 0, 0.6], [0, 1, -0.4]])
+    cur = bgr(warp(tex0, A))
+    tracker = GridFlowTracker(K, CFG, height=H, width=W)
+    assert tracker.push(bgr(tex0), plane(2.0)) is None
+    a = tracker.push(cur, plane(2.0))
+    b = grid_flow(bgr(tex0), plane(2.0), cur, plane(2.0), K, CFG)
+    for x, y in zip(a, b):
+        np.testing.assert_array_equal(x, y)
+
+
+# ----------------------------------------------------------------------------- real data
+
+
+def _real_pair(name: str, i: int):
+    root = data_root() / name
+    if not (root / "associations.txt").is_file():
+        pytest.skip(f"real data {root} not present (set JAXVO_DATA to the shared data folder)")
+    cam = read_camera_file(root / "camera.txt")
+    rows = [r.split() for r in (root / "associations.txt").read_text().splitlines()]
+    rows = [r for r in rows if r and not r[0].startswith("#")]
+    frames = []
+    for r in rows[i : i + 2]:
+        img = cv2.imread(str(root / r[1]), cv2.IMREAD_COLOR)
+        depth = cv2.imread(str(root / r[3]), cv2.IMREAD_UNCHANGED).astype(np.float32)
+        frames += [img, depth / np.float32(cam.depth_scale)]
+    return cam, frames
+
+
+@pytest.mark.parametrize(
+    "name, min_valid",
+    [
+        # static scene, good depth: a majority valid
+        ("7scenes_static_0000_0299", 0.5),
+        # two people walking, motion blur, ~40 % of the depth missing: a fifth still valid
+        ("tum_fr3_walking_halfsphere_50", 0.15),
+    ],
+)
+def test_real_pair(name, min_valid):
+    cam, (b0, d0, b1, d1) = _real_pair(name, 10)
+    flow = grid_flow(b0, d0, b1, d1, cam, CFG)
+    check_shapes(flow, grid_pixels(*b0.shape[:2], CFG.cell).shape[0])
+    assert flow.status == Status.OK
+    assert flow.valid.mean() > min_valid
+    v = flow.valid
+    assert (flow.pts_prev[v, 2] >= CFG.depth_min).all() and (
+        flow.pts_cur[v, 2] <= CFG.depth_max
+    ).all()
+    # 30 Hz hand-held motion: tracked displacements stay small (tolerance 40 px)
+    assert np.abs(flow.uv_cur[v] - flow.uv_prev[v]).max() < 40
