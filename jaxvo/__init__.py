@@ -11,6 +11,7 @@ model, device) -> ``egomotion`` -> ``pipeline`` (per-frame step, scan, streaming
 from jaxvo.camera import PRESETS, Intrinsics, preset, read_camera_file
 from jaxvo.config import Config, Params, default_params, grid_shape, params_as_arrays
 from jaxvo.errors import InputError
+from jaxvo.flow import GridFlow, GridFlowTracker, flows_for_sequence, grid_flow
 from jaxvo.io import (
     Frame,
     Trajectory,
@@ -55,4 +56,9 @@ __all__ = [
     "TemporalState",
     "init_temporal",
     "update_temporal",
+    # flow
+    "GridFlow",
+    "GridFlowTracker",
+    "flows_for_sequence",
+    "grid_flow",
 ]
