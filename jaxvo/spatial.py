@@ -1,0 +1,320 @@
+"""Motion spatial segmentation of grid flow (thesis chapter 3, Algorithms 1 and 2), pure JAX.
+
+``segment`` turns the (n, 3) point pairs of one frame pair into rigid-motion segments:
+
+1. hypothesis search (Algorithm 1): ``H`` fixed trips of a ``lax.scan`` carrying a ``done``
+   flag (the thesis's ``while h < H and mean(S) > S_min``). Each trip draws
+   ``cfg.num_candidates`` minimal samples at once: a seed point weighted by the entropy ``S``
+   (inverse-CDF sampling), and ``m - 1`` points at random grid offsets within
+   ``cfg.sample_radius`` cells of it. A sample whose own points fit its motion is verified;
+   the first verified one is refined on all points with a fixed number of trips and becomes a
+   hypothesis; the entropy is updated with eq. (3.1).
+2. clustering (section 3.3, Algorithm 2): DBSCAN on the Jaccard distance between hypothesis
+   inlier sets; each cluster's motion is refined on all points; clusters whose refined motions
+   explain mostly the same points are merged (the smaller is dropped: the thesis repeats
+   clustering and refining until the clusters settle), clusters with at most
+   ``N_threshold`` points are dropped; the rest are ordered by size.
+3. labelling: each valid point takes the kept segment that explains it best (smallest
+   residual among those it is an inlier of), else 0.
+
+Inlier rule. RGB-D depth noise grows with the square of depth (Khoshelham and Elberink 2012)
+and flow error grows with depth too, so the distance threshold of a point is
+
+    tau(z) = max(base + params.inlier_depth_coeff * (z^2 - 1), base / 2),   z = max(z_prev, z_cur)
+
+with ``base = params.inlier_dist`` for inliers and ``base = params.sample_dist`` for the
+check of a minimal sample: ``base`` is the threshold at 1 m, the floor keeps near points from
+getting a vanishing threshold. A point is an inlier of ``T`` when its eq. (2.19) residual is
+at most ``tau(z)^2``.
+"""
+
+from __future__ import annotations
+
+from typing import NamedTuple
+
+import jax
+import jax.numpy as jnp
+from jax import lax
+
+from jaxvo.cluster import dbscan, jaccard_distance
+from jaxvo.procrustes import fit_rigid, residuals
+from jaxvo.status import Status
+
+# Stand-in for "no hypothesis explains this point" in residual minima (m^2): finite so that
+# no inf - inf can appear, large enough that exp(-lambda * _FAR) is 0.
+_FAR = 1e6
+
+
+class Segmentation(NamedTuple):
+    """Rigid-motion segments of one frame pair (docs/architecture.md)."""
+
+    labels: jax.Array  # (n,) int32: 0 = unlabelled, 1..max_segments; 1 = largest segment
+    motions: jax.Array  # (max_segments, 4, 4) float32: T_cur_prev of each segment
+    sizes: jax.Array  # (max_segments,) int32: points per segment, 0 where unused
+    num_segments: jax.Array  # () int32
+    hyp_labels: jax.Array  # (n,) int32: best hypothesis 1..H before clustering, 0 none
+    num_hypotheses: jax.Array  # () int32
+    status: jax.Array  # () int32: a Status code
+
+
+class _SearchState(NamedTuple):
+    entropy: jax.Array  # (n,) float32: S of eq. (3.1), 0 at invalid points
+    err_min: jax.Array  # (n,) float32: min_h E_ih, m^2 (_FAR before any hypothesis)
+    count: jax.Array  # () int32: hypotheses found so far (h of Algorithm 1)
+    done: jax.Array  # () bool: the while condition of Algorithm 1 line 3 has failed
+
+
+class _Hypothesis(NamedTuple):
+    motion: jax.Array  # (4, 4) float32: T_cur_prev, identity where not found
+    err: jax.Array  # (n,) float32: eq. (2.19) residuals, m^2
+    inliers: jax.Array  # (n,) bool: valid points within the inlier threshold
+    found: jax.Array  # () bool
+
+
+def inlier_threshold(z, base, params):
+    """Depth-dependent distance threshold ``tau(z)`` in metres (see the module docstring).
+
+    Args:
+      z: (...) depth in metres.
+      base: () threshold at 1 m depth, metres.
+      params: :class:`jaxvo.config.Params` (``inlier_depth_coeff``, metres per m^2).
+    """
+    return jnp.maximum(base + params.inlier_depth_coeff * (z * z - 1.0), 0.5 * base)
+
+
+def _entropy(err_min, valid, params):
+    # thesis eq. (3.1). The thesis prints S_i = 1 - min_h exp(-lambda E_ih - delta), but its
+    # intent (a point explained by some hypothesis is not sampled again) needs the best
+    # hypothesis, max_h exp(-lambda E_ih - delta) = exp(-lambda min_h E_ih - delta).
+    s = 1.0 - jnp.exp(-params.lam * err_min - params.delta)
+    return jnp.where(valid, s, 0.0)
+
+
+def _mean_valid(x, valid):
+    nv = jnp.sum(valid)
+    return jnp.sum(jnp.where(valid, x, 0.0)) / jnp.maximum(nv, 1)
+
+
+def _refine(motion, nmax, pts_prev, pts_cur, valid, tau2, iters):
+    """Algorithm 1 lines 9-16 / Algorithm 2 lines 4-11 as ``iters`` fixed trips.
+
+    Each trip evaluates the motion on all points and, while the inlier count grows, refits
+    on the inliers (0/1 weights); once it stops growing the motion is frozen.
+    """
+
+    def trip(carry, _):
+        motion, nmax, done = carry
+        inl = valid & (residuals(motion, pts_prev, pts_cur) <= tau2)
+        count = jnp.sum(inl).astype(jnp.int32)
+        improve = (count > nmax) & ~done
+        refit, ok = fit_rigid(pts_prev, pts_cur, inl.astype(jnp.float32))
+        motion = jnp.where(improve & ok, refit, motion)
+        nmax = jnp.where(improve, count, nmax)
+        return (motion, nmax, done | ~improve), None
+
+    (motion, _, _), _ = lax.scan(trip, (motion, nmax, jnp.bool_(False)), None, length=iters)
+    err = residuals(motion, pts_prev, pts_cur)
+    return motion, err, valid & (err <= tau2)
+
+
+def _draw_samples(key, entropy, *, cfg, grid):
+    """Indices (K, m) of ``K = cfg.num_candidates`` minimal samples; column 0 is the seed.
+
+    The seed is drawn with probability proportional to the entropy by inverting its CDF
+    (one cumsum per step, a search per sample); the others at uniform grid offsets within
+    ``cfg.sample_radius`` cells (offset 0 excluded), clipped to the grid.
+    """
+    rows, cols = grid
+    k_seed, k_off = jax.random.split(key)
+    cdf = jnp.cumsum(entropy)
+    u = jax.random.uniform(k_seed, (cfg.num_candidates,)) * cdf[-1]
+    seed = jnp.searchsorted(cdf, u, side="right", method="compare_all")
+    seed = jnp.clip(seed, 0, rows * cols - 1)
+    r = cfg.sample_radius
+    side = 2 * r + 1
+    off = jax.random.randint(k_off, (cfg.num_candidates, cfg.sample_size - 1), 0, side * side - 1)
+    off = off + (off >= side * side // 2)  # skip the seed's own cell
+    rr = jnp.clip(seed[:, None] // cols + off // side - r, 0, rows - 1)
+    cc = jnp.clip(seed[:, None] % cols + off % side - r, 0, cols - 1)
+    return jnp.concatenate([seed[:, None], rr * cols + cc], axis=1)
+
+
+def _search_step(state, key, pts_prev, pts_cur, valid, tau2, tau_s2, params, *, cfg, grid):
+    """One trip of Algorithm 1 (lines 4-20), a no-op once ``state.done``."""
+    m = cfg.sample_size
+    idx = _draw_samples(key, state.entropy, cfg=cfg, grid=grid)  # (K, m)
+    earlier = jnp.tril(jnp.ones((m, m), bool), -1)
+    dup = jnp.any((idx[:, :, None] == idx[:, None, :]) & earlier, axis=2)
+    w = valid[idx] & ~dup
+    src, dst = pts_prev[idx], pts_cur[idx]
+    motions, ok = jax.vmap(fit_rigid)(src, dst, w.astype(jnp.float32))
+    err = jax.vmap(residuals)(motions, src, dst)
+    # Algorithm 1 lines 7-8: the m points must all be valid, distinct and fit the motion.
+    verified = ok & jnp.all(w & (err <= tau_s2[idx]), axis=1)
+    first = jnp.argmax(verified)
+    found = jnp.any(verified) & ~state.done
+
+    motion, err_all, inl = _refine(
+        motions[first], jnp.int32(m), pts_prev, pts_cur, valid, tau2, cfg.refine_iters
+    )
+    eye = jnp.eye(4, dtype=motion.dtype)
+    hyp = _Hypothesis(
+        motion=jnp.where(found, motion, eye),
+        err=jnp.where(found, err_all, _FAR),
+        inliers=inl & found,
+        found=found,
+    )
+    err_min = jnp.where(found, jnp.minimum(state.err_min, err_all), state.err_min)
+    entropy = _entropy(err_min, valid, params)
+    count = state.count + found.astype(jnp.int32)
+    done = state.done | (count >= cfg.num_hypotheses) | (_mean_valid(entropy, valid) < params.s_min)
+    return _SearchState(entropy, err_min, count, done), hyp
+
+
+def _cluster_refine(members, hyps, pts_prev, pts_cur, valid, tau2, *, cfg):
+    """Algorithm 2 lines 3-11 for one cluster: start from its member with most inliers."""
+    size = jnp.sum(hyps.inliers, axis=1)
+    best = jnp.argmax(jnp.where(members, size, -1))
+    motion, err, inl = _refine(
+        hyps.motion[best], jnp.int32(0), pts_prev, pts_cur, valid, tau2, cfg.cluster_refine_iters
+    )
+    present = jnp.any(members)
+    return motion, jnp.where(present, err, _FAR), inl & present
+
+
+def _assign(err, inliers, keep):
+    """Per point: index of the kept segment with the smallest residual among those it is an
+    inlier of, and whether there is one. ``err``/``inliers`` (C, n), ``keep`` (C,)."""
+    cand = inliers & keep[:, None]
+    best = jnp.argmin(jnp.where(cand, err, _FAR * 10), axis=0)
+    return best, jnp.any(cand, axis=0)
+
+
+def _counts(best, has, c):
+    return jnp.sum((best[None, :] == jnp.arange(c)[:, None]) & has[None, :], axis=1)
+
+
+def segment(key, pts_prev, pts_cur, valid, params, *, cfg, grid):
+    """Segment one frame pair's grid flow into rigid motions (Algorithms 1 and 2).
+
+    Args:
+      key: PRNG key.
+      pts_prev: (n, 3) previous-frame points, metres (n = rows * cols, row-major grid).
+      pts_cur: (n, 3) the same points in the current frame, metres.
+      valid: (n,) bool; points that are non-finite or have non-positive depth count as invalid.
+      params: :class:`jaxvo.config.Params`; numeric fields may be traced arrays.
+      cfg: :class:`jaxvo.config.Config` (static).
+      grid: (rows, cols) static.
+
+    Returns:
+      :class:`Segmentation`. A frame that fails (too few valid points, no verified sample,
+      no segment of more than ``params.min_segment_points`` points) has a non-OK status, all
+      labels 0 and identity motions; nothing is NaN.
+    """
+    rows, cols = grid
+    n = rows * cols
+    if pts_prev.shape != (n, 3) or pts_cur.shape != (n, 3) or valid.shape != (n,):
+        raise ValueError(f"segment: expected ({n}, 3) points and ({n},) valid for grid {grid}")
+    big_h, max_seg = cfg.num_hypotheses, cfg.max_segments
+    n_slots = min(big_h, max_seg)
+
+    finite = jnp.all(jnp.isfinite(pts_prev), axis=1) & jnp.all(jnp.isfinite(pts_cur), axis=1)
+    valid = valid & finite & (pts_prev[:, 2] > 0) & (pts_cur[:, 2] > 0)
+    pts_prev = jnp.where(valid[:, None], pts_prev, 0.0).astype(jnp.float32)
+    pts_cur = jnp.where(valid[:, None], pts_cur, 0.0).astype(jnp.float32)
+    z = jnp.maximum(pts_prev[:, 2], pts_cur[:, 2])
+    tau2 = inlier_threshold(z, params.inlier_dist, params) ** 2
+    tau_s2 = inlier_threshold(z, params.sample_dist, params) ** 2
+
+    n_valid = jnp.sum(valid)
+    too_few = (n_valid < max(cfg.sample_size, 3)) | (n_valid <= params.min_segment_points)
+
+    # --- Algorithm 1: hypothesis search, H fixed trips with a done flag -------------------
+    entropy0 = valid.astype(jnp.float32)
+    state0 = _SearchState(
+        entropy=entropy0,
+        err_min=jnp.full((n,), _FAR, jnp.float32),
+        count=jnp.int32(0),
+        done=too_few | ~(_mean_valid(entropy0, valid) > params.s_min),
+    )
+
+    def step(state, k):
+        return _search_step(
+            state, k, pts_prev, pts_cur, valid, tau2, tau_s2, params, cfg=cfg, grid=grid
+        )
+
+    state, hyps = lax.scan(step, state0, jax.random.split(key, big_h))
+    num_hyp = state.count
+
+    hyp_best = jnp.argmin(jnp.where(hyps.inliers, hyps.err, _FAR * 10), axis=0)
+    hyp_labels = jnp.where(jnp.any(hyps.inliers, axis=0), hyp_best + 1, 0).astype(jnp.int32)
+
+    # --- Algorithm 2: cluster the hypotheses, refine each cluster ------------------------
+    labels_h, _ = dbscan(
+        jaccard_distance(hyps.inliers), hyps.found, params.cluster_eps, params.cluster_min_samples
+    )
+    # At most max_segments clusters can be output: refine the ones whose best member explains
+    # most points (slots without a cluster are empty).
+    size_h = jnp.sum(hyps.inliers, axis=1)
+    cluster_ids = jnp.arange(big_h)
+    member = labels_h[None, :] == cluster_ids[:, None]  # (H clusters, H hypotheses)
+    best_size = jnp.max(jnp.where(member, size_h[None, :], -1), axis=1)
+    top = jnp.argsort(-best_size, stable=True)[:n_slots]
+    members = member[top] & (best_size[top] >= 0)[:, None]
+    motions, err_c, inl_c = jax.vmap(
+        lambda mem: _cluster_refine(mem, hyps, pts_prev, pts_cur, valid, tau2, cfg=cfg)
+    )(members)
+    n_c = jnp.sum(inl_c, axis=1)
+    big_enough = jnp.any(members, axis=1) & (n_c > params.min_segment_points)
+
+    # Merge: a cluster whose points are mostly (more than 1 - eps) explained by a larger kept
+    # cluster's motion is the same motion found twice; drop it.
+    inter = inl_c.astype(jnp.float32) @ inl_c.T.astype(jnp.float32)
+    contain = inter / jnp.maximum(jnp.minimum(n_c[:, None], n_c[None, :]), 1)
+    order = jnp.argsort(-n_c, stable=True)
+
+    def merge(k, keep):
+        c = order[k]
+        dup = jnp.any(keep & (contain[c] > 1.0 - params.cluster_eps))
+        return keep.at[c].set(big_enough[c] & ~dup)
+
+    keep = lax.fori_loop(0, n_slots, merge, jnp.zeros((n_slots,), bool))
+
+    # --- labelling: best explaining kept segment; drop segments left too small ------------
+    best, has = _assign(err_c, inl_c, keep)
+    keep = keep & (_counts(best, has, n_slots) > params.min_segment_points)
+    best, has = _assign(err_c, inl_c, keep)
+    has = has & valid
+    sizes = jnp.where(keep, _counts(best, has, n_slots), 0)
+    rank_order = jnp.argsort(-sizes, stable=True)  # slot of label 1, 2, ...
+    rank = jnp.argsort(rank_order)  # label - 1 of each slot
+    num_seg = jnp.sum(keep).astype(jnp.int32)
+
+    status = jnp.where(
+        too_few,
+        jnp.int32(Status.TOO_FEW_FLOW),
+        jnp.where(
+            num_hyp == 0,
+            jnp.int32(Status.NO_HYPOTHESIS),
+            jnp.where(num_seg == 0, jnp.int32(Status.NO_SEGMENT), jnp.int32(Status.OK)),
+        ),
+    )
+    ok = status == Status.OK
+    labels = jnp.where(has & ok, rank[best] + 1, 0).astype(jnp.int32)
+    eye = jnp.eye(4, dtype=jnp.float32)
+    out_motions = jnp.broadcast_to(eye, (max_seg, 4, 4))
+    out_sizes = jnp.zeros((max_seg,), jnp.int32)
+    used = keep[rank_order] & ok
+    out_motions = out_motions.at[:n_slots].set(
+        jnp.where(used[:, None, None], motions[rank_order], eye)
+    )
+    out_sizes = out_sizes.at[:n_slots].set(jnp.where(used, sizes[rank_order], 0).astype(jnp.int32))
+    return Segmentation(
+        labels=labels,
+        motions=out_motions,
+        sizes=out_sizes,
+        num_segments=jnp.where(ok, num_seg, 0).astype(jnp.int32),
+        hyp_labels=hyp_labels,
+        num_hypotheses=num_hyp.astype(jnp.int32),
+        status=status,
+    )
