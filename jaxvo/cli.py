@@ -19,6 +19,7 @@ from jaxvo.errors import InputError
 # name -> (module, one-line help); the order is the order --help lists them in.
 COMMANDS: dict[str, tuple[str, str]] = {
     "eval": ("jaxvo.commands.eval", "score a trajectory against ground truth (ATE, RPE)"),
+    "synth": ("jaxvo.commands.synth", "render a synthetic dynamic RGB-D sequence with ground truth"),
 }
 
 
