@@ -37,7 +37,7 @@ import jax.numpy as jnp
 from jax import lax
 
 from jaxvo.cluster import dbscan, jaccard_distance
-from jaxvo.procrustes import fit_rigid, residuals
+from jaxvo.procrustes import fit_rigid_cols, residuals_cols
 from jaxvo.status import Status
 
 # Stand-in for "no hypothesis explains this point" in residual minima (m^2): finite so that
@@ -104,16 +104,16 @@ def _refine(motion, nmax, pts_prev, pts_cur, valid, tau2, iters):
 
     def trip(carry, _):
         motion, nmax, done = carry
-        inl = valid & (residuals(motion, pts_prev, pts_cur) <= tau2)
+        inl = valid & (residuals_cols(motion, pts_prev, pts_cur) <= tau2)
         count = jnp.sum(inl).astype(jnp.int32)
         improve = (count > nmax) & ~done
-        refit, ok = fit_rigid(pts_prev, pts_cur, inl.astype(jnp.float32))
+        refit, ok = fit_rigid_cols(pts_prev, pts_cur, inl.astype(jnp.float32))
         motion = jnp.where(improve & ok, refit, motion)
         nmax = jnp.where(improve, count, nmax)
         return (motion, nmax, done | ~improve), None
 
     (motion, _, _), _ = lax.scan(trip, (motion, nmax, jnp.bool_(False)), None, length=iters)
-    err = residuals(motion, pts_prev, pts_cur)
+    err = residuals_cols(motion, pts_prev, pts_cur)
     return motion, err, valid & (err <= tau2)
 
 
@@ -125,14 +125,17 @@ def _draw_samples(key, entropy, *, cfg, grid):
     ``cfg.sample_radius`` cells (offset 0 excluded), clipped to the grid.
     """
     rows, cols = grid
-    k_seed, k_off = jax.random.split(key)
-    cdf = jnp.cumsum(entropy)
-    u = jax.random.uniform(k_seed, (cfg.num_candidates,)) * cdf[-1]
-    seed = jnp.searchsorted(cdf, u, side="right", method="compare_all")
-    seed = jnp.clip(seed, 0, rows * cols - 1)
+    k, m = cfg.num_candidates, cfg.sample_size
     r = cfg.sample_radius
     side = 2 * r + 1
-    off = jax.random.randint(k_off, (cfg.num_candidates, cfg.sample_size - 1), 0, side * side - 1)
+    # One draw of random bits serves both the seed uniforms (top 24 bits) and the offsets
+    # (modulo bias below 1e-8 for the few dozen offsets of a radius of a few cells).
+    bits = jax.random.bits(key, (k, m))
+    u = (bits[:, 0] >> 8).astype(jnp.float32) * (1.0 / (1 << 24))
+    cdf = jnp.cumsum(entropy)
+    seed = jnp.searchsorted(cdf, u * cdf[-1], side="right")
+    seed = jnp.clip(seed, 0, rows * cols - 1)
+    off = (bits[:, 1:] % jnp.uint32(side * side - 1)).astype(jnp.int32)
     off = off + (off >= side * side // 2)  # skip the seed's own cell
     rr = jnp.clip(seed[:, None] // cols + off // side - r, 0, rows - 1)
     cc = jnp.clip(seed[:, None] % cols + off % side - r, 0, cols - 1)
@@ -140,15 +143,38 @@ def _draw_samples(key, entropy, *, cfg, grid):
 
 
 def _search_step(state, key, pts_prev, pts_cur, valid, tau2, tau_s2, params, *, cfg, grid):
-    """One trip of Algorithm 1 (lines 4-20), a no-op once ``state.done``."""
+    """One trip of Algorithm 1 (lines 4-20), a no-op once ``state.done``.
+
+    The work sits under ``lax.cond`` on ``done``: a fixed trip count still, but a frame that
+    is explained early skips the remaining trips' work (under ``vmap`` both branches run and
+    the result is the same).
+    """
+    n = valid.shape[0]
+
+    def skip(state, key):
+        eye = jnp.eye(4, dtype=jnp.float32)
+        none = _Hypothesis(
+            eye, jnp.full((n,), _FAR, jnp.float32), jnp.zeros((n,), bool), jnp.bool_(False)
+        )
+        return state, none
+
+    def work(state, key):
+        return _search_work(
+            state, key, pts_prev, pts_cur, valid, tau2, tau_s2, params, cfg=cfg, grid=grid
+        )
+
+    return lax.cond(state.done, skip, work, state, key)
+
+
+def _search_work(state, key, pts_prev, pts_cur, valid, tau2, tau_s2, params, *, cfg, grid):
     m = cfg.sample_size
     idx = _draw_samples(key, state.entropy, cfg=cfg, grid=grid)  # (K, m)
     earlier = jnp.tril(jnp.ones((m, m), bool), -1)
     dup = jnp.any((idx[:, :, None] == idx[:, None, :]) & earlier, axis=2)
     w = valid[idx] & ~dup
-    src, dst = pts_prev[idx], pts_cur[idx]
-    motions, ok = jax.vmap(fit_rigid)(src, dst, w.astype(jnp.float32))
-    err = jax.vmap(residuals)(motions, src, dst)
+    src, dst = pts_prev[:, idx], pts_cur[:, idx]  # (3, K, m)
+    motions, ok = jax.vmap(fit_rigid_cols, in_axes=(1, 1, 0))(src, dst, w.astype(jnp.float32))
+    err = jax.vmap(residuals_cols, in_axes=(0, 1, 1))(motions, src, dst)
     # Algorithm 1 lines 7-8: the m points must all be valid, distinct and fit the motion.
     verified = ok & jnp.all(w & (err <= tau_s2[idx]), axis=1)
     first = jnp.argmax(verified)
@@ -220,9 +246,10 @@ def segment(key, pts_prev, pts_cur, valid, params, *, cfg, grid):
 
     finite = jnp.all(jnp.isfinite(pts_prev), axis=1) & jnp.all(jnp.isfinite(pts_cur), axis=1)
     valid = valid & finite & (pts_prev[:, 2] > 0) & (pts_cur[:, 2] > 0)
-    pts_prev = jnp.where(valid[:, None], pts_prev, 0.0).astype(jnp.float32)
-    pts_cur = jnp.where(valid[:, None], pts_cur, 0.0).astype(jnp.float32)
-    z = jnp.maximum(pts_prev[:, 2], pts_cur[:, 2])
+    # Columns (3, n) from here on: each coordinate a contiguous vector (see fit_rigid_cols).
+    pts_prev = jnp.where(valid, pts_prev.T, 0.0).astype(jnp.float32)
+    pts_cur = jnp.where(valid, pts_cur.T, 0.0).astype(jnp.float32)
+    z = jnp.maximum(pts_prev[2], pts_cur[2])
     tau2 = inlier_threshold(z, params.inlier_dist, params) ** 2
     tau_s2 = inlier_threshold(z, params.sample_dist, params) ** 2
 
