@@ -516,11 +516,32 @@ class SyntheticSequence:
         T_w_c = self._camera_pose(i, t)
         poses = [b[0] for b in self._static_boxes]
         poses += [self._object_pose(k, i, t) for k in range(len(self._objects))]
-        T_b_c = np.stack([np.linalg.inv(T) @ T_w_c for T in poses]).astype(np.float32)
-        return Boxes(jnp.asarray(T_b_c), jnp.asarray(self._b_half),
+        T_b_c = np.stack([np.linalg.inv(T) @ T_w_c for T in poses])
+        enabled = enabled & ~self._out_of_view(T_b_c)
+        return Boxes(jnp.asarray(T_b_c.astype(np.float32)), jnp.asarray(self._b_half),
                      jnp.asarray(self._b_inside), jnp.asarray(enabled),
                      jnp.asarray(self._b_tex), jnp.asarray(self._b_dens),
                      jnp.asarray(self._b_label))
+
+    def _out_of_view(self, T_b_c: np.ndarray) -> np.ndarray:
+        """(B,) bool: boxes seen from outside whose corners all lie beyond one frustum plane.
+
+        Conservative (a box reported out of view cannot show in any pixel), so culling them
+        changes no pixel; it only saves the ray-box work.
+        """
+        K = self.intrinsics
+        signs = np.array(np.meshgrid([-1, 1], [-1, 1], [-1, 1])).reshape(3, -1).T  # (8, 3)
+        T_c_b = np.linalg.inv(T_b_c)
+        corners = np.einsum("bij,bkj->bki", T_c_b[:, :3, :3],
+                            signs[None] * self._b_half[:, None, :]) + T_c_b[:, None, :3, 3]
+        x, y, z = corners[..., 0], corners[..., 1], corners[..., 2]
+        m = 2.0  # pixels of slack around the image
+        left, right = (K.cx + m) / K.fx, (self.width - K.cx + m) / K.fx
+        top, bottom = (K.cy + m) / K.fy, (self.height - K.cy + m) / K.fy
+        out = np.zeros(len(T_b_c), bool)
+        for beyond in (z < 1e-3, x > right * z, -x > left * z, y > bottom * z, -y > top * z):
+            out |= np.all(beyond, axis=1)
+        return out & ~self._b_inside
 
     def _cast(self, i: int, t: float, enabled: np.ndarray):
         from jaxvo.render import cast
