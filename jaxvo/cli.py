@@ -18,6 +18,8 @@ from jaxvo.errors import InputError
 
 # name -> (module, one-line help); the order is the order --help lists them in.
 COMMANDS: dict[str, tuple[str, str]] = {
+    "demo": ("jaxvo.commands.demo", "synthesise a dynamic scene, run jaxvo and peers, score them"),
+    "run": ("jaxvo.commands.run", "odometry over a recorded TUM-layout RGB-D sequence"),
     "eval": ("jaxvo.commands.eval", "score a trajectory against ground truth (ATE, RPE)"),
     "synth": ("jaxvo.commands.synth", "render a synthetic dynamic RGB-D sequence with ground truth"),
 }

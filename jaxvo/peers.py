@@ -54,8 +54,10 @@ def _opencv_step(kind: str, K: Intrinsics):
     def prepare(frame, keep):
         gray = cv2.cvtColor(frame.bgr, cv2.COLOR_BGR2GRAY)
         depth = np.ascontiguousarray(frame.depth, np.float32)
-        mask = (frame.depth > 0).astype(np.uint8) if keep is None else (keep & (frame.depth > 0))
-        return cv2.OdometryFrame(depth, gray, np.ascontiguousarray(mask, np.uint8))
+        use = frame.depth > 0 if keep is None else keep & (frame.depth > 0)
+        # OpenCV reads only 255 as "use this pixel": a 0/1 mask makes every compute() fail
+        mask = np.where(use, np.uint8(255), np.uint8(0))
+        return cv2.OdometryFrame(depth, gray, mask)
 
     def motion(prev, cur):
         odo.prepareFrames(prev, cur)

@@ -1,0 +1,180 @@
+"""The per-frame step of the odometry, and the whole-sequence scan built from it (device side).
+
+One step reads top to bottom as the thesis's pipeline (Fig. 1.2):
+
+  grid flow of a frame pair -> spatial segmentation (Algorithms 1, 2)
+  -> temporal segmentation (Algorithm 3, dual-mode grid model)
+  -> ego-motion from the static identifier -> camera pose chain.
+
+When a stage fails the frame is skipped: the pose is carried over and the status records
+why (Fig. 1.2). The step is a pure function of ``(state, flow, key)``, so the same code runs
+frame by frame (streaming, :mod:`jaxvo.odometry`), inside one ``lax.scan`` over a recorded
+sequence (:func:`run_scan`), and under ``vmap`` over seeds and parameters
+(:func:`run_study`).
+"""
+
+from __future__ import annotations
+
+import functools
+from typing import NamedTuple
+
+import jax
+import jax.numpy as jnp
+
+from jaxvo.config import Config, Params
+from jaxvo.egomotion import estimate_egomotion
+from jaxvo.geometry import invert_pose
+from jaxvo.spatial import segment
+from jaxvo.status import Status, first_failure
+from jaxvo.temporal import TemporalState, init_temporal, update_temporal
+
+STATIC_ID = 1  # thesis section 4.1: identifier 1 is the static background
+
+
+class PipelineState(NamedTuple):
+    """What the odometry carries from one frame to the next."""
+
+    temporal: TemporalState  # dual-mode grid model, identifiers, label history
+    T_w_c: jax.Array  # (4, 4) float32, pose of the latest camera (camera-to-world)
+    frame: jax.Array  # () int32, frame pairs processed so far
+
+
+class StepOutput(NamedTuple):
+    """Per frame pair; grid arrays are anchored on the previous image of the pair."""
+
+    T_w_c: jax.Array  # (4, 4) float32, pose of the current camera
+    T_cur_prev: jax.Array  # (4, 4) float32, estimated motion of the static background
+    status: jax.Array  # () int32 Status code, OK or why the frame was skipped
+    ids: jax.Array  # (n,) int32 temporal identifiers: 0 unknown, 1 static, >1 moving objects
+    static: jax.Array  # (n,) bool, points the ego-motion used (static, valid, inlier)
+    labels: jax.Array  # (n,) int32 spatial segments of this pair (0 = none)
+    hyp_labels: jax.Array  # (n,) int32 best raw hypothesis per point, before clustering
+    matched: jax.Array  # (n,) int32 spatial segments after label matching
+    num_segments: jax.Array  # () int32 distinct motions found by the spatial stage
+
+
+def init_pipeline(*, cfg: Config, grid: tuple[int, int], T_w_c0=None) -> PipelineState:
+    """Start state: empty grid model and the first camera pose (identity by default)."""
+    T0 = jnp.eye(4, dtype=jnp.float32) if T_w_c0 is None else jnp.asarray(T_w_c0, jnp.float32)
+    return PipelineState(init_temporal(cfg=cfg, grid=grid), T0, jnp.int32(0))
+
+
+def step(state: PipelineState, flow, key, params: Params, *, cfg: Config, grid):
+    """One frame pair: ``(state, GridFlow, key) -> (state, StepOutput)``.
+
+    Args:
+      state: carried :class:`PipelineState`.
+      flow: a ``GridFlow`` of device or host arrays (``pts_prev``, ``pts_cur``, ``uv_prev``,
+        ``uv_cur``, ``valid``, ``status``), see :mod:`jaxvo.flow`.
+      key: PRNG key of this frame (hypothesis sampling).
+      params: numeric settings, possibly traced (vmappable).
+      cfg: static settings; grid: static ``(rows, cols)``.
+    """
+    valid = flow.valid & (flow.status == Status.OK)
+
+    seg = segment(key, flow.pts_prev, flow.pts_cur, valid, params, cfg=cfg, grid=grid)
+
+    disp = flow.uv_cur - flow.uv_prev
+    temporal, tout = update_temporal(
+        state.temporal, seg, disp, valid, params, cfg=cfg, grid=grid
+    )
+
+    static_w = ((tout.ids == STATIC_ID) & valid).astype(jnp.float32)
+    T_cur_prev, ego_status, inliers = estimate_egomotion(
+        flow.pts_prev, flow.pts_cur, static_w, params, cfg=cfg
+    )
+
+    status = first_failure(flow.status, seg.status, ego_status)
+    ok = status == Status.OK
+    T_cur_prev = jnp.where(ok, T_cur_prev, jnp.eye(4, dtype=jnp.float32))
+    T_w_c = state.T_w_c @ invert_pose(T_cur_prev)
+
+    out = StepOutput(
+        T_w_c=T_w_c,
+        T_cur_prev=T_cur_prev,
+        status=status,
+        ids=tout.ids,
+        static=inliers & ok,
+        labels=seg.labels,
+        hyp_labels=seg.hyp_labels,
+        matched=tout.matched,
+        num_segments=seg.num_segments,
+    )
+    return PipelineState(temporal, T_w_c, state.frame + 1), out
+
+
+def frame_key(key, index):
+    """The PRNG key of frame pair ``index``: the same in streaming, scan and study runs."""
+    return jax.random.fold_in(key, index)
+
+
+@functools.partial(jax.jit, static_argnames=("cfg", "grid"))
+def jit_step(state, flow, key, params, *, cfg: Config, grid):
+    """:func:`step` compiled once per (cfg, grid); the key is folded with the frame count."""
+    return step(state, flow, frame_key(key, state.frame), params, cfg=cfg, grid=grid)
+
+
+def _scan(flows, key, params, T_w_c0, cfg, grid):
+    def body(state, flow):
+        return step(state, flow, frame_key(key, state.frame), params, cfg=cfg, grid=grid)
+
+    return jax.lax.scan(body, init_pipeline(cfg=cfg, grid=grid, T_w_c0=T_w_c0), flows)
+
+
+@functools.partial(jax.jit, static_argnames=("cfg", "grid"))
+def run_scan(flows, key, params, T_w_c0, *, cfg: Config, grid):
+    """The whole sequence in one ``lax.scan`` from precomputed flow.
+
+    Args:
+      flows: ``GridFlow`` with a leading axis of T frame pairs.
+      key: PRNG key of the run (frame keys are folded from it).
+      params: numeric settings.
+      T_w_c0: (4, 4) pose of the first camera.
+
+    Returns:
+      ``(final_state, outputs)`` with every :class:`StepOutput` field stacked over T.
+    """
+    return _scan(flows, key, params, T_w_c0, cfg, grid)
+
+
+@functools.partial(jax.jit, static_argnames=("cfg", "grid"))
+def run_study(flows, keys, params, T_w_c0, *, cfg: Config, grid):
+    """Many configurations of one sequence in one call: ``vmap`` over keys and parameters.
+
+    Args:
+      flows: ``GridFlow`` stacked over T frame pairs (shared by every configuration).
+      keys: (B, ...) PRNG keys, one per configuration.
+      params: ``Params`` whose fields are (B,) arrays (use :func:`batch_params`).
+      T_w_c0: (4, 4) first pose.
+
+    Returns:
+      ``StepOutput`` stacked as (B, T, ...) (the final states are dropped).
+    """
+
+    def one(k, p):
+        return _scan(flows, k, p, T_w_c0, cfg, grid)[1]
+
+    return jax.vmap(one)(keys, params)
+
+
+def batch_params(base: Params, size: int | None = None, **sweeps) -> Params:
+    """``Params`` with every field a (B,) float32 array: ``sweeps`` give per-config values.
+
+    ``batch_params(Params(), lam=[1e2, 1e3, 1e4])`` varies lambda and repeats the rest.
+    """
+    lengths = {len(v) for v in sweeps.values()}
+    if size is not None:
+        lengths.add(size)
+    if len(lengths) != 1:
+        raise ValueError(f"swept values must all have the same length, got {sorted(lengths)}")
+    (B,) = lengths
+    unknown = set(sweeps) - set(Params._fields)
+    if unknown:
+        raise ValueError(f"unknown parameter(s) {sorted(unknown)}; choose from {Params._fields}")
+    fields = {
+        name: jnp.asarray(sweeps[name], jnp.float32)
+        if name in sweeps
+        else jnp.full((B,), getattr(base, name), jnp.float32)
+        for name in Params._fields
+    }
+    return Params(**fields)
