@@ -22,6 +22,7 @@ from jaxvo.io import (
     write_trajectory,
 )
 from jaxvo.metrics import SegmentationScores, align_umeyama, ate, rpe
+from jaxvo.plugin import dynamic_masks, iter_dynamic_masks
 from jaxvo.status import Status
 from jaxvo.temporal import TemporalOut, TemporalState, init_temporal, update_temporal
 
@@ -61,4 +62,7 @@ __all__ = [
     "GridFlowTracker",
     "flows_for_sequence",
     "grid_flow",
+    # plug-in masks
+    "dynamic_masks",
+    "iter_dynamic_masks",
 ]
