@@ -27,6 +27,9 @@ def add_arguments(p: argparse.ArgumentParser) -> None:
     p.add_argument("--hypotheses", type=int, default=20, help="hypotheses per frame, H")
     p.add_argument("--masks", metavar="DIR",
                    help="write per-frame label masks (PNG, pixel value = identifier, 1 = static)")
+    p.add_argument("--dynamic-masks", metavar="DIR",
+                   help="write per-frame dynamic-pixel masks (PNG, 255 = dynamic, 0 = static) "
+                   "for other odometry to ignore; the last frame takes the last pair's labels")
     p.add_argument("--overlays", metavar="DIR",
                    help="write per-frame overlay images of the labels (thesis Fig. 5.1 style)")
     p.add_argument("--json", action="store_true", help="print the summary as JSON")
@@ -43,8 +46,9 @@ def run(args: argparse.Namespace) -> int:
     from jaxvo.config import Config
     from jaxvo.errors import InputError
     from jaxvo.io import TrajectoryWriter, check_depth_scale, open_sequence
-    from jaxvo.masks import grid_to_pixels, overlay_panel
+    from jaxvo.masks import dynamic_pixels, grid_to_pixels, overlay_panel
     from jaxvo.odometry import Odometry
+    from jaxvo.plugin import mask_png
     from jaxvo.progress import Progress
     from jaxvo.status import Status
 
@@ -53,7 +57,7 @@ def run(args: argparse.Namespace) -> int:
     if n < 2:
         raise InputError(f"{args.sequence}: {n} frame(s); odometry needs at least 2")
     cfg = Config(cell=args.cell, num_hypotheses=args.hypotheses)
-    for folder in (args.masks, args.overlays):
+    for folder in (args.masks, args.overlays, args.dynamic_masks):
         if folder:
             Path(folder).mkdir(parents=True, exist_ok=True)
 
@@ -67,6 +71,7 @@ def run(args: argparse.Namespace) -> int:
     times: list[float] = []
     written = 0
     prev_frame = None
+    last_dyn = None
     interrupted = False
     with TrajectoryWriter(args.out, comment=f"jaxvo run {args.sequence}") as writer:
         try:
@@ -88,6 +93,11 @@ def run(args: argparse.Namespace) -> int:
                     if args.masks:
                         ids = grid_to_pixels(r.ids, h, w, cfg.cell).astype(np.uint8)
                         cv2.imwrite(str(Path(args.masks) / f"{prev_frame.index:06d}.png"), ids)
+                    if args.dynamic_masks:  # jaxvo.plugin: step k labels image k
+                        dyn = mask_png(dynamic_pixels(r.ids, h, w, cfg.cell))
+                        last_dyn = dyn
+                        cv2.imwrite(str(Path(args.dynamic_masks) / f"{prev_frame.index:06d}.png"),
+                                    dyn)
                     if args.overlays:
                         panel = overlay_panel(prev_frame.bgr, r.output, cfg.cell)
                         cv2.imwrite(str(Path(args.overlays) / f"{prev_frame.index:06d}.jpg"), panel)
@@ -96,6 +106,9 @@ def run(args: argparse.Namespace) -> int:
                     progress(i)
         except KeyboardInterrupt:
             interrupted = True
+    if args.dynamic_masks and last_dyn is not None and prev_frame is not None:
+        # the last frame has no pair of its own: it takes the last available label map
+        cv2.imwrite(str(Path(args.dynamic_masks) / f"{prev_frame.index:06d}.png"), last_dyn)
     progress.close()
 
     steady = times[2:] if len(times) > 3 else times[1:]
