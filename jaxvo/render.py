@@ -54,19 +54,88 @@ class SensorModel:
     colour_sigma: float = 0.0  # 8-bit levels; 0 = off
 
 
-@partial(jax.jit, static_argnames=("height", "width", "intr", "n_tex", "tile", "cols"))
-def cast(boxes: Boxes, *, height: int, width: int, intr: tuple[float, float, float, float],
-         n_tex: int, tile: int, cols: int):
+def _hit_box(best, box, x, y, layout):
+    """Merge one box's hits into the nearest-so-far ``best`` over a tile of rays.
+
+    ``best`` is (depth, map_x, map_y, code) over the tile, ``x``, ``y`` the rays' normalised
+    image coordinates (z = 1), ``layout`` the atlas's (n_tex, tile, cols).
+    """
+    n_tex, tile, cols = layout
+    T_b_c, h, inside, _, tex, dens, lab = box
+    R = T_b_c[:3, :3]
+    o = T_b_c[:3, 3]
+    d = [R[i, 0] * x + R[i, 1] * y + R[i, 2] for i in range(3)]  # ray in box frame
+    lo, hi = [], []
+    for i in range(3):
+        inv = 1.0 / jnp.where(jnp.abs(d[i]) < _EPS, _EPS, d[i])
+        t1 = (-h[i] - o[i]) * inv
+        t2 = (h[i] - o[i]) * inv
+        lo.append(jnp.minimum(t1, t2))
+        hi.append(jnp.maximum(t1, t2))
+    t_in = jnp.maximum(jnp.maximum(lo[0], lo[1]), lo[2])
+    t_out = jnp.minimum(jnp.minimum(hi[0], hi[1]), hi[2])
+    t = jnp.where(inside, t_out, t_in)
+    # Face axis: the slab that sets the entry (outside) or the exit (inside).
+    one, two = jnp.float32(1), jnp.float32(2)
+    ax_in = jnp.where((lo[0] >= lo[1]) & (lo[0] >= lo[2]), 0.0,
+                      jnp.where(lo[1] >= lo[2], one, two))
+    ax_out = jnp.where((hi[0] <= hi[1]) & (hi[0] <= hi[2]), 0.0,
+                       jnp.where(hi[1] <= hi[2], one, two))
+    ax = jnp.where(inside, ax_out, ax_in)
+    p = [o[i] + t * d[i] for i in range(3)]
+    d_ax = jnp.where(ax == 0, d[0], jnp.where(ax == 1, d[1], d[2]))
+    # Entering through the face the ray points away from; leaving through the one ahead.
+    positive = jnp.where(inside, d_ax > 0, d_ax < 0)
+    face = 2 * ax + positive.astype(jnp.float32)
+    a1 = jnp.where(ax == 0, p[1], jnp.where(ax == 1, p[2], p[0]))
+    a2 = jnp.where(ax == 0, p[2], jnp.where(ax == 1, p[0], p[1]))
+    # Texture coordinates in texels; offsets per face and per box keep faces that share
+    # a texture from showing the same texels.
+    inv_tile = 1.0 / tile
+    tu = (a1 + 31.7 * face + 5.3 * tex) * dens
+    tv = (a2 + 17.3 * face + 2.9 * tex) * dens
+    tu = tu - tile * jnp.floor(tu * inv_tile)
+    tv = tv - tile * jnp.floor(tv * inv_tile)
+    # Atlas image coordinates: tiles of ``tile`` texels in a grid of ``cols`` columns,
+    # each padded by one wrapped texel so that bilinear look-ups never bleed into a
+    # neighbour. Float arithmetic throughout: integer division does not vectorise.
+    ti = tex + face
+    ti = jnp.where(ti >= n_tex, ti - n_tex, ti)
+    row = jnp.floor((ti + 0.5) * (1.0 / cols))
+    col = ti - cols * row
+    map_x = col * (tile + 2) + 1 + tu
+    map_y = row * (tile + 2) + 1 + tv
+    # Face and label packed in one float (exact: small integers), so the carry holds
+    # four arrays: XLA's CPU loops recompute shared work once per carried array.
+    code = face + 6 * lab
+    better = (t_out >= t_in) & (t > _NEAR) & (t < best[0])
+    # Materialise this box's hit once; the merges below then only read it.
+    new = jax.lax.optimization_barrier(
+        (jnp.where(better, t, best[0]), map_x, map_y, code))
+    better = new[0] < best[0]
+    return tuple(jnp.where(better, n, c) for n, c in zip(new, best))
+
+
+@partial(jax.jit, static_argnames=("height", "width", "intr", "n_tex", "tile", "cols", "grid"))
+def cast(boxes: Boxes, overlap: jax.Array, *, height: int, width: int,
+         intr: tuple[float, float, float, float], n_tex: int, tile: int, cols: int,
+         grid: tuple[int, int]):
     """Ray-cast one view (jitted entry point).
 
-    The texture look-up itself happens on the host (``cv2.remap`` of the atlas image with
-    the maps returned here): XLA's CPU gathers are an order of magnitude slower.
+    The image is cut into ``grid`` tiles and each box is cast only in the tiles that its
+    projection may touch (``overlap``, worked out on the host): a small box costs a few
+    tiles, not a full frame. The texture look-up itself happens on the host
+    (``cv2.remap`` of the atlas image with the maps returned here): XLA's CPU gathers are
+    an order of magnitude slower.
 
     Args:
       boxes: the scene (``Boxes``) with ``T_b_c`` for this view.
-      height, width: image size, pixels (static).
+      overlap: (B, gy * gx) bool, box b may show in tile k (row-major tiles); a
+        conservative superset is fine, a missing tile loses pixels.
+      height, width: image size, pixels (static), divisible by the grid.
       intr: (fx, fy, cx, cy) pixels (static).
       n_tex, tile, cols: atlas layout: textures, texels per tile side, tiles per row.
+      grid: (gy, gx) tiles per column and per row (static).
 
     Returns:
       map_x, map_y (H, W) float32 atlas coordinates, texels; shade (H, W) float32 face
@@ -74,75 +143,51 @@ def cast(boxes: Boxes, *, height: int, width: int, intr: tuple[float, float, flo
       is hit); label (H, W) int32 (the box's ``label``, 0 where nothing is hit).
     """
     fx, fy, cx, cy = intr
+    gy, gx = grid
+    th, tw = height // gy, width // gx
+    xs_box = (boxes.T_b_c, boxes.half, boxes.inside, boxes.enabled,
+              boxes.tex.astype(jnp.float32), boxes.density, boxes.label.astype(jnp.float32))
+
+    def one_tile(args):
+        oy, ox, over, init = args
+        xt = ((ox + jnp.arange(tw, dtype=jnp.float32) - cx) / fx)[None, :]
+        yt = ((oy + jnp.arange(th, dtype=jnp.float32) - cy) / fy)[:, None]
+
+        # A scan over boxes with the nearest hit so far as the carry: each step is
+        # elementwise over the tile and the loop materialises the carry. Unrolled, XLA's
+        # CPU fusion recomputes the chain per output and runs 10-500x slower. Boxes that
+        # cannot show in this tile skip the work (cond), not just the result.
+        def step(best, item):
+            box, flag = item
+            return jax.lax.cond(flag & box[3], lambda b: _hit_box(b, box, xt, yt, layout),
+                                lambda b: b, best), None
+
+        rest = jax.tree.map(lambda a: a[1:], xs_box)
+        best, _ = jax.lax.scan(step, init, (rest, over))
+        return best
+
+    # The first box (the room, seen everywhere) over the full frame, where XLA uses every
+    # core; the others tile by tile on top of it (lax.map runs tiles one after another).
+    layout = (n_tex, tile, cols)
     x = ((jnp.arange(width, dtype=jnp.float32) - cx) / fx)[None, :]
     y = ((jnp.arange(height, dtype=jnp.float32) - cy) / fy)[:, None]
-    # A scan over boxes with the nearest hit so far as the carry: each step is elementwise
-    # over (H, W) and the loop materialises the carry. Unrolled, XLA's CPU fusion
-    # recomputes the chain per output and runs 10-500x slower.
-    def step(best, box):
-        # Boxes out of view (culled on the host) skip the work, not just the result.
-        return jax.lax.cond(box[3], hit_box, lambda best_, _: best_, best, box), None
+    first = jax.tree.map(lambda a: a[0], xs_box)
+    empty = (jnp.full((height, width), jnp.inf, jnp.float32),) + (
+        jnp.zeros((height, width), jnp.float32),) * 3
+    full = jax.lax.cond(first[3] & jnp.any(overlap[0]),
+                        lambda b: _hit_box(b, first, x, y, layout), lambda b: b, empty)
 
-    def hit_box(best, box):
-        T_b_c, h, inside, _, tex, dens, lab = box
-        R = T_b_c[:3, :3]
-        o = T_b_c[:3, 3]
-        d = [R[i, 0] * x + R[i, 1] * y + R[i, 2] for i in range(3)]  # ray in box frame
-        lo, hi = [], []
-        for i in range(3):
-            inv = 1.0 / jnp.where(jnp.abs(d[i]) < _EPS, _EPS, d[i])
-            t1 = (-h[i] - o[i]) * inv
-            t2 = (h[i] - o[i]) * inv
-            lo.append(jnp.minimum(t1, t2))
-            hi.append(jnp.maximum(t1, t2))
-        t_in = jnp.maximum(jnp.maximum(lo[0], lo[1]), lo[2])
-        t_out = jnp.minimum(jnp.minimum(hi[0], hi[1]), hi[2])
-        t = jnp.where(inside, t_out, t_in)
-        # Face axis: the slab that sets the entry (outside) or the exit (inside).
-        one, two = jnp.float32(1), jnp.float32(2)
-        ax_in = jnp.where((lo[0] >= lo[1]) & (lo[0] >= lo[2]), 0.0,
-                          jnp.where(lo[1] >= lo[2], one, two))
-        ax_out = jnp.where((hi[0] <= hi[1]) & (hi[0] <= hi[2]), 0.0,
-                           jnp.where(hi[1] <= hi[2], one, two))
-        ax = jnp.where(inside, ax_out, ax_in)
-        p = [o[i] + t * d[i] for i in range(3)]
-        d_ax = jnp.where(ax == 0, d[0], jnp.where(ax == 1, d[1], d[2]))
-        # Entering through the face the ray points away from; leaving through the one ahead.
-        positive = jnp.where(inside, d_ax > 0, d_ax < 0)
-        face = 2 * ax + positive.astype(jnp.float32)
-        a1 = jnp.where(ax == 0, p[1], jnp.where(ax == 1, p[2], p[0]))
-        a2 = jnp.where(ax == 0, p[2], jnp.where(ax == 1, p[0], p[1]))
-        # Texture coordinates in texels; offsets per face and per box keep faces that share
-        # a texture from showing the same texels.
-        inv_tile = 1.0 / tile
-        tu = (a1 + 31.7 * face + 5.3 * tex) * dens
-        tv = (a2 + 17.3 * face + 2.9 * tex) * dens
-        tu = tu - tile * jnp.floor(tu * inv_tile)
-        tv = tv - tile * jnp.floor(tv * inv_tile)
-        # Atlas image coordinates: tiles of ``tile`` texels in a grid of ``cols`` columns,
-        # each padded by one wrapped texel so that bilinear look-ups never bleed into a
-        # neighbour. Float arithmetic throughout: integer division does not vectorise.
-        ti = tex + face
-        ti = jnp.where(ti >= n_tex, ti - n_tex, ti)
-        row = jnp.floor((ti + 0.5) * (1.0 / cols))
-        col = ti - cols * row
-        map_x = col * (tile + 2) + 1 + tu
-        map_y = row * (tile + 2) + 1 + tv
-        # Face and label packed in one float (exact: small integers), so the carry holds
-        # four arrays: XLA's CPU loops recompute shared work once per carried array.
-        code = face + 6 * lab
-        better = (t_out >= t_in) & (t > _NEAR) & (t < best[0])
-        # Materialise this box's hit once; the merges below then only read it.
-        new = jax.lax.optimization_barrier(
-            (jnp.where(better, t, best[0]), map_x, map_y, code))
-        better = new[0] < best[0]
-        return tuple(jnp.where(better, n, c) for n, c in zip(new, best))
+    def totile(a):
+        return a.reshape(gy, th, gx, tw).transpose(0, 2, 1, 3).reshape(gy * gx, th, tw)
 
-    shape = (height, width)
-    init = (jnp.full(shape, jnp.inf, jnp.float32),) + (jnp.zeros(shape, jnp.float32),) * 3
-    xs = (boxes.T_b_c, boxes.half, boxes.inside, boxes.enabled,
-          boxes.tex.astype(jnp.float32), boxes.density, boxes.label.astype(jnp.float32))
-    (best_t, map_x, map_y, code), _ = jax.lax.scan(step, init, xs)
+    def untile(a):
+        return a.reshape(gy, gx, th, tw).transpose(0, 2, 1, 3).reshape(height, width)
+
+    oy = jnp.repeat(jnp.arange(gy, dtype=jnp.float32) * th, gx)
+    ox = jnp.tile(jnp.arange(gx, dtype=jnp.float32) * tw, gy)
+    tiles = jax.lax.map(one_tile, (oy, ox, overlap[1:].T, tuple(totile(a) for a in full)))
+
+    best_t, map_x, map_y, code = (untile(a) for a in tiles)
     any_hit = jnp.isfinite(best_t)
     lab = jnp.floor((code + 0.5) * (1.0 / 6.0))
     face = code - 6 * lab
@@ -152,6 +197,8 @@ def cast(boxes: Boxes, *, height: int, width: int, intr: tuple[float, float, flo
         shade = jnp.where(any_hit & (face == f), val, shade)
     label = jnp.where(any_hit, lab, 0).astype(jnp.int32)
     return map_x, map_y, shade, best_t, label
+
+
 
 
 def _hash32(x: jax.Array) -> jax.Array:

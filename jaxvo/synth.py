@@ -46,6 +46,7 @@ _N_TEX, _TILE, _COLS = 24, 512, 6
 _ROOM_DENSITY = 150.0  # texels per metre: one tile spans 3.4 m on the walls
 _FURNITURE_DENSITY = 260.0
 _OBJECT_DENSITY = 420.0  # small faces, finer texture: no visible repeat on an object
+_PAD_BOXES = 10  # room + 5 furniture + up to 4 objects render with one compiled program
 _MARGIN = 0.05  # metres: the camera must stay this far outside every box
 
 
@@ -443,6 +444,9 @@ class SyntheticSequence:
             for k in range(len(self._objects))
         }
         self._build_static_arrays()
+        # Render tiles of about 80 x 80 pixels (a grid that divides the image exactly).
+        self._grid = tuple(next(g for g in range(max(1, n // 80), 0, -1) if n % g == 0)
+                           for n in (self.height, self.width))
 
     # ---- poses
 
@@ -489,6 +493,15 @@ class SyntheticSequence:
         self._b_tex = np.array([b[3] for b in s] + [16 + 3 * k for k in range(n_obj)], np.int32)
         self._b_dens = np.array([b[4] for b in s] + [_OBJECT_DENSITY] * n_obj, np.float32)
         self._b_label = np.array([0] * len(s) + list(range(1, n_obj + 1)), np.int32)
+        # Pad with disabled boxes to a common count, so every preset (and compositing)
+        # shares one compiled renderer; disabled boxes cost nothing (skipped by lax.cond).
+        pad = max(0, _PAD_BOXES - len(self._b_label))
+        self._n_boxes = len(self._b_label)
+        self._b_half = np.concatenate([self._b_half, np.full((pad, 3), 0.01, np.float32)])
+        self._b_inside = np.concatenate([self._b_inside, np.zeros(pad, bool)])
+        self._b_tex = np.concatenate([self._b_tex, np.zeros(pad, np.int32)])
+        self._b_dens = np.concatenate([self._b_dens, np.ones(pad, np.float32)])
+        self._b_label = np.concatenate([self._b_label, np.zeros(pad, np.int32)])
 
     # ---- the sequence contract
 
@@ -516,41 +529,64 @@ class SyntheticSequence:
         T_w_c = self._camera_pose(i, t)
         poses = [b[0] for b in self._static_boxes]
         poses += [self._object_pose(k, i, t) for k in range(len(self._objects))]
+        far = np.eye(4)
+        far[2, 3] = -1e3  # padding: far behind the camera, and disabled anyway
+        poses += [far] * (len(self._b_label) - self._n_boxes)
         T_b_c = np.stack([np.linalg.inv(T) @ T_w_c for T in poses])
-        enabled = enabled & ~self._out_of_view(T_b_c)
-        return Boxes(jnp.asarray(T_b_c.astype(np.float32)), jnp.asarray(self._b_half),
-                     jnp.asarray(self._b_inside), jnp.asarray(enabled),
-                     jnp.asarray(self._b_tex), jnp.asarray(self._b_dens),
-                     jnp.asarray(self._b_label))
+        boxes = Boxes(jnp.asarray(T_b_c.astype(np.float32)), jnp.asarray(self._b_half),
+                      jnp.asarray(self._b_inside), jnp.asarray(enabled),
+                      jnp.asarray(self._b_tex), jnp.asarray(self._b_dens),
+                      jnp.asarray(self._b_label))
+        return boxes, jnp.asarray(self._tile_overlap(T_b_c))
 
-    def _out_of_view(self, T_b_c: np.ndarray) -> np.ndarray:
-        """(B,) bool: boxes seen from outside whose corners all lie beyond one frustum plane.
+    def _tile_overlap(self, T_b_c: np.ndarray) -> np.ndarray:
+        """(B, gy * gx) bool: the render tiles that each box's projection may touch.
 
-        Conservative (a box reported out of view cannot show in any pixel), so culling them
-        changes no pixel; it only saves the ray-box work.
+        Conservative (a box can only show inside its tiles), so the tiling changes no
+        pixel; it only saves the ray-box work. A box seen from inside (the room) and a box
+        reaching behind the camera touch every tile; a box wholly beyond one side of the
+        view frustum touches none.
         """
         K = self.intrinsics
+        gy, gx = self._grid
+        th, tw = self.height // gy, self.width // gx
         signs = np.array(np.meshgrid([-1, 1], [-1, 1], [-1, 1])).reshape(3, -1).T  # (8, 3)
         T_c_b = np.linalg.inv(T_b_c)
         corners = np.einsum("bij,bkj->bki", T_c_b[:, :3, :3],
                             signs[None] * self._b_half[:, None, :]) + T_c_b[:, None, :3, 3]
         x, y, z = corners[..., 0], corners[..., 1], corners[..., 2]
-        m = 2.0  # pixels of slack around the image
+        m = 2.0  # pixels of slack
         left, right = (K.cx + m) / K.fx, (self.width - K.cx + m) / K.fx
         top, bottom = (K.cy + m) / K.fy, (self.height - K.cy + m) / K.fy
         out = np.zeros(len(T_b_c), bool)
         for beyond in (z < 1e-3, x > right * z, -x > left * z, y > bottom * z, -y > top * z):
             out |= np.all(beyond, axis=1)
-        return out & ~self._b_inside
+        out &= ~self._b_inside
+        everywhere = self._b_inside | np.any(z < 1e-3, axis=1)
+        with np.errstate(divide="ignore", invalid="ignore"):
+            u = K.fx * x / z + K.cx
+            v = K.fy * y / z + K.cy
+        overlap = np.ones((len(T_b_c), gy, gx), bool)
+        ty = np.arange(gy) * th
+        tx = np.arange(gx) * tw
+        for b in np.flatnonzero(~everywhere):
+            u0, u1 = u[b].min() - m, u[b].max() + m
+            v0, v1 = v[b].min() - m, v[b].max() + m
+            rows = (ty + th > v0) & (ty < v1)
+            cols = (tx + tw > u0) & (tx < u1)
+            overlap[b] = rows[:, None] & cols[None, :]
+        overlap[out] = False
+        return overlap.reshape(len(T_b_c), -1)
 
     def _cast(self, i: int, t: float, enabled: np.ndarray):
         from jaxvo.render import cast
 
         K = self.intrinsics
+        boxes, overlap = self._boxes(i, t, enabled)
         map_x, map_y, shade, depth, label = cast(
-            self._boxes(i, t, enabled), height=self.height, width=self.width,
+            boxes, overlap, height=self.height, width=self.width,
             intr=(float(K.fx), float(K.fy), float(K.cx), float(K.cy)),
-            n_tex=_N_TEX, tile=_TILE, cols=_COLS)
+            n_tex=_N_TEX, tile=_TILE, cols=_COLS, grid=self._grid)
         texels = cv2.remap(self._atlas, np.asarray(map_x), np.asarray(map_y), cv2.INTER_LINEAR)
         return texels, shade, depth, label
 
@@ -576,7 +612,7 @@ class SyntheticSequence:
         i = int(index) % n
         t = float(self.timestamps[i])
         opts = self.options
-        enabled = np.ones(len(self._b_label), bool)
+        enabled = np.arange(len(self._b_label)) < self._n_boxes
         if not objects:
             enabled[self._b_label > 0] = False
         key = jax.random.fold_in(jax.random.key(self.seed), i)
