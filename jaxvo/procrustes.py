@@ -16,6 +16,7 @@ One instance per call; ``jax.vmap`` at the call site batches fits.
 from __future__ import annotations
 
 import jax.numpy as jnp
+from jax import lax
 
 from jaxvo.geometry import make_pose
 
@@ -47,6 +48,14 @@ def _gram(x, w):
     if x.shape[-1] <= _SMALL:
         return jnp.sum((x * w)[:, None, :] * x[None, :, :], axis=-1)
     return (x * w) @ x.T
+
+
+def _square_normalised(a):
+    """``A @ A / tr(A @ A)``, as a sum of outer products rather than a matmul: XLA's CPU dot
+    on 4x4 operands (batched under vmap) costs far more than its 64 multiply-adds. Kept in a
+    loop: unrolled, the squarings compile slowly and run no faster."""
+    a = sum(a[:, k, None] * a[None, k, :] for k in range(4))
+    return a / jnp.maximum(jnp.trace(a), 1e-30)
 
 
 def _spread_ok(c):
@@ -94,11 +103,7 @@ def _horn_rotation(s):
     # so a shift of 1 makes the wanted eigenvalue the unique one of largest magnitude.
     scale = jnp.sqrt(jnp.sum(s * s))
     a = n / jnp.maximum(scale, 1e-30) + jnp.eye(4, dtype=s.dtype)
-    # Unrolled squarings written as sums of outer products, not matmuls: XLA's CPU dot on
-    # 4x4 operands (batched under vmap) costs far more than the 64 multiply-adds it does.
-    for _ in range(_SQUARINGS):
-        a = sum(a[:, k, None] * a[None, k, :] for k in range(4))
-        a = a / jnp.maximum(jnp.trace(a), 1e-30)
+    a = lax.fori_loop(0, _SQUARINGS, lambda _, a: _square_normalised(a), a)
     # a ~ v v^T now: its largest column is a multiple of v.
     j = jnp.argmax(jnp.sum(a * a, axis=0))
     q = a[:, j]

@@ -1,0 +1,256 @@
+"""Spatial segmentation (thesis Algorithms 1, 2) on synthetic grids; DBSCAN vs scikit-learn."""
+
+from __future__ import annotations
+
+import jax
+import jax.numpy as jnp
+import numpy as np
+import pytest
+from sklearn.cluster import DBSCAN
+from sklearn.metrics import pairwise_distances
+
+from jaxvo.cluster import dbscan, jaccard_distance
+from jaxvo.config import Config, Params, params_as_arrays
+from jaxvo.spatial import segment
+from jaxvo.status import Status
+
+GRID = (24, 32)  # rows, cols: 768 points, a 512 x 384 image at 16-pixel cells
+CFG = Config()
+F_MIN = 0.95  # required F-measure of each moving block
+
+
+# --- DBSCAN ------------------------------------------------------------------------------
+
+
+@pytest.fixture(scope="module")
+def dbscan_jit():
+    return jax.jit(dbscan)
+
+
+def partition(labels):
+    """Canonical form of a labelling: the set of clusters (frozensets) and the noise set."""
+    labels = np.asarray(labels)
+    clusters = {frozenset(np.flatnonzero(labels == c)) for c in set(labels.tolist()) - {-1}}
+    return clusters, frozenset(np.flatnonzero(labels == -1))
+
+
+def test_dbscan_matches_sklearn_on_random_inputs(dbscan_jit):
+    rng = np.random.default_rng(0)
+    h = 20
+    for trial in range(40):
+        pts = rng.uniform(0, 1, (h, 2)) * rng.uniform(0.3, 2.0)
+        dist = np.sqrt(((pts[:, None] - pts[None]) ** 2).sum(-1)).astype(np.float32)
+        eps = float(rng.integers(4, 24)) / 64.0  # exact in float32 and float64
+        min_samples = int(rng.integers(1, 5))
+        ref = DBSCAN(eps=eps, min_samples=min_samples, metric="precomputed")
+        ref_labels = ref.fit(dist.astype(np.float64)).labels_
+        labels, count = dbscan_jit(dist, jnp.ones(h, bool), eps, float(min_samples))
+        assert partition(labels) == partition(ref_labels), trial
+        assert int(count) == len(set(ref_labels.tolist()) - {-1})
+        # the numbering follows scikit-learn's too (lowest core index first)
+        np.testing.assert_array_equal(np.asarray(labels), ref_labels)
+
+
+def test_dbscan_ignores_invalid_items(dbscan_jit):
+    rng = np.random.default_rng(1)
+    h = 20
+    pts = rng.uniform(0, 1, (h, 2))
+    dist = np.sqrt(((pts[:, None] - pts[None]) ** 2).sum(-1)).astype(np.float32)
+    valid = rng.uniform(size=h) > 0.3
+    labels, _ = dbscan_jit(dist, jnp.asarray(valid), 0.25, 2.0)
+    labels = np.asarray(labels)
+    assert np.all(labels[~valid] == -1)
+    sub = dist[np.ix_(valid, valid)].astype(np.float64)
+    ref = DBSCAN(eps=0.25, min_samples=2, metric="precomputed").fit(sub).labels_
+    np.testing.assert_array_equal(labels[valid], ref)
+
+
+def test_jaccard_distance_matches_sklearn():
+    rng = np.random.default_rng(2)
+    sets = rng.uniform(size=(12, 200)) < rng.uniform(0.1, 0.6, (12, 1))
+    ref = pairwise_distances(sets, metric="jaccard")
+    np.testing.assert_allclose(np.asarray(jax.jit(jaccard_distance)(sets)), ref, atol=1e-6)
+
+
+# --- synthetic scenes --------------------------------------------------------------------
+
+
+def rotation(axis, angle):
+    axis = np.asarray(axis, np.float64) / np.linalg.norm(axis)
+    k = np.array([[0, -axis[2], axis[1]], [axis[2], 0, -axis[0]], [-axis[1], axis[0], 0]])
+    return np.eye(3) + np.sin(angle) * k + (1 - np.cos(angle)) * k @ k
+
+
+CAMERA = (rotation([0.1, 1.0, 0.2], 0.03), np.array([0.02, -0.01, 0.03]))  # motion A
+OBJECT_B = (rotation([1.0, 0.2, 0.1], -0.05), np.array([-0.10, 0.05, 0.02]))
+OBJECT_C = (rotation([0.0, 0.3, 1.0], 0.08), np.array([0.08, 0.06, -0.05]))
+
+
+def make_scene(seed, blocks, *, noise=0.002, invalid=0.05):
+    """Grid points (depth 1-3 m) moving with CAMERA, except rectangular blocks of cells.
+
+    ``blocks``: list of ((r0, r1, c0, c1), (R, t)). Returns prev, cur (n, 3) float32,
+    valid (n,) bool and the true label (n,) int: 0 background, k for the k-th block.
+    """
+    rng = np.random.default_rng(seed)
+    rows, cols = GRID
+    f = 525.0
+    u = (np.arange(cols) + 0.5) * 16 - cols * 8
+    v = (np.arange(rows) + 0.5) * 16 - rows * 8
+    uu, vv = np.meshgrid(u, v)
+    z = rng.uniform(1.0, 3.0, (rows, cols))
+    prev = np.stack([uu * z / f, vv * z / f, z], -1).reshape(-1, 3)
+    truth = np.zeros((rows, cols), int)
+    for k, ((r0, r1, c0, c1), _) in enumerate(blocks, start=1):
+        truth[r0:r1, c0:c1] = k
+    truth = truth.reshape(-1)
+    motions = [CAMERA] + [m for _, m in blocks]
+    cur = np.empty_like(prev)
+    for k, (r, t) in enumerate(motions):
+        sel = truth == k
+        cur[sel] = prev[sel] @ r.T + t
+    cur += rng.normal(0, noise, cur.shape)
+    valid = rng.uniform(size=len(prev)) > invalid
+    prev[~valid] = 0.0  # what flow leaves at invalid cells
+    return prev.astype(np.float32), cur.astype(np.float32), valid, truth
+
+
+def f_measure(pred, truth, valid):
+    tp = np.sum(pred & truth & valid)
+    fp = np.sum(pred & ~truth & valid)
+    fn = np.sum(~pred & truth & valid)
+    return 2 * tp / max(2 * tp + fp + fn, 1)
+
+
+def best_f(labels, truth, valid, k):
+    """F-measure of true region ``k`` against the segment label that overlaps it most."""
+    labels = np.asarray(labels)
+    region = truth == k
+    cand = [lab for lab in np.unique(labels[region & valid]) if lab > 0]
+    if not cand:
+        return 0.0
+    return max(f_measure(labels == lab, region, valid) for lab in cand)
+
+
+@pytest.fixture(scope="module")
+def seg():
+    return jax.jit(segment, static_argnames=("cfg", "grid"))
+
+
+@pytest.fixture(scope="module")
+def params():
+    return params_as_arrays(Params())
+
+
+def run(seg, key, scene, params):
+    prev, cur, valid, _ = scene
+    return seg(jax.random.key(key), prev, cur, valid, params, cfg=CFG, grid=GRID)
+
+
+def assert_finite(out):
+    for leaf in jax.tree_util.tree_leaves(out):
+        assert np.all(np.isfinite(np.asarray(leaf, np.float64)))
+
+
+TWO = [((6, 16, 8, 20), OBJECT_B)]
+THREE = [((3, 11, 3, 13), OBJECT_B), ((13, 21, 18, 29), OBJECT_C)]
+
+
+def check_scene(out, scene, n_motions):
+    _, _, valid, truth = scene
+    assert int(out.status) == Status.OK
+    assert int(out.num_segments) == n_motions
+    sizes = np.asarray(out.sizes)
+    assert np.all(np.diff(sizes[:n_motions]) <= 0) and np.all(sizes[n_motions:] == 0)
+    labels = np.asarray(out.labels)
+    np.testing.assert_array_equal(np.bincount(labels, minlength=9)[1:9], sizes)
+    assert np.all(labels[~valid] == 0)
+    scores = [best_f(labels, truth, valid, k) for k in range(n_motions)]
+    assert min(scores) >= F_MIN, scores
+    # the largest segment is the background, moving with the camera motion A
+    np.testing.assert_allclose(np.asarray(out.motions[0, :3, :3]), CAMERA[0], atol=5e-3)
+    np.testing.assert_allclose(np.asarray(out.motions[0, :3, 3]), CAMERA[1], atol=1e-2)
+    assert_finite(out)
+    return scores
+
+
+def test_two_motions(seg, params):
+    scene = make_scene(0, TWO)
+    out = run(seg, 0, scene, params)
+    check_scene(out, scene, 2)
+    # the moving block's segment carries motion B
+    np.testing.assert_allclose(np.asarray(out.motions[1, :3, :3]), OBJECT_B[0], atol=1e-2)
+    assert 2 <= int(out.num_hypotheses) <= CFG.num_hypotheses
+    hyp = np.asarray(out.hyp_labels)
+    assert hyp.max() <= int(out.num_hypotheses) or hyp.max() <= CFG.num_hypotheses
+
+
+def test_three_motions(seg, params):
+    scene = make_scene(1, THREE)
+    check_scene(run(seg, 1, scene, params), scene, 3)
+
+
+def test_different_keys_still_correct_and_same_key_identical(seg, params):
+    scene = make_scene(2, TWO)
+    outs = [run(seg, k, scene, params) for k in (3, 4, 5)]
+    for out in outs:
+        check_scene(out, scene, 2)
+    again = run(seg, 3, scene, params)
+    for a, b in zip(jax.tree_util.tree_leaves(outs[0]), jax.tree_util.tree_leaves(again)):
+        np.testing.assert_array_equal(np.asarray(a), np.asarray(b))
+
+
+def test_identical_frames_are_one_static_segment(seg, params):
+    prev, _, valid, _ = make_scene(3, [])
+    out = run(seg, 0, (prev, prev, valid, None), params)
+    assert int(out.status) == Status.OK
+    assert int(out.num_segments) == 1
+    labels = np.asarray(out.labels)
+    np.testing.assert_array_equal(labels, valid.astype(np.int32))
+    np.testing.assert_allclose(np.asarray(out.motions[0]), np.eye(4), atol=1e-5)
+    assert_finite(out)
+
+
+def test_all_invalid_reports_too_few_flow(seg, params):
+    prev, cur, valid, _ = make_scene(4, TWO)
+    for pts_prev, pts_cur in ((prev, cur), (np.zeros_like(prev), np.zeros_like(cur))):
+        out = run(seg, 0, (pts_prev, pts_cur, np.zeros_like(valid), None), params)
+        assert int(out.status) == Status.TOO_FEW_FLOW
+        assert int(out.num_segments) == 0 and int(out.num_hypotheses) == 0
+        assert not np.any(np.asarray(out.labels)) and not np.any(np.asarray(out.hyp_labels))
+        np.testing.assert_array_equal(
+            np.asarray(out.motions), np.broadcast_to(np.eye(4), (8, 4, 4))
+        )
+        assert_finite(out)
+
+
+def test_nan_points_count_as_invalid(seg, params):
+    prev, cur, valid, truth = make_scene(5, TWO)
+    bad = np.arange(0, len(prev), 7)
+    prev[bad] = np.nan
+    cur[bad[::2]] = np.inf
+    out = run(seg, 0, (prev, cur, np.ones_like(valid), truth), params)
+    assert_finite(out)
+    assert np.all(np.asarray(out.labels)[bad] == 0)
+    assert int(out.status) == Status.OK and int(out.num_segments) == 2
+
+
+def test_vmap_over_params_without_recompiling():
+    traces = []
+
+    def counted(key, prev, cur, valid, params):
+        traces.append(1)
+        return segment(key, prev, cur, valid, params, cfg=CFG, grid=GRID)
+
+    base = params_as_arrays(Params())
+    axes = Params(*(0 if f == "lam" else None for f in Params._fields))
+    batched = jax.jit(jax.vmap(counted, in_axes=(None, None, None, None, axes)))
+    prev, cur, valid, truth = make_scene(6, TWO)
+    key = jax.random.key(0)
+    for lams in ([1e3, 3e3], [5e2, 2e3]):
+        out = batched(key, prev, cur, valid, base._replace(lam=jnp.asarray(lams, jnp.float32)))
+        assert out.labels.shape == (2, GRID[0] * GRID[1])
+        for i in range(2):
+            assert int(out.status[i]) == Status.OK
+            assert best_f(out.labels[i], truth, valid, 1) >= F_MIN
+    assert len(traces) == 1
