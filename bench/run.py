@@ -1,0 +1,643 @@
+"""jaxvo against its peers on the same sequences, in one run: accuracy, segmentation, speed.
+
+Runs jaxvo and every available peer odometry (OpenCV ``cv2.Odometry`` RGB, DEPTH, RGB_DEPTH;
+Open3D colour / hybrid when ``open3d`` imports) on every synthetic scenario, the real
+sequences of the data root and a 7-Scenes composite with moving boxes; then each peer again
+with jaxvo's dynamic pixels masked out (thesis Fig. 5.8, "Proposed x DVO"). Writes
+``report.md`` (Markdown tables), PNG figures and ``results.json`` under ``--out``.
+
+Run: ``.venv/bin/python bench/run.py [--quick] [--frames N] [--out results/]``
+"""
+
+from __future__ import annotations
+
+import argparse
+import datetime
+import functools
+import json
+import sys
+import time
+from pathlib import Path
+
+import cv2
+import jax
+import jax.numpy as jnp
+import numpy as np
+
+sys.path.insert(0, str(Path(__file__).resolve().parent))
+from _common import CachedSequence, load_average, machine, peak_rss_mib
+
+from jaxvo.config import Config, Params, grid_shape, params_as_arrays
+from jaxvo.egomotion import estimate_egomotion
+from jaxvo.evaluation import segmentation_scores, trajectory_scores
+from jaxvo.flow import GridFlowTracker, stack_flows
+from jaxvo.io import Trajectory, data_root, open_sequence, write_trajectory
+from jaxvo.masks import overlay_panel
+from jaxvo.metrics import SegmentationScores, ate
+from jaxvo.peers import OPEN3D_PEERS, available_peers, run_peer
+from jaxvo.pipeline import STATIC_ID, StepOutput, frame_key, run_scan
+from jaxvo.plugin import dynamic_masks
+from jaxvo.spatial import segment
+from jaxvo.status import Status
+from jaxvo.synth import SCENARIOS, composite_sequence, make_sequence
+from jaxvo.temporal import init_temporal, update_temporal
+
+SEVEN_SCENES = "7scenes_static_0000_0299"
+TUM_WALKING = "tum_fr3_walking_halfsphere_50"
+JAXVO = "jaxvo"
+
+
+def log(msg: str) -> None:
+    print(f"[{time.strftime('%H:%M:%S')}] {msg}", flush=True)
+
+
+# ----------------------------------------------------------------------------- sequences
+
+
+def build_sequences(frames: int, seed: int, only=None):
+    """``[(label, kind, CachedSequence)]`` and ``{label: reason}`` for the skipped ones."""
+    seqs, skipped = [], {}
+    want = (lambda name: True) if not only else (lambda name: name in only)
+    for name in filter(want, SCENARIOS):
+        log(f"rendering {name} ({frames} frames)")
+        seqs.append((name, "synthetic", CachedSequence(make_sequence(name, frames=frames,
+                                                                     seed=seed))))
+    root = data_root()
+    for name, kind in ((SEVEN_SCENES, "real, static scene"),
+                       (TUM_WALKING, "real, two people walking")):
+        path = root / name
+        if not want(name):
+            continue
+        if not path.is_dir():
+            skipped[name] = f"not found at {path} (set JAXVO_DATA to the shared data folder)"
+            continue
+        log(f"reading {name}")
+        seqs.append((name, kind, CachedSequence(open_sequence(path), frames)))
+    path = root / SEVEN_SCENES
+    label = f"composite_{SEVEN_SCENES}"
+    if not want(label):
+        pass
+    elif path.is_dir():
+        log(f"compositing boxes into {SEVEN_SCENES}")
+        seqs.append((label, "real + synthetic moving boxes",
+                     CachedSequence(composite_sequence(path, "handheld_slow", frames=frames,
+                                                       seed=seed))))
+    else:
+        skipped[label] = f"{SEVEN_SCENES} not found at {path}"
+    return seqs, skipped
+
+
+# --------------------------------------------------------------------------------- jaxvo
+
+
+@functools.cache
+def stage_functions(cfg: Config, grid: tuple[int, int]):
+    """Each stage jitted alone (one frame pair), so that its steady-state time is its own."""
+    spatial = jax.jit(functools.partial(segment, cfg=cfg, grid=grid))
+    temporal = jax.jit(functools.partial(update_temporal, cfg=cfg, grid=grid))
+    ego = jax.jit(functools.partial(estimate_egomotion, cfg=cfg))
+    return spatial, temporal, ego
+
+
+_COMPILED: dict = {}  # (what, shapes) -> (compiled callable, compile seconds)
+
+
+def compiled(name: str, shape_key, fn, *args, **static):
+    """``fn.lower(*args, **static).compile()``, timed and cached per shape."""
+    key = (name, shape_key)
+    fresh = key not in _COMPILED
+    if fresh:
+        t0 = time.perf_counter()
+        _COMPILED[key] = (fn.lower(*args, **static).compile(), time.perf_counter() - t0)
+    exe, seconds = _COMPILED[key]
+    return exe, (seconds if fresh else 0.0)
+
+
+def host_flows(seq: CachedSequence, cfg: Config):
+    """Grid flow of every pair (as ``flows_for_sequence``), each pair timed: (flows, seconds)."""
+    tracker = GridFlowTracker(seq.intrinsics, cfg, height=seq.height, width=seq.width)
+    flows, times = [], []
+    for i, frame in enumerate(seq):
+        t0 = time.perf_counter()
+        flow = tracker.push(frame.bgr, frame.depth)
+        if i:
+            times.append(time.perf_counter() - t0)
+            flows.append(flow)
+    return stack_flows(flows), np.asarray(times)
+
+
+def time_stages(flows, key, params, cfg: Config, grid):
+    """Median ms per frame pair of spatial, temporal and ego-motion, each jitted alone and run
+    on the sequence's precomputed flows (steady state; compile timed apart)."""
+    spatial, temporal, ego = stage_functions(cfg, grid)
+    T = len(flows.valid)
+    pairs = [jax.tree.map(lambda a, k=k: jnp.asarray(a[k]), flows) for k in range(T)]
+    valid = [p.valid & (p.status == Status.OK) for p in pairs]
+    disp = [p.uv_cur - p.uv_prev for p in pairs]
+    keys = [frame_key(key, k) for k in range(T)]
+    jax.block_until_ready((pairs, valid, disp, keys))
+
+    compile_s = {}
+    sp, compile_s["spatial"] = compiled("spatial", grid, spatial, keys[0], pairs[0].pts_prev,
+                                        pairs[0].pts_cur, valid[0], params)
+    segs, t_sp = [], []
+    for k in range(T):
+        t0 = time.perf_counter()
+        seg = jax.block_until_ready(sp(keys[k], pairs[k].pts_prev, pairs[k].pts_cur, valid[k],
+                                       params))
+        t_sp.append(time.perf_counter() - t0)
+        segs.append(seg)
+
+    state = init_temporal(cfg=cfg, grid=grid)
+    tp, compile_s["temporal"] = compiled("temporal", grid, temporal, state, segs[0], disp[0],
+                                         valid[0], params)
+    weights, t_tp = [], []
+    for k in range(T):
+        t0 = time.perf_counter()
+        state, tout = jax.block_until_ready(tp(state, segs[k], disp[k], valid[k], params))
+        t_tp.append(time.perf_counter() - t0)
+        weights.append(((tout.ids == STATIC_ID) & valid[k]).astype(jnp.float32))
+
+    eg, compile_s["egomotion"] = compiled("egomotion", grid, ego, pairs[0].pts_prev,
+                                          pairs[0].pts_cur, weights[0], params)
+    t_eg = []
+    for k in range(T):
+        t0 = time.perf_counter()
+        jax.block_until_ready(eg(pairs[k].pts_prev, pairs[k].pts_cur, weights[k], params))
+        t_eg.append(time.perf_counter() - t0)
+    ms = {name: 1e3 * float(np.median(t)) for name, t in
+          (("spatial", t_sp), ("temporal", t_tp), ("egomotion", t_eg))}
+    return ms, compile_s
+
+
+def run_jaxvo(seq: CachedSequence, cfg: Config, seed: int, repeats: int):
+    """Flow on the host, then the whole-sequence scan (compile apart, median of ``repeats``)."""
+    grid = grid_shape(seq.height, seq.width, cfg.cell)
+    gt = seq.groundtruth
+    T0 = gt.poses[0] if gt is not None and len(gt) == len(seq) else np.eye(4)
+    flows, flow_times = host_flows(seq, cfg)
+    T = len(flows.valid)
+    flows_dev = jax.tree.map(jnp.asarray, flows)
+    key = jax.random.key(seed)
+    params = params_as_arrays(Params())
+    T0j = jnp.asarray(T0, jnp.float32)
+    scan, scan_compile = compiled("scan", (T, grid), run_scan, flows_dev, key, params, T0j,
+                                  cfg=cfg, grid=grid)
+    times = []
+    for _ in range(repeats):
+        t0 = time.perf_counter()
+        final, outs = jax.block_until_ready(scan(flows_dev, key, params, T0j))
+        times.append(time.perf_counter() - t0)
+    outs = StepOutput(*(np.asarray(x) for x in outs))
+    final_ids = np.asarray(final.temporal.ids)
+    rss_after_scan = peak_rss_mib()
+    stage_ms, stage_compile = time_stages(flows_dev, key, params, cfg, grid)
+    poses = np.concatenate([np.asarray(T0, np.float64)[None], outs.T_w_c.astype(np.float64)])
+    timing = {
+        "flow_ms": 1e3 * float(np.median(flow_times)),
+        **{f"{k}_ms": v for k, v in stage_ms.items()},
+        "scan_ms": 1e3 * float(np.median(times)) / T,
+        "scan_compile_s": scan_compile,
+        "stage_compile_s": stage_compile,
+        "peak_rss_mib_after_scan": rss_after_scan,
+    }
+    timing["stages_sum_ms"] = sum(stage_ms.values())
+    timing["total_ms"] = timing["flow_ms"] + timing["scan_ms"]
+    return Trajectory(seq.timestamps, poses), outs, final_ids, timing
+
+
+# ------------------------------------------------------------------------------- scoring
+
+
+def scores(seq: CachedSequence, traj: Trajectory) -> dict | None:
+    return trajectory_scores(seq.groundtruth, traj) if seq.groundtruth is not None else None
+
+
+def pixel_scores(seq: CachedSequence, masks: np.ndarray) -> dict:
+    """Pixel-level recall / precision / F of the plug-in masks against the true object masks."""
+    s = SegmentationScores()
+    for k in range(len(seq)):
+        s.add(masks[k].ravel(), (seq[k].mask > 0).ravel())
+    return s.as_dict()
+
+
+def position_errors(seq: CachedSequence, traj: Trajectory):
+    """Per-pose ATE (m) over time, aligned as :func:`trajectory_scores` aligns."""
+    gt_pos = np.asarray(seq.groundtruth.poses)[:, :3, 3]
+    aligned = bool(np.ptp(gt_pos, axis=0).max() > 1e-6)
+    a = ate(seq.groundtruth, traj, align=aligned)
+    return a.timestamps - seq.timestamps[0], a.errors
+
+
+# --------------------------------------------------------------------------------- plots
+
+
+def _plt():
+    import matplotlib
+
+    matplotlib.use("Agg")
+    import matplotlib.pyplot as plt
+
+    return plt
+
+
+_COLOURS = ["tab:blue", "tab:green", "tab:orange", "tab:purple", "tab:brown", "tab:pink"]
+
+
+def style(name: str) -> dict:
+    """jaxvo in red; each peer one colour, solid alone and dashed with jaxvo's mask."""
+    if name == JAXVO:
+        return {"color": "tab:red", "lw": 1.8}
+    base = name.split(" x ")[0]
+    peers = available_peers()
+    colour = _COLOURS[peers.index(base) % len(_COLOURS)] if base in peers else "grey"
+    return {"color": colour, "lw": 1.0, "ls": "--" if " x " in name else "-"}
+
+
+def plot_trajectories(path: Path, seq: CachedSequence, trajs: dict, title: str) -> None:
+    """Top view (x, z) and x, y, z over time (thesis Figs. 5.3-5.7); ground truth in black."""
+    plt = _plt()
+    fig = plt.figure(figsize=(11, 5.2))
+    gs = fig.add_gridspec(3, 2, width_ratios=(1, 1.4))
+    top = fig.add_subplot(gs[:, 0])
+    axes = [fig.add_subplot(gs[i, 1]) for i in range(3)]
+    t = seq.timestamps - seq.timestamps[0]
+    series = []
+    if seq.groundtruth is not None:
+        g = seq.groundtruth
+        series.append(("ground truth", g.timestamps - seq.timestamps[0], g.poses,
+                       {"color": "black", "lw": 2.2}))
+    for name, traj in trajs.items():
+        series.append((name, t, traj.poses, style(name)))
+    for name, tt, poses, st in series:
+        p = np.asarray(poses)[:, :3, 3]
+        top.plot(p[:, 0], p[:, 2], label=name, **st)
+        for i, ax in enumerate(axes):
+            ax.plot(tt, p[:, i], **st)
+    top.set_xlabel("x [m]")
+    top.set_ylabel("z [m]")
+    top.set_title("top view")
+    top.axis("equal")
+    top.legend(fontsize=7)
+    for i, ax in enumerate(axes):
+        ax.set_ylabel(f"{'xyz'[i]} [m]")
+    axes[-1].set_xlabel("time [s]")
+    fig.suptitle(title)
+    fig.tight_layout()
+    fig.savefig(path, dpi=80)
+    plt.close(fig)
+
+
+def plot_errors(path: Path, seq: CachedSequence, trajs: dict, title: str) -> None:
+    """Position error (ATE per pose, m) over time for every method."""
+    plt = _plt()
+    fig, ax = plt.subplots(figsize=(8, 3.2))
+    for name, traj in trajs.items():
+        tt, err = position_errors(seq, traj)
+        ax.plot(tt, err, label=name, **style(name))
+    ax.set_xlabel("time [s]")
+    ax.set_ylabel("position error [m]")
+    ax.legend(fontsize=7, ncol=2)
+    ax.set_title(title)
+    fig.tight_layout()
+    fig.savefig(path, dpi=80)
+    plt.close(fig)
+
+
+def panel_frames(T: int, count: int) -> list[int]:
+    """A few pair indices from a quarter of the way in (labels need a few frames to settle)."""
+    return sorted({int(np.rint(x)) for x in np.linspace(T / 4, T - 1, count)})
+
+
+def plot_labels_and_peers(path: Path, seq: CachedSequence, trajs: dict, outs: StepOutput,
+                          cell: int, title: str, count: int = 3) -> None:
+    """No ground truth: jaxvo's label overlays of a few frames beside every method's path."""
+    from jaxvo.masks import overlay
+
+    plt = _plt()
+    T = len(outs.ids)
+    picks = panel_frames(T, count)
+    fig = plt.figure(figsize=(13, 5.6))
+    gs = fig.add_gridspec(len(picks), 3, width_ratios=(1.5, 1, 1.2))
+    for r, k in enumerate(picks):
+        ax = fig.add_subplot(gs[r, 0])
+        ax.imshow(cv2.cvtColor(overlay(seq[k].bgr, outs.ids[k], cell), cv2.COLOR_BGR2RGB))
+        ax.set_title(f"jaxvo labels, frame {k}", fontsize=8)
+        ax.axis("off")
+    top = fig.add_subplot(gs[:, 1])
+    axes = [fig.add_subplot(gs[i * len(picks) // 3, 2]) for i in range(min(3, len(picks)))]
+    t = seq.timestamps - seq.timestamps[0]
+    for name, traj in trajs.items():
+        p = np.asarray(traj.poses)[:, :3, 3]
+        top.plot(p[:, 0], p[:, 2], label=name, **style(name))
+        for i, ax in enumerate(axes):
+            ax.plot(t, p[:, i], **style(name))
+    top.set_xlabel("x [m]")
+    top.set_ylabel("z [m]")
+    top.set_title("top view (no ground truth)")
+    top.axis("equal")
+    top.legend(fontsize=7)
+    for i, ax in enumerate(axes):
+        ax.set_ylabel(f"{'xyz'[i]} [m]")
+    axes[-1].set_xlabel("time [s]")
+    fig.suptitle(title)
+    fig.tight_layout()
+    fig.savefig(path, dpi=80)
+    plt.close(fig)
+
+
+def stage_panels(path: Path, seq: CachedSequence, outs: StepOutput, cell: int,
+                 count: int = 3) -> list[int]:
+    """Thesis Fig. 5.1-style panels (Model, Hypotheses, Segments, Group) of a few frames."""
+    T = len(outs.ids)
+    picks = panel_frames(T, count)
+    rows = []
+    for k in picks:
+        out = StepOutput(*(np.asarray(f[k]) for f in outs))
+        panel = overlay_panel(seq[k].bgr, out, cell, scale=0.3)
+        cv2.putText(panel, f"frame {k}", (6, panel.shape[0] - 8), cv2.FONT_HERSHEY_SIMPLEX,
+                    0.45, (255, 255, 255), 1, cv2.LINE_AA)
+        rows.append(panel)
+    cv2.imwrite(str(path), np.concatenate(rows, axis=0), [cv2.IMWRITE_PNG_COMPRESSION, 9])
+    return picks
+
+
+# -------------------------------------------------------------------------------- report
+
+
+def fmt(x, digits=4):
+    if x is None:
+        return "-"
+    if isinstance(x, float):
+        return f"{x:.{digits}f}" if abs(x) >= 10 ** -digits or x == 0 else f"{x:.2e}"
+    return str(x)
+
+
+def table(header: list[str], rows: list[list], digits=None) -> str:
+    """Markdown table; ``digits`` gives the decimals of each column (default 4)."""
+    digits = digits or [4] * len(header)
+    lines = ["| " + " | ".join(header) + " |", "|" + "---|" * len(header)]
+    lines += ["| " + " | ".join(c if isinstance(c, str) else fmt(c, d)
+                                for c, d in zip(r, digits, strict=False)) + " |"
+              for r in rows]
+    return "\n".join(lines)
+
+
+def write_report(out: Path, res: dict) -> None:
+    m = res["machine"]
+    seqs = res["sequences"]
+    peers = res["peers"]
+    methods = [JAXVO] + peers
+    L = [f"# jaxvo benchmark report ({res['mode']} run)", ""]
+    L += [(f"Generated {res['started']} by `{res['command']}` in {res['wall_s'] / 60:.1f} min. "
+          "Every figure below comes from this run; `results.json` holds them all."), ""]
+    L += ["## Machine", "", table(["", ""], [
+        ["platform", m["platform"]], ["CPU", m["cpu_model"]], ["cores", str(m["cores"])],
+        ["JAX", f"{m['jax']} ({m['jax_backend']}, {', '.join(m['jax_devices'])})"],
+        ["OpenCV", m["opencv"]], ["NumPy", m["numpy"]], ["Python", m["python"]],
+        ["load average (1, 5, 15 min) at start", str(m["load_average_start"])],
+        ["load average at end", str(m["load_average_end"])],
+    ]), ""]
+    L += [("Other processes share these cores, so timings are noisy: every time is a median "
+          "over frames (jaxvo's scan: median of repeated whole-sequence runs, divided by the "
+          "pairs)."), ""]
+    L += ["## Methods", ""]
+    L += [f"- **{JAXVO}**: this package, default `Config` and `Params`, seed {res['seed']}.",
+          ("- **opencv_rgb / opencv_depth / opencv_rgbd**: `cv2.Odometry` (RGB, DEPTH, "
+          "RGB_DEPTH), frame to frame, default settings."),
+          ("- **PEER x jaxvo**: the same peer with jaxvo's dynamic pixels masked out of every "
+          "frame (`jaxvo.plugin.dynamic_masks`, thesis Fig. 5.8 \"Proposed x DVO\"); image "
+          "k takes the labels of pair k -> k+1, the last image the final compensated "
+          "temporal map."),
+          "- **Open3D** (colour / hybrid RGB-D odometry): " + (
+              "installed and included." if res["open3d"] else
+              "**not installed in this environment, so absent from this report**; "
+              "`pip install open3d` adds `open3d_color` and `open3d_hybrid` to every table."),
+          ""]
+    L += ["## Sequences", ""]
+    rows = [[s, d["kind"], str(d["frames"]), f"{d['duration_s']:.2f}",
+             f"{d['width']}x{d['height']}", "yes" if d["groundtruth"] else "no",
+             "yes" if d["masks"] else "no"] for s, d in seqs.items()]
+    L += [table(["sequence", "kind", "frames", "duration [s]", "size", "ground truth",
+                 "object masks"], rows), ""]
+    for s, why in res["skipped"].items():
+        L += [f"- skipped **{s}**: {why}"]
+    if res["skipped"]:
+        L += [""]
+
+    with_gt = [s for s, d in seqs.items() if d["groundtruth"]]
+    all_methods = methods + [f"{p} x jaxvo" for p in peers]
+
+    def acc_table(field, title, unit_note):
+        rows = []
+        for s in with_gt:
+            sc = seqs[s]["scores"]
+            rows.append([s] + [sc.get(mm, {}).get(field) if sc.get(mm) else None
+                               for mm in all_methods])
+        return [f"### {title}", "", unit_note, "", table(["sequence"] + all_methods, rows), ""]
+
+    L += ["## Odometry accuracy (thesis Table 5.4 layout)", ""]
+    L += [("RMSE over the sequence. ATE after rigid (no scale) alignment, except for a camera "
+          "that never moves (fixed_camera_*), where no alignment is defined and the estimate "
+          "(which starts at the true first pose) is compared as it is. Lower is better."), ""]
+    L += acc_table("ate_rmse_m", "ATE [m]", "Absolute trajectory error, metres.")
+    L += acc_table("rpe_trans_m_per_frame", "RPE translation [m/frame]",
+                   "Relative pose error over 1 frame, metres per frame.")
+    L += acc_table("rpe_rot_deg_per_frame", "RPE rotation [deg/frame]",
+                   "Relative pose error over 1 frame, degrees per frame.")
+    L += acc_table("rpe_trans_m_per_s", "RPE translation [m/s]",
+                   "Relative pose error over 1 s (sequences longer than 1 s), metres per "
+                   "second.")
+    L += acc_table("rpe_rot_deg_per_s", "RPE rotation [deg/s]",
+                   "Relative pose error over 1 s, degrees per second.")
+    rows = [[s] + [str(seqs[s]["failures"].get(mm, "-")) for mm in all_methods] for s in seqs]
+    L += ["### Skipped / failed frame pairs", "",
+          ("jaxvo: pairs whose status is not OK (pose carried over); peers: pairs where "
+          "`compute()` failed (pose carried over)."), "",
+          table(["sequence"] + all_methods, rows), ""]
+
+    L += ["## Segmentation (thesis Table 5.3 layout)", ""]
+    L += [("jaxvo's temporal identifiers at the grid points (identifier >= 2 = moving) against "
+          "the true object masks at the cell centres of the image each pair's labels are "
+          "anchored on; counted over the whole sequence. *Plug-in mask* scores the pixel "
+          "masks handed to the peers (moving cells grown by one cell) against the true "
+          "pixel masks."), ""]
+    rows = []
+    for s, d in seqs.items():
+        if d.get("segmentation"):
+            g, p = d["segmentation"], d.get("mask_pixels") or {}
+            rows.append([s, 100 * g["recall"], 100 * g["precision"], g["f_measure"],
+                         100 * p.get("recall", float("nan")),
+                         100 * p.get("precision", float("nan")), p.get("f_measure")])
+    L += [table(["environment", "recall [%]", "precision [%]", "F-measure",
+                 "plug-in mask recall [%]", "plug-in mask precision [%]",
+                 "plug-in mask F-measure"], rows, [0, 2, 2, 4, 2, 2, 4]), ""]
+    L += [("A sequence with no moving object has no positives: recall is undefined there "
+          "(reported as 0) and any moving label is a false positive."), ""]
+
+    L += ["## Speed", ""]
+    L += [("jaxvo, milliseconds per frame pair (medians). *flow*: grid flow on the host. "
+          "*spatial*, *temporal*, *ego-motion*: each stage jitted alone and run frame by "
+          "frame on the sequence's precomputed flows (steady state, dispatch included). "
+          "*scan*: the whole-sequence `lax.scan` (all device stages fused), steady state. "
+          "*total* = flow + scan. Compile times are apart (0 = already compiled for this "
+          "shape earlier in the run). *peak RSS*: `resource.getrusage(RUSAGE_SELF)."
+          "ru_maxrss`, the process's high-water mark so far (it includes the cached frames of "
+          "every sequence read so far, not jaxvo alone)."), ""]
+    rows = []
+    for s, d in seqs.items():
+        t = d["timing"][JAXVO]
+        rows.append([s, t["flow_ms"], t["spatial_ms"], t["temporal_ms"], t["egomotion_ms"],
+                     t["stages_sum_ms"], t["scan_ms"], t["total_ms"],
+                     1e3 / t["total_ms"], t["scan_compile_s"],
+                     sum(t["stage_compile_s"].values()), t["peak_rss_mib_after_scan"]])
+    L += [table(["sequence", "flow", "spatial", "temporal", "ego-motion", "stage sum", "scan",
+                 "total", "frames/s", "scan compile [s]", "stage compile [s]",
+                 "peak RSS [MiB]"], rows, [0] + [1] * 8 + [1, 1, 0]), ""]
+    L += [("Peers: median milliseconds per frame pair of the odometry call itself (frame "
+          "preparation excluded), and that time / jaxvo's total per frame."), ""]
+    rows = []
+    for s, d in seqs.items():
+        row = [s, d["timing"][JAXVO]["total_ms"]]
+        for p in peers:
+            ms = d["timing"][p]["ms"]
+            row += [ms, ms / d["timing"][JAXVO]["total_ms"]]
+        rows.append(row)
+    hdr = ["sequence", "jaxvo [ms]"]
+    for p in peers:
+        hdr += [f"{p} [ms]", f"{p} / jaxvo"]
+    L += [table(hdr, rows, [0, 1] + [1, 2] * len(peers)), ""]
+
+    L += ["## Segmentation as a plug-in (thesis Fig. 5.8)", ""]
+    L += [("Each peer alone and with jaxvo's dynamic-pixel mask. *gain* = ATE alone / ATE "
+          "with the mask (> 1: the mask helps). Where jaxvo labelled no pixel dynamic the "
+          "masked run would be the same run and is not repeated (marked *same*)."), ""]
+    rows = []
+    for s in with_gt:
+        d = seqs[s]
+        for p in peers:
+            a = (d["scores"].get(p) or {}).get("ate_rmse_m")
+            b = (d["scores"].get(f"{p} x jaxvo") or {}).get("ate_rmse_m")
+            ra = (d["scores"].get(p) or {}).get("rpe_trans_m_per_frame")
+            rb = (d["scores"].get(f"{p} x jaxvo") or {}).get("rpe_trans_m_per_frame")
+            rows.append([s, p, a, b, (a / b) if a and b else None, ra, rb,
+                         "same" if d["plugin_same"] else f"{100 * d['dynamic_fraction']:.1f} %"])
+    L += [table(["sequence", "peer", "ATE alone [m]", "ATE x jaxvo [m]", "gain",
+                 "RPE alone [m/frame]", "RPE x jaxvo [m/frame]", "pixels masked"], rows,
+                [0, 0, 4, 4, 2, 4, 4, 0]), ""]
+
+    L += ["## Figures", ""]
+    for s, d in seqs.items():
+        figs = ", ".join(f"[{Path(f).stem}]({f})" for f in d["figures"])
+        L += [f"- **{s}**: {figs}"]
+    L += [""]
+    (out / "report.md").write_text("\n".join(L))
+
+
+# ---------------------------------------------------------------------------------- main
+
+
+def main(argv=None) -> int:
+    ap = argparse.ArgumentParser(description=__doc__.split("\n\n")[0],
+                                 formatter_class=argparse.RawDescriptionHelpFormatter)
+    ap.add_argument("--quick", action="store_true",
+                    help="fewer frames per sequence (default 40 instead of 90), ~5 min")
+    ap.add_argument("--frames", type=int, metavar="N",
+                    help="frames per synthetic / 7-Scenes sequence (default 90, --quick 40)")
+    ap.add_argument("--out", default="results", metavar="DIR",
+                    help="report folder (default results/)")
+    ap.add_argument("--seed", type=int, default=0, help="seed of the scenes and of jaxvo")
+    ap.add_argument("--only", nargs="+", metavar="SEQ",
+                    help="run only these sequences (names as in the report)")
+    ap.add_argument("--repeats", type=int, default=3,
+                    help="steady-state runs of the whole-sequence scan (median)")
+    args = ap.parse_args(argv)
+    frames = args.frames or (40 if args.quick else 90)
+    out = Path(args.out)
+    (out / "traj").mkdir(parents=True, exist_ok=True)
+    started = time.perf_counter()
+    cfg = Config()
+    peers = available_peers()
+    res = {
+        "mode": "quick" if args.quick else "full",
+        "command": "python bench/run.py " + " ".join(argv if argv is not None else sys.argv[1:]),
+        "started": datetime.datetime.now().isoformat(timespec="seconds"),
+        "frames": frames, "seed": args.seed, "machine": machine(), "peers": peers,
+        "open3d": any(p in OPEN3D_PEERS for p in peers), "sequences": {},
+    }
+    seqs, res["skipped"] = build_sequences(frames, args.seed, args.only)
+    for label, kind, seq in seqs:
+        log(f"== {label}: {len(seq)} frames")
+        d = {"kind": kind, "frames": len(seq), "duration_s": seq.duration,
+             "height": seq.height, "width": seq.width,
+             "groundtruth": seq.groundtruth is not None, "masks": seq.has_masks,
+             "scores": {}, "failures": {}, "timing": {}, "figures": []}
+        trajs = {}
+        traj, outs, final_ids, timing = run_jaxvo(seq, cfg, args.seed, args.repeats)
+        trajs[JAXVO] = traj
+        d["timing"][JAXVO] = timing
+        d["failures"][JAXVO] = int(np.count_nonzero(outs.status != Status.OK))
+        d["scores"][JAXVO] = scores(seq, traj)
+        if seq.has_masks:
+            d["segmentation"] = segmentation_scores(seq, outs.ids, cfg.cell).as_dict()
+        log(f"   jaxvo {timing['total_ms']:.1f} ms/frame, scan compile "
+            f"{timing['scan_compile_s']:.1f} s, ATE {fmt((d['scores'][JAXVO] or {}).get('ate_rmse_m'))}")
+        masks = dynamic_masks(outs, seq.height, seq.width, cfg.cell, final_ids=final_ids)
+        d["dynamic_fraction"] = float(masks.mean())
+        d["plugin_same"] = not masks.any()
+        if seq.has_masks:
+            d["mask_pixels"] = pixel_scores(seq, masks)
+        for p in peers:
+            r = run_peer(seq, p)
+            trajs[p] = r.trajectory
+            d["timing"][p] = {"ms": r.ms_per_frame}
+            d["failures"][p] = r.failures
+            d["scores"][p] = scores(seq, r.trajectory)
+            name = f"{p} x jaxvo"
+            if d["plugin_same"]:
+                rm = r
+            else:
+                rm = run_peer(seq, p, keep=lambda i, m=masks: ~m[i])
+            trajs[name] = rm.trajectory
+            d["timing"][name] = {"ms": rm.ms_per_frame}
+            d["failures"][name] = rm.failures
+            d["scores"][name] = scores(seq, rm.trajectory)
+            log(f"   {p}: {r.ms_per_frame:.0f} ms/frame, ATE "
+                f"{fmt((d['scores'][p] or {}).get('ate_rmse_m'))} alone, "
+                f"{fmt((d['scores'][name] or {}).get('ate_rmse_m'))} with jaxvo's mask")
+        for name, tr in trajs.items():
+            write_trajectory(out / "traj" / f"{label}__{name.replace(' ', '_')}.txt", tr)
+        alone = {k: v for k, v in trajs.items() if " x " not in k}
+        title = f"{label} ({len(seq)} frames)"
+        f = f"traj_{label}.png"
+        plot_trajectories(out / f, seq, alone, title)
+        d["figures"].append(f)
+        if seq.groundtruth is not None:
+            f = f"error_{label}.png"
+            plot_errors(out / f, seq, trajs, f"position error, {title}")
+            d["figures"].append(f)
+            if not d["plugin_same"]:
+                f = f"plugin_{label}.png"
+                plot_trajectories(out / f, seq, {k: v for k, v in trajs.items() if k != JAXVO},
+                                  f"peers alone and x jaxvo, {title}")
+                d["figures"].append(f)
+        if seq.groundtruth is None:
+            f = f"labels_peers_{label}.png"
+            shown = alone if d["plugin_same"] else trajs
+            plot_labels_and_peers(out / f, seq, shown, outs, cfg.cell,
+                                  f"jaxvo's labels and every method's path, {title}")
+            d["figures"].append(f)
+        f = f"stages_{label}.png"
+        d["panel_frames"] = stage_panels(out / f, seq, outs, cfg.cell)
+        d["figures"].append(f)
+        res["sequences"][label] = d
+    res["machine"]["load_average_end"] = load_average()
+    res["wall_s"] = time.perf_counter() - started
+    (out / "results.json").write_text(json.dumps(res, indent=1, default=float))
+    write_report(out, res)
+    log(f"report: {out / 'report.md'} ({res['wall_s'] / 60:.1f} min)")
+    return 0
+
+
+if __name__ == "__main__":
+    raise SystemExit(main())
