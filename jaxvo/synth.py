@@ -167,11 +167,12 @@ SCENARIOS: dict[str, Scenario] = {
         Scenario(
             "handheld_fast", "hand-held camera moving fast (about 0.33 m/s) and one box "
             "(Vicon Room 1)", camera="handheld", camera_speed=0.33,
-            objects=(replace(_CUBE, size=(0.4, 0.5, 0.3)),),
+            objects=(replace(_CUBE, size=(0.4, 0.5, 0.3), amplitude=(0.5, 0.12, 0.3)),),
         ),
         Scenario(
             "handheld_slow", "hand-held camera moving slowly (about 0.16 m/s) and one box "
-            "(Vicon Room 2)", camera="handheld", camera_speed=0.16, objects=(_CUBE,),
+            "(Vicon Room 2)", camera="handheld", camera_speed=0.16,
+            objects=(replace(_CUBE, amplitude=(0.5, 0.12, 0.3)),),
         ),
         Scenario(
             "close_approach",
@@ -318,13 +319,14 @@ class _CameraPath:
     def __init__(self, rng: np.random.Generator, scenario: Scenario) -> None:
         self.fixed = scenario.camera == "fixed"
         self.target = np.array(scenario.look_at, np.float64)
-        k = 3
-        self.w = 2 * np.pi / rng.uniform(3.0, 8.0, size=(k, 3))  # rad/s per term and axis
+        k = 4
+        self.w = 2 * np.pi / rng.uniform(2.5, 6.0, size=(k, 3))  # rad/s per term and axis
         self.phase = rng.uniform(0, 2 * np.pi, size=(k, 3))
         amp = rng.uniform(0.5, 1.0, size=(k, 3)) * np.array([1.0, 0.4, 0.6])
-        # Scale to the requested mean speed, measured over a fixed 60 s window so that the
-        # path does not depend on the number of frames asked for.
-        t = np.linspace(0, 60, 6001)
+        # Scale to the requested mean speed over the first 5 s (a fixed window, so that the
+        # path does not depend on the number of frames asked for; short sequences are the
+        # common case and should move as fast as asked).
+        t = np.linspace(0, 5, 501)
         vel = np.einsum("kd,kd,tkd->td", amp, self.w,
                         np.cos(self.w[None] * t[:, None, None] + self.phase[None]))
         speed = np.linalg.norm(vel, axis=1).mean()
@@ -339,7 +341,7 @@ class _CameraPath:
         if self.fixed:
             return _look_at(np.zeros(3), self.target, 0.0)
         pos = np.sum(self.amp * np.sin(self.w * t + self.phase), axis=0)
-        wander = 0.35 * np.sin(self.wander_w * t + self.wander_phase[:3]) * [1.0, 0.4, 0.5]
+        wander = 0.25 * np.sin(self.wander_w * t + self.wander_phase[:3]) * [1.0, 0.4, 0.5]
         roll = 0.06 * np.sin(0.9 * t + self.wander_phase[3])
         return _look_at(pos, self.target + wander, roll)
 
