@@ -24,6 +24,16 @@ from jaxvo.io import (
 from jaxvo.metrics import SegmentationScores, align_umeyama, ate, rpe
 from jaxvo.plugin import dynamic_masks, iter_dynamic_masks
 from jaxvo.status import Status
+from jaxvo.synth import (
+    SCENARIOS,
+    ObjectSpec,
+    Scenario,
+    SensorOptions,
+    SyntheticSequence,
+    composite_sequence,
+    make_sequence,
+    write_sequence,
+)
 from jaxvo.temporal import TemporalOut, TemporalState, init_temporal, update_temporal
 
 __version__ = "0.1.0"
@@ -65,4 +75,13 @@ __all__ = [
     # plug-in masks
     "dynamic_masks",
     "iter_dynamic_masks",
+    # synthetic data
+    "ObjectSpec",
+    "SCENARIOS",
+    "Scenario",
+    "SensorOptions",
+    "SyntheticSequence",
+    "composite_sequence",
+    "make_sequence",
+    "write_sequence",
 ]
