@@ -59,6 +59,7 @@ def run(args: argparse.Namespace) -> int:
 
     out = synth.write_sequence(seq, args.out_dir, progress=progress)
     took = time.perf_counter() - start
-    print(f"wrote {len(seq)} frames ({seq.width}x{seq.height}, "
-          f"{len(seq.object_trajectories)} moving objects) to {out} in {took:.1f} s")
+    k = len(seq.object_trajectories)
+    print(f"wrote {len(seq)} frames ({seq.width}x{seq.height}, {k} moving "
+          f"object{'' if k == 1 else 's'}) to {out} in {took:.1f} s")
     return 0
