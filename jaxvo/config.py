@@ -38,6 +38,7 @@ class Config:
     depth_jump: float = 0.05  # largest depth change within 3x3 pixels, fraction of the depth
     fill_radius: int = 2  # holes are filled from the (2r+1)^2 neighbourhood, pixels
     fill_min_valid: int = 6  # fewest valid neighbours (of (2r+1)^2 - 1) needed to fill a hole
+    depth_smooth: bool = True  # also average valid depth over agreeing (2r+1)^2 windows
 
     # --- spatial segmentation (thesis chapter 3, Algorithms 1 and 2) ---
     num_hypotheses: int = 20  # H
@@ -64,7 +65,9 @@ class Params(NamedTuple):
     delta: float = 1e-2  # delta of the entropy, thesis eq. (3.1)
     s_min: float = 0.05  # stop when the mean entropy falls below this (Algorithm 1, line 3)
     inlier_dist: float = 0.02  # inlier distance at 1 m depth, metres
-    inlier_depth_coeff: float = 0.01  # extra inlier distance per m^2 of depth (noise ~ z^2)
+    # extra inlier distance per m^2 of depth beyond 1 m (Kinect axial noise ~1.5e-3 z^2 per
+    # frame); 0.01 let a slow object's motion absorb the camera's at 3 m (10 cm threshold)
+    inlier_depth_coeff: float = 0.004
     sample_dist: float = 0.015  # max residual of the m sample points themselves, at 1 m, metres
     cluster_eps: float = 0.5  # DBSCAN radius on the inlier-set (Jaccard) distance
     cluster_min_samples: float = 1.0  # DBSCAN core-point threshold (count, incl. itself)

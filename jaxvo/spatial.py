@@ -208,6 +208,11 @@ def _cluster_refine(members, hyps, pts_prev, pts_cur, valid, tau2, *, cfg):
     return motion, jnp.where(present, err, _FAR), inl & present
 
 
+def _apply(T, pts):
+    """Pose (4, 4) applied to (3, n) column points."""
+    return T[:3, :3] @ pts + T[:3, 3:4]
+
+
 def _assign(err, inliers, keep):
     """Per point: index of the kept segment with the smallest residual among those it is an
     inlier of, and whether there is one. ``err``/``inliers`` (C, n), ``keep`` (C,)."""
@@ -280,29 +285,53 @@ def segment(key, pts_prev, pts_cur, valid, params, *, cfg, grid):
     labels_h, _ = dbscan(
         jaccard_distance(hyps.inliers), hyps.found, params.cluster_eps, params.cluster_min_samples
     )
-    # At most max_segments clusters can be output: refine the ones whose best member explains
-    # most points (slots without a cluster are empty).
+    # At most max_segments clusters can be output, so only that many are refined, each from
+    # one member. Members are taken in order of inlier count; a member whose inliers lie
+    # mostly (more than 1 - eps) inside an already chosen member's is a partial
+    # re-discovery of that motion and is passed over, so that the next member of its
+    # cluster (possibly a small moving object chained to it through a bridging hypothesis)
+    # can stand for the cluster instead.
     size_h = jnp.sum(hyps.inliers, axis=1)
-    cluster_ids = jnp.arange(big_h)
-    member = labels_h[None, :] == cluster_ids[:, None]  # (H clusters, H hypotheses)
-    best_size = jnp.max(jnp.where(member, size_h[None, :], -1), axis=1)
-    top = jnp.argsort(-best_size, stable=True)[:n_slots]
-    members = member[top] & (best_size[top] >= 0)[:, None]
+    inl_h = hyps.inliers.astype(jnp.float32)
+    covered = (inl_h @ inl_h.T) / jnp.maximum(size_h[:, None], 1)  # (k, j)
+    by_size = jnp.argsort(-jnp.where(hyps.found, size_h, -1), stable=True)
+
+    def choose(i, carry):
+        chosen, taken = carry  # (H,) hypotheses chosen, (H,) clusters that have one
+        h = by_size[i]
+        lab = jnp.maximum(labels_h[h], 0)
+        ok = (
+            (labels_h[h] >= 0)
+            & ~taken[lab]
+            & ~jnp.any(chosen & (covered[h] > 1.0 - params.cluster_eps))
+        )
+        return chosen.at[h].set(ok), taken.at[lab].set(taken[lab] | ok)
+
+    chosen, _ = lax.fori_loop(
+        0, big_h, choose, (jnp.zeros((big_h,), bool), jnp.zeros((big_h,), bool))
+    )
+    top = jnp.argsort(jnp.where(chosen, -size_h, 1), stable=True)[:n_slots]
+    members = jax.nn.one_hot(top, big_h, dtype=bool) & chosen[top][:, None]
     motions, err_c, inl_c = jax.vmap(
         lambda mem: _cluster_refine(mem, hyps, pts_prev, pts_cur, valid, tau2, cfg=cfg)
     )(members)
     n_c = jnp.sum(inl_c, axis=1)
     big_enough = jnp.any(members, axis=1) & (n_c > params.min_segment_points)
 
-    # Merge: a cluster whose points are mostly (more than 1 - eps) explained by a larger kept
-    # cluster's motion is the same motion found twice; drop it.
-    inter = inl_c.astype(jnp.float32) @ inl_c.T.astype(jnp.float32)
-    contain = inter / jnp.maximum(jnp.minimum(n_c[:, None], n_c[None, :]), 1)
+    # Merge: the same motion found twice. Cluster k duplicates a larger kept cluster j when
+    # j's motion moves k's inliers to where k's motion does, within half the inlier
+    # threshold, for more than 1 - eps of them. Comparing the motions where k's points are
+    # (not inlier-set overlap) keeps a small object whose motion differs from the camera's by
+    # less than the inlier threshold at depth.
+    pred = jax.vmap(lambda t: _apply(t, pts_prev))(motions)  # (C, 3, n)
+    gap = jnp.sum((pred[:, None] - pred[None, :]) ** 2, axis=2)  # (C k, C j, n)
+    close = jnp.sum(inl_c[:, None, :] & (gap <= 0.25 * tau2), axis=2)
+    same = close / jnp.maximum(n_c[:, None], 1) > 1.0 - params.cluster_eps  # (k, j)
     order = jnp.argsort(-n_c, stable=True)
 
     def merge(k, keep):
         c = order[k]
-        dup = jnp.any(keep & (contain[c] > 1.0 - params.cluster_eps))
+        dup = jnp.any(keep & same[c])
         return keep.at[c].set(big_enough[c] & ~dup)
 
     keep = lax.fori_loop(0, n_slots, merge, jnp.zeros((n_slots,), bool))
