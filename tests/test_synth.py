@@ -31,9 +31,10 @@ def _box_hit(T_w_b, half, T_w_c, rays):
 
 
 def test_same_seed_same_bytes_and_different_seeds_differ():
-    a = synth.make_sequence("fixed_camera_2", frames=4, seed=7)
-    b = synth.make_sequence("fixed_camera_2", frames=4, seed=7)
-    c = synth.make_sequence("fixed_camera_2", frames=4, seed=8)
+    # Seeds 0 and 1 throughout the tests: each new seed builds a texture atlas (~1 s).
+    a = synth.make_sequence("fixed_camera_2", frames=4, seed=1)
+    b = synth.make_sequence("fixed_camera_2", frames=4, seed=1)
+    c = synth.make_sequence("fixed_camera_2", frames=4, seed=0)
     fa, fb, fc = a[3], b[3], c[3]
     assert fa.bgr.tobytes() == fb.bgr.tobytes()
     assert fa.depth.tobytes() == fb.depth.tobytes()
@@ -68,7 +69,7 @@ def test_static_pixels_reproject_with_true_camera_motion():
     the rest are occluded in frame i+1 (predicted behind the observed surface), never in
     front of it by more than 0.5 mm. The same points land within 0.5 px when mapped back.
     """
-    seq = synth.make_sequence("handheld_fast", frames=6, seed=3, options=IDEAL)
+    seq = synth.make_sequence("handheld_fast", frames=6, seed=1, options=IDEAL)
     K = seq.intrinsics
     f0, f1 = seq[4], seq[5]
     T0, T1 = seq.groundtruth.poses[4], seq.groundtruth.poses[5]
@@ -109,7 +110,7 @@ def test_static_pixels_reproject_with_true_camera_motion():
 
 
 def test_mask_is_exactly_where_a_moving_object_is_nearest():
-    seq = synth.make_sequence("fixed_camera_2", frames=21, seed=2, options=IDEAL)
+    seq = synth.make_sequence("fixed_camera_2", frames=21, seed=1, options=IDEAL)
     i = 20  # both boxes in view, the near one partly in front of the far one
     f = seq[i]
     s = seq.render(i, objects=False)
@@ -191,7 +192,7 @@ def test_bad_input_is_one_line_input_error():
 
 
 def test_write_sequence_round_trip(tmp_path):
-    seq = synth.make_sequence("fixed_camera_1", frames=3, seed=4)
+    seq = synth.make_sequence("fixed_camera_1", frames=3, seed=0)
     done = []
     out = synth.write_sequence(seq, tmp_path / "seq", progress=lambda i, n: done.append(i))
     assert done == [1, 2, 3]
