@@ -632,7 +632,7 @@ def main(argv=None) -> int:
             if not d["plugin_same"] or d["true_dynamic"]:
                 f = f"plugin_{label}.png"
                 plot_trajectories(out / f, seq, {k: v for k, v in trajs.items() if k != JAXVO},
-                                  f"peers alone and x jaxvo, {title}")
+                                  f"peers alone, x jaxvo (dashed), x true mask (dotted), {title}")
                 d["figures"].append(f)
         if seq.groundtruth is None:
             f = f"labels_peers_{label}.png"
