@@ -215,9 +215,22 @@ def test_refine_fills_isolated_hole_and_drops_flying_pixel():
     nb = d[8:13, 8:13]
     np.testing.assert_allclose(r[10, 10], nb[nb > 0].mean(), atol=1e-6)
     assert (r[:, 29] == 0).all()  # the flying column is dropped
-    assert r[20, 12] == np.float32(2.04)
+    # a noisy reading on a smooth surface becomes its 5x5 window's mean (depth_smooth)
+    np.testing.assert_allclose(r[20, 12], d[18:23, 10:15].mean(), atol=1e-6)
     assert (r[:, 5:25] > 0).all() and (r[:, 35:55] > 0).all()  # away from the edge: all kept
     np.testing.assert_array_equal(r[:, 35:55], 3.0)
+
+
+def test_refine_smoothing_cuts_frame_to_frame_noise_and_can_be_switched_off():
+    rng = np.random.default_rng(0)
+    plane = np.full((60, 80), 2.5, np.float32)
+    noisy = plane + rng.normal(0, 0.009, plane.shape).astype(np.float32)  # 1.425e-3 z^2
+    inner = (slice(5, -5), slice(5, -5))
+    smoothed = refine_depth(noisy, CFG)[inner] - plane[inner]
+    # averaging 25 readings: the noise std drops about 5x; required at least 3x
+    assert smoothed.std() < noisy[inner].std() / 3
+    raw = refine_depth(noisy, dataclasses.replace(CFG, depth_smooth=False))
+    np.testing.assert_array_equal(raw[inner], noisy[inner])
 
 
 def test_refine_drops_out_of_range_and_nan_and_keeps_big_holes_empty():
