@@ -95,16 +95,26 @@ def _mean_valid(x, valid):
     return jnp.sum(jnp.where(valid, x, 0.0)) / jnp.maximum(nv, 1)
 
 
-def _refine(motion, nmax, pts_prev, pts_cur, valid, tau2, iters):
-    """Algorithm 1 lines 9-16 / Algorithm 2 lines 4-11 as ``iters`` fixed trips.
+def _refine(motion, nmax, pts_prev, pts_cur, valid, tau2, iters, bound):
+    """Algorithm 1 lines 9-16 as ``iters`` fixed trips.
 
     Each trip evaluates the motion on all points and, while the inlier count grows, refits
     on the inliers (0/1 weights); once it stops growing the motion is frozen.
+
+    A point counts as an inlier only if the motion explains it better than the hypotheses
+    found before (its residual is below ``bound``, their smallest residual). Without this, a
+    sample drawn on a slow object is refined into the camera's motion: the depth-scaled
+    threshold at 3 m exceeds the object's motion per frame, so the far background joins the
+    object's inliers, outnumbers them, and the refit follows the background.
     """
+
+    def inliers(motion):
+        err = residuals_cols(motion, pts_prev, pts_cur)
+        return err, valid & (err <= tau2) & (err < bound)
 
     def trip(carry, _):
         motion, nmax, done = carry
-        inl = valid & (residuals_cols(motion, pts_prev, pts_cur) <= tau2)
+        _, inl = inliers(motion)
         count = jnp.sum(inl).astype(jnp.int32)
         improve = (count > nmax) & ~done
         refit, ok = fit_rigid_cols(pts_prev, pts_cur, inl.astype(jnp.float32))
@@ -113,8 +123,8 @@ def _refine(motion, nmax, pts_prev, pts_cur, valid, tau2, iters):
         return (motion, nmax, done | ~improve), None
 
     (motion, _, _), _ = lax.scan(trip, (motion, nmax, jnp.bool_(False)), None, length=iters)
-    err = residuals_cols(motion, pts_prev, pts_cur)
-    return motion, err, valid & (err <= tau2)
+    err, inl = inliers(motion)
+    return motion, err, inl
 
 
 def _draw_samples(key, entropy, *, cfg, grid):
@@ -181,7 +191,8 @@ def _search_work(state, key, pts_prev, pts_cur, valid, tau2, tau_s2, params, *, 
     found = jnp.any(verified) & ~state.done
 
     motion, err_all, inl = _refine(
-        motions[first], jnp.int32(m), pts_prev, pts_cur, valid, tau2, cfg.refine_iters
+        motions[first], jnp.int32(m), pts_prev, pts_cur, valid, tau2, cfg.refine_iters,
+        state.err_min,
     )
     eye = jnp.eye(4, dtype=motion.dtype)
     hyp = _Hypothesis(
@@ -197,15 +208,40 @@ def _search_work(state, key, pts_prev, pts_cur, valid, tau2, tau_s2, params, *, 
     return _SearchState(entropy, err_min, count, done), hyp
 
 
-def _cluster_refine(members, hyps, pts_prev, pts_cur, valid, tau2, *, cfg):
-    """Algorithm 2 lines 3-11 for one cluster: start from its member with most inliers."""
-    size = jnp.sum(hyps.inliers, axis=1)
-    best = jnp.argmax(jnp.where(members, size, -1))
-    motion, err, inl = _refine(
-        hyps.motion[best], jnp.int32(0), pts_prev, pts_cur, valid, tau2, cfg.cluster_refine_iters
-    )
-    present = jnp.any(members)
-    return motion, jnp.where(present, err, _FAR), inl & present
+def _cluster_refine(start, active, pts_prev, pts_cur, valid, tau2, *, cfg):
+    """Algorithm 2 lines 3-11 for all clusters at once, by alternating assignment.
+
+    Each trip gives every point to the active cluster motion that explains it best (if it
+    is an inlier of it) and refits every motion on its own points. Refining the clusters
+    jointly rather than one by one keeps a slow object's motion from being pulled into the
+    background's (see :func:`_refine`).
+
+    Args:
+      start: (C, 4, 4) starting motions (one member hypothesis per cluster slot).
+      active: (C,) bool, slots that hold a cluster.
+
+    Returns:
+      motions (C, 4, 4), residuals (C, n) m^2, inliers (C, n) bool: the points assigned to
+      each cluster.
+    """
+
+    def assign(motions):
+        err = jax.vmap(lambda t: residuals_cols(t, pts_prev, pts_cur))(motions)
+        cand = active[:, None] & valid[None, :] & (err <= tau2[None, :])
+        best = jnp.argmin(jnp.where(cand, err, _FAR * 10), axis=0)
+        own = (jnp.arange(motions.shape[0])[:, None] == best[None, :]) & jnp.any(cand, axis=0)
+        return err, own
+
+    def trip(motions, _):
+        _, own = assign(motions)
+        refit, ok = jax.vmap(lambda w: fit_rigid_cols(pts_prev, pts_cur, w))(
+            own.astype(jnp.float32)
+        )
+        return jnp.where((ok & active)[:, None, None], refit, motions), None
+
+    motions, _ = lax.scan(trip, start, None, length=cfg.cluster_refine_iters)
+    err, own = assign(motions)
+    return motions, jnp.where(active[:, None], err, _FAR), own
 
 
 def _apply(T, pts):
@@ -312,9 +348,9 @@ def segment(key, pts_prev, pts_cur, valid, params, *, cfg, grid):
     )
     top = jnp.argsort(jnp.where(chosen, -size_h, 1), stable=True)[:n_slots]
     members = jax.nn.one_hot(top, big_h, dtype=bool) & chosen[top][:, None]
-    motions, err_c, inl_c = jax.vmap(
-        lambda mem: _cluster_refine(mem, hyps, pts_prev, pts_cur, valid, tau2, cfg=cfg)
-    )(members)
+    motions, err_c, inl_c = _cluster_refine(
+        hyps.motion[top], jnp.any(members, axis=1), pts_prev, pts_cur, valid, tau2, cfg=cfg
+    )
     n_c = jnp.sum(inl_c, axis=1)
     big_enough = jnp.any(members, axis=1) & (n_c > params.min_segment_points)
 
