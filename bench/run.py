@@ -35,7 +35,7 @@ from jaxvo.io import Trajectory, data_root, open_sequence, write_trajectory
 from jaxvo.masks import overlay_panel
 from jaxvo.metrics import SegmentationScores, ate
 from jaxvo.peers import OPEN3D_PEERS, available_peers, run_peer
-from jaxvo.pipeline import STATIC_ID, StepOutput, frame_key, run_scan
+from jaxvo.pipeline import StepOutput, frame_key, run_scan, static_weights
 from jaxvo.plugin import dynamic_masks
 from jaxvo.spatial import segment
 from jaxvo.status import Status
@@ -156,7 +156,7 @@ def time_stages(flows, key, params, cfg: Config, grid):
         t0 = time.perf_counter()
         state, tout = jax.block_until_ready(tp(state, segs[k], disp[k], valid[k], params))
         t_tp.append(time.perf_counter() - t0)
-        weights.append(((tout.ids == STATIC_ID) & valid[k]).astype(jnp.float32))
+        weights.append(static_weights(tout, valid[k]))
 
     eg, compile_s["egomotion"] = compiled("egomotion", grid, ego, pairs[0].pts_prev,
                                           pairs[0].pts_cur, weights[0], params)
@@ -585,7 +585,7 @@ def main(argv=None) -> int:
         d["failures"][JAXVO] = int(np.count_nonzero(outs.status != Status.OK))
         d["scores"][JAXVO] = scores(seq, traj)
         if seq.has_masks:
-            d["segmentation"] = segmentation_scores(seq, outs.ids, cfg.cell).as_dict()
+            d["segmentation"] = segmentation_scores(seq, outs.moving, cfg.cell).as_dict()
         log(f"   jaxvo {timing['total_ms']:.1f} ms/frame, scan compile "
             f"{timing['scan_compile_s']:.1f} s, ATE {fmt((d['scores'][JAXVO] or {}).get('ate_rmse_m'))}")
         masks = dynamic_masks(outs, seq.height, seq.width, cfg.cell, final_ids=final_ids)

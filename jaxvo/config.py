@@ -63,11 +63,15 @@ class Params(NamedTuple):
     # spatial segmentation
     lam: float = 1e3  # lambda of the entropy, thesis eq. (3.1), 1/m^2
     delta: float = 1e-2  # delta of the entropy, thesis eq. (3.1)
-    s_min: float = 0.05  # stop when the mean entropy falls below this (Algorithm 1, line 3)
-    inlier_dist: float = 0.02  # inlier distance at 1 m depth, metres
+    # stop when the mean entropy falls below this (Algorithm 1, line 3); a slow object on a
+    # tenth of the image keeps the mean near 0.02 once the background is explained
+    s_min: float = 0.005
+    # inlier distance at 1 m depth, metres: ~3 sigma of the refined depth's frame-to-frame
+    # noise; a hand-held object moves 1-3 cm per frame at 30 Hz
+    inlier_dist: float = 0.008
     # extra inlier distance per m^2 of depth beyond 1 m (Kinect axial noise ~1.5e-3 z^2 per
     # frame); 0.01 let a slow object's motion absorb the camera's at 3 m (10 cm threshold)
-    inlier_depth_coeff: float = 0.004
+    inlier_depth_coeff: float = 0.002
     sample_dist: float = 0.015  # max residual of the m sample points themselves, at 1 m, metres
     cluster_eps: float = 0.5  # DBSCAN radius on the inlier-set (Jaccard) distance
     cluster_min_samples: float = 1.0  # DBSCAN core-point threshold (count, incl. itself)
@@ -75,7 +79,9 @@ class Params(NamedTuple):
 
     # temporal segmentation
     min_match_corr: float = 0.3  # weakest correlation (eq. 4.1) that still counts as a match
-    max_age: float = 30.0  # saturation of the grid-model age, frames
+    # saturation of the grid-model age, frames: a new motion shows in the temporal labels
+    # after about this many frames, a stopped object turns static after as many
+    max_age: float = 15.0
     id_retention: float = 15.0  # frames before an unseen identifier may be reused
 
     # ego-motion

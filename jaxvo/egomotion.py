@@ -53,10 +53,11 @@ def estimate_egomotion(pts_prev, pts_cur, weights, params: Params, *, cfg: Confi
       status: () int32, ``Status.OK``, ``NO_STATIC`` or ``EGO_DEGENERATE``.
       inliers: (n,) bool, points within three robust scales of the final fit.
     """
-    w0 = jnp.where(weights > 0, weights, 0.0).astype(jnp.float32)
-    usable = w0 > 0
+    usable = weights > 0
     n_usable = jnp.sum(usable)
     s_z = noise_scale(pts_prev[:, 2])
+    # weighted least squares: a point's weight is its inverse noise variance
+    w0 = jnp.where(usable, weights / (s_z * s_z), 0.0).astype(jnp.float32)
 
     def scaled_residuals(T):
         r = jnp.sqrt(residuals(T, pts_prev, pts_cur) + 1e-12) / s_z

@@ -3,8 +3,9 @@
 Segmentation is scored where the method measures it: at the grid points, the moving
 ground truth being the object-id mask at each cell centre of the previous image of every
 frame pair (the image the labels are anchored on). A point counts as predicted moving when
-its temporal identifier is 2 or more (thesis section 4.1: identifier 1 is the static
-background); unknown points (identifier 0) count as predicted static.
+the pipeline reports it moving (``StepOutput.moving``: a moving temporal identifier, thesis
+section 4.1, or a moving identifier in this frame's matched measurement); unknown points
+count as predicted static.
 """
 
 from __future__ import annotations
@@ -42,15 +43,18 @@ def trajectory_scores(gt: Trajectory, est: Trajectory) -> dict:
     return out
 
 
-def segmentation_scores(seq, ids: np.ndarray, cell: int) -> SegmentationScores:
-    """Grid-level recall / precision / F-measure of ``ids`` (T, n) against ``seq``'s masks.
+def segmentation_scores(seq, moving: np.ndarray, cell: int) -> SegmentationScores:
+    """Grid-level recall / precision / F-measure of ``moving`` (T, n) against ``seq``'s masks.
 
-    ``ids[k]`` labels the grid of image ``k`` (the previous image of pair k -> k+1).
+    ``moving[k]`` (bool, or identifiers where >= 2 means moving) labels the grid of image
+    ``k`` (the previous image of pair k -> k+1).
     """
     scores = SegmentationScores()
-    for k in range(len(ids)):
+    moving = np.asarray(moving)
+    pred = moving if moving.dtype == bool else moving >= 2
+    for k in range(len(pred)):
         mask = seq[k].mask
         if mask is None:
             raise ValueError(f"sequence {seq.name!r} has no ground-truth masks")
-        scores.add(np.asarray(ids[k]) >= 2, moving_at_grid(mask, cell))
+        scores.add(pred[k], moving_at_grid(mask, cell))
     return scores

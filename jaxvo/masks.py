@@ -52,14 +52,19 @@ def moving_at_grid(mask: np.ndarray, cell: int) -> np.ndarray:
     return (mask[np.ix_(ys, xs)] > 0).ravel()
 
 
-def dynamic_pixels(ids: np.ndarray, height: int, width: int, cell: int, *, grow: int = 1):
-    """Pixels to ignore for ego-motion: cells with a moving identifier (>= 2), grown by
-    ``grow`` cells so that object borders between grid points are covered too.
+def dynamic_pixels(moving: np.ndarray, height: int, width: int, cell: int, *, grow: int = 1):
+    """Pixels to ignore for ego-motion: moving cells, grown by ``grow`` cells so that object
+    borders between grid points are covered too.
+
+    Args:
+      moving: (n,) bool per grid cell (``StepOutput.moving``), or identifiers where
+        ``>= 2`` means moving.
 
     Returns ``(H, W)`` bool, True = dynamic.
     """
     rows, cols = height // cell, width // cell
-    dyn = (np.asarray(ids).reshape(rows, cols) >= 2).astype(np.uint8)
+    moving = np.asarray(moving)
+    dyn = (moving if moving.dtype == bool else moving >= 2).reshape(rows, cols).astype(np.uint8)
     if grow > 0:
         dyn = cv2.dilate(dyn, np.ones((2 * grow + 1, 2 * grow + 1), np.uint8))
     return grid_to_pixels(dyn, height, width, cell).astype(bool)
@@ -86,7 +91,7 @@ def flow_arrows(bgr, uv_prev, uv_cur, valid, *, step: int = 1) -> np.ndarray:
     for (x0, y0), (x1, y1), v in zip(uv_prev[::step], uv_cur[::step], valid[::step]):
         if v:
             cv2.arrowedLine(
-                out, (int(x0), int(y0)), (int(round(x1)), int(round(y1))), (255, 255, 255), 1,
+                out, (int(x0), int(y0)), (round(float(x1)), round(float(y1))), (255, 255, 255), 1,
                 tipLength=0.3,
             )
     return out

@@ -25,9 +25,11 @@ from jaxvo.masks import dynamic_pixels
 
 
 def _ids_of(result) -> np.ndarray:
-    """``(T, n)`` identifiers from a ``SequenceResult``, a stacked ``StepOutput`` or an array."""
+    """``(T, n)`` moving flags (or identifiers) from a ``SequenceResult``, a stacked
+    ``StepOutput`` or an array."""
     outputs = getattr(result, "outputs", result)  # SequenceResult -> its StepOutput
-    ids = getattr(outputs, "ids", outputs)  # StepOutput -> its identifiers
+    # StepOutput -> its moving points (identifiers for outputs that carry only those)
+    ids = getattr(outputs, "moving", getattr(outputs, "ids", outputs))
     ids = np.asarray(ids)
     if ids.ndim == 1:
         ids = ids[None]
@@ -43,7 +45,8 @@ def iter_dynamic_masks(
 
     Args:
       result: a :class:`~jaxvo.odometry.SequenceResult`, a :class:`~jaxvo.pipeline.StepOutput`
-        stacked over T frame pairs, or identifiers ``(T, n)`` int (``(n,)`` for one pair).
+        stacked over T frame pairs (its ``moving`` points are used), or ``(T, n)`` moving
+        flags (bool) or identifiers (int, ``>= 2`` = moving; ``(n,)`` for one pair).
       height, width: image size, pixels.
       cell: grid cell size, pixels (``Config.cell`` of the run).
       final_ids: optional ``(n,)`` identifiers of the final state
@@ -53,7 +56,7 @@ def iter_dynamic_masks(
         points); 0 keeps exactly the moving cells.
 
     Yields:
-      T + 1 masks, bool, True = dynamic pixel (a cell with identifier >= 2).
+      T + 1 masks, bool, True = dynamic pixel (a moving cell).
     """
     ids = _ids_of(result)
     n = (height // cell) * (width // cell)

@@ -88,6 +88,7 @@ def test_iterator_matches_array_and_accepts_a_real_step_output():
         T_cur_prev=np.tile(np.eye(4, dtype=np.float32), (2, 1, 1)),
         status=np.zeros(2, np.int32),
         ids=ids,
+        moving=ids >= 2,
         static=zeros_b,
         labels=zeros_i,
         hyp_labels=zeros_i,

@@ -66,7 +66,7 @@ def run(args: argparse.Namespace) -> int:
                        progress=Progress("  grid flow", enabled=not (args.quiet or args.json)))
     n_pairs = len(seq) - 1
     rows = {"jaxvo": trajectory_scores(seq.groundtruth, res.trajectory)}
-    seg = segmentation_scores(seq, res.outputs.ids, cfg.cell)
+    seg = segmentation_scores(seq, res.outputs.moving, cfg.cell)
     rows["jaxvo"]["f_measure"] = seg.f_measure
     rows["jaxvo"]["ms_per_frame"] = 1e3 * res.flow_seconds / n_pairs
     skipped = int((res.outputs.status != Status.OK).sum())

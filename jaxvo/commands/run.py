@@ -94,7 +94,7 @@ def run(args: argparse.Namespace) -> int:
                         ids = grid_to_pixels(r.ids, h, w, cfg.cell).astype(np.uint8)
                         cv2.imwrite(str(Path(args.masks) / f"{prev_frame.index:06d}.png"), ids)
                     if args.dynamic_masks:  # jaxvo.plugin: step k labels image k
-                        dyn = mask_png(dynamic_pixels(r.ids, h, w, cfg.cell))
+                        dyn = mask_png(dynamic_pixels(r.output.moving, h, w, cfg.cell))
                         last_dyn = dyn
                         cv2.imwrite(str(Path(args.dynamic_masks) / f"{prev_frame.index:06d}.png"),
                                     dyn)
