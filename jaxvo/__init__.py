@@ -10,7 +10,9 @@ model, device) -> ``egomotion`` -> ``pipeline`` (per-frame step, scan, streaming
 
 from jaxvo.camera import PRESETS, Intrinsics, preset, read_camera_file
 from jaxvo.config import Config, Params, default_params, grid_shape, params_as_arrays
+from jaxvo.egomotion import estimate_egomotion
 from jaxvo.errors import InputError
+from jaxvo.evaluation import segmentation_scores, trajectory_scores
 from jaxvo.flow import GridFlow, GridFlowTracker, flows_for_sequence, grid_flow
 from jaxvo.io import (
     Frame,
@@ -22,7 +24,20 @@ from jaxvo.io import (
     write_trajectory,
 )
 from jaxvo.metrics import SegmentationScores, align_umeyama, ate, rpe
+from jaxvo.odometry import FrameResult, Odometry, SequenceResult, run_sequence
+from jaxvo.pipeline import (
+    PipelineState,
+    StepOutput,
+    batch_params,
+    init_pipeline,
+    jit_step,
+    run_scan,
+    run_study,
+    step,
+)
 from jaxvo.plugin import dynamic_masks, iter_dynamic_masks
+from jaxvo.procrustes import fit_rigid, residuals
+from jaxvo.spatial import Segmentation, segment
 from jaxvo.status import Status
 from jaxvo.synth import (
     SCENARIOS,
@@ -39,49 +54,68 @@ from jaxvo.temporal import TemporalOut, TemporalState, init_temporal, update_tem
 __version__ = "0.1.0"
 
 __all__ = [
-    "Config",
-    "InputError",
-    "Intrinsics",
     "PRESETS",
-    "Params",
-    "Status",
-    "default_params",
-    "grid_shape",
-    "params_as_arrays",
-    "preset",
-    "read_camera_file",
+    "SCENARIOS",
+    "Config",
     # io, metrics
     "Frame",
+    "FrameResult",
+    # flow
+    "GridFlow",
+    "GridFlowTracker",
+    "InputError",
+    "Intrinsics",
+    # synthetic data
+    "ObjectSpec",
+    "Odometry",
+    "Params",
+    "PipelineState",
+    "Scenario",
+    "Segmentation",
     "SegmentationScores",
+    "SensorOptions",
+    "SequenceResult",
+    "Status",
+    "StepOutput",
+    "SyntheticSequence",
+    # temporal
+    "TemporalOut",
+    "TemporalState",
     "Trajectory",
     "TumSequence",
     "align_umeyama",
     "associate",
     "ate",
-    "open_sequence",
-    "read_trajectory",
-    "rpe",
-    "write_trajectory",
-    # temporal
-    "TemporalOut",
-    "TemporalState",
-    "init_temporal",
-    "update_temporal",
-    # flow
-    "GridFlow",
-    "GridFlowTracker",
-    "flows_for_sequence",
-    "grid_flow",
+    "batch_params",
+    "composite_sequence",
+    "default_params",
     # plug-in masks
     "dynamic_masks",
+    "estimate_egomotion",
+    "fit_rigid",
+    "flows_for_sequence",
+    "grid_flow",
+    "grid_shape",
+    "init_pipeline",
+    "init_temporal",
     "iter_dynamic_masks",
-    # synthetic data
-    "ObjectSpec",
-    "SCENARIOS",
-    "Scenario",
-    "SensorOptions",
-    "SyntheticSequence",
-    "composite_sequence",
+    "jit_step",
     "make_sequence",
+    "open_sequence",
+    "params_as_arrays",
+    "preset",
+    "read_camera_file",
+    "read_trajectory",
+    "residuals",
+    "rpe",
+    "run_scan",
+    "run_sequence",
+    "run_study",
+    "segment",
+    "segmentation_scores",
+    "step",
+    "trajectory_scores",
+    "update_temporal",
     "write_sequence",
+    "write_trajectory",
 ]

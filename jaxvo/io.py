@@ -425,7 +425,7 @@ class TrajectoryWriter:
         self.path = Path(path)
         if self.path.parent and not self.path.parent.exists():
             raise InputError(f"folder of the output trajectory does not exist: {self.path.parent}")
-        self._fh = open(self.path, "w")
+        self._fh = open(self.path, "w")  # noqa: SIM115 (held open across writes; closed by close())
         for line in comment.splitlines():
             self._fh.write(f"# {line}\n")
         self._fh.write("# timestamp tx ty tz qx qy qz qw\n")

@@ -1,0 +1,152 @@
+"""End-to-end speed and memory of the odometry (issue 5's figures).
+
+Measures, on this machine, with the first call (compile) apart from steady state:
+
+1. streaming: ``Odometry.process`` per frame at 640x480, 16 px cells, H = 20 (flow on the
+   host + the jitted per-frame step), median and p90 ms per frame;
+2. the whole-sequence ``lax.scan`` from precomputed flow: frames per second;
+3. peak memory of ``jaxvo run`` on a 300-frame sequence (7-Scenes from the data root when
+   present, else a synthetic one written to a temporary folder), as the child process's
+   maximum resident set size.
+
+Usage: ``python bench/bench_pipeline.py [--frames 120] [--json out.json]``
+"""
+
+from __future__ import annotations
+
+import argparse
+import json
+import os
+import platform
+import resource
+import subprocess
+import sys
+import tempfile
+import time
+
+import jax
+import jax.numpy as jnp
+import numpy as np
+
+from jaxvo.config import Config, Params, grid_shape, params_as_arrays
+from jaxvo.flow import flows_for_sequence
+from jaxvo.io import data_root
+from jaxvo.odometry import Odometry
+from jaxvo.pipeline import run_scan
+from jaxvo.synth import make_sequence, write_sequence
+
+
+def machine() -> dict:
+    cpu = "unknown"
+    try:
+        with open("/proc/cpuinfo") as fh:
+            for line in fh:
+                if line.startswith("model name"):
+                    cpu = line.split(":", 1)[1].strip()
+                    break
+    except OSError:
+        pass
+    return {
+        "platform": platform.platform(),
+        "cpu": cpu,
+        "cores": os.cpu_count(),
+        "python": platform.python_version(),
+        "jax": jax.__version__,
+        "device": str(jax.devices()[0]),
+        "load_average": os.getloadavg(),
+    }
+
+
+def bench_streaming(frames: list, K) -> dict:
+    odo = Odometry(K, cfg=Config(), seed=0)
+    times = []
+    for f in frames:
+        t0 = time.perf_counter()
+        odo.process(f.bgr, f.depth, f.timestamp)
+        times.append(time.perf_counter() - t0)
+    steady = np.asarray(times[2:]) * 1e3
+    return {
+        "first_pair_s_compile_included": round(times[1], 2),
+        "median_ms_per_frame": round(float(np.median(steady)), 2),
+        "p90_ms_per_frame": round(float(np.percentile(steady, 90)), 2),
+        "frames": len(frames),
+    }
+
+
+def bench_scan(seq, cfg: Config, repeats: int = 5) -> dict:
+    flows = flows_for_sequence(seq, cfg)
+    flows = jax.tree.map(jnp.asarray, flows)
+    grid = grid_shape(seq.height, seq.width, cfg.cell)
+    p = params_as_arrays(Params())
+    T0 = jnp.eye(4, dtype=jnp.float32)
+    t0 = time.perf_counter()
+    jax.block_until_ready(run_scan(flows, jax.random.key(0), p, T0, cfg=cfg, grid=grid))
+    compile_s = time.perf_counter() - t0
+    runs = []
+    for r in range(repeats):
+        t0 = time.perf_counter()
+        jax.block_until_ready(run_scan(flows, jax.random.key(r), p, T0, cfg=cfg, grid=grid))
+        runs.append(time.perf_counter() - t0)
+    n = len(seq) - 1
+    best, med = min(runs), float(np.median(runs))
+    return {
+        "pairs": n,
+        "first_call_s_compile_included": round(compile_s, 2),
+        "median_frames_per_second": round(n / med, 1),
+        "best_frames_per_second": round(n / best, 1),
+        "median_ms_per_frame": round(1e3 * med / n, 3),
+    }
+
+
+def bench_memory(tmp: str) -> dict:
+    seq_dir = data_root() / "7scenes_static_0000_0299"
+    if not (seq_dir / "rgb.txt").is_file():
+        seq_dir = os.path.join(tmp, "synthetic_300")
+        write_sequence(make_sequence("handheld_slow", frames=300, seed=0), seq_dir)
+    out = os.path.join(tmp, "traj.txt")
+    before = resource.getrusage(resource.RUSAGE_CHILDREN).ru_maxrss
+    t0 = time.perf_counter()
+    proc = subprocess.run(
+        [sys.executable, "-m", "jaxvo.cli", "run", str(seq_dir), "--out", out, "-q", "--json"],
+        capture_output=True, text=True, check=False,
+    )
+    wall = time.perf_counter() - t0
+    peak_kib = resource.getrusage(resource.RUSAGE_CHILDREN).ru_maxrss
+    if proc.returncode not in (0, 1):
+        raise RuntimeError(proc.stderr)
+    summary = json.loads(proc.stdout)
+    return {
+        "sequence": str(seq_dir),
+        "frames": summary["frames"],
+        "peak_rss_mib": round(max(peak_kib, before) / 1024, 1),
+        "wall_s": round(wall, 1),
+        "frames_per_second_reported": summary["frames_per_second"],
+    }
+
+
+def main() -> None:
+    ap = argparse.ArgumentParser(description=__doc__.splitlines()[0])
+    ap.add_argument("--frames", type=int, default=120, help="synthetic frames for 1 and 2")
+    ap.add_argument("--skip-memory", action="store_true")
+    ap.add_argument("--json", help="also write the results here")
+    args = ap.parse_args()
+
+    seq = make_sequence("handheld_slow", frames=args.frames, seed=0)
+    frames = [seq[i] for i in range(len(seq))]  # rendered up front: not part of the timing
+    res = {"machine": machine()}
+    print("machine:", res["machine"], flush=True)
+    res["streaming"] = bench_streaming(frames, seq.intrinsics)
+    print("streaming (flow + jitted step per frame):", res["streaming"], flush=True)
+    res["scan"] = bench_scan(seq, Config())
+    print("whole-sequence scan from precomputed flow:", res["scan"], flush=True)
+    if not args.skip_memory:
+        with tempfile.TemporaryDirectory() as tmp:
+            res["memory"] = bench_memory(tmp)
+        print("jaxvo run peak memory:", res["memory"], flush=True)
+    if args.json:
+        with open(args.json, "w") as fh:
+            json.dump(res, fh, indent=1)
+
+
+if __name__ == "__main__":
+    main()
