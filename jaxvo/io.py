@@ -462,3 +462,38 @@ def check_depth_scale(depth: np.ndarray, K, *, where: str) -> None:
             f"{where}: median depth is {med:.3g} m with depth_scale {K.depth_scale:g}; "
             "the depth scale looks wrong (TUM uses 5000 per metre, millimetre sensors 1000)"
         )
+
+
+class InMemorySequence:
+    """The first ``frames`` frames of a sequence, read (or rendered) once and kept in memory.
+
+    jaxvo and every peer then read the same frames, and rendering a synthetic frame (about
+    0.1 s) is paid once instead of once per method.
+    """
+
+    def __init__(self, seq, frames: int | None = None):
+        n = len(seq) if frames is None else min(len(seq), int(frames))
+        self.name = seq.name
+        self.intrinsics = seq.intrinsics
+        self.height, self.width = seq.height, seq.width
+        self.timestamps = np.asarray(seq.timestamps[:n], np.float64)
+        self._frames = [seq[i] for i in range(n)]
+        gt = getattr(seq, "groundtruth", None)
+        if gt is not None and len(gt) == len(seq):  # one pose per frame: keep the same ones
+            gt = Trajectory(np.asarray(gt.timestamps[:n]), np.asarray(gt.poses[:n]))
+        self.groundtruth = gt  # otherwise associated by timestamp, as the metrics do
+        self.has_masks = self._frames[0].mask is not None
+
+    def __len__(self) -> int:
+        return len(self._frames)
+
+    def __getitem__(self, index: int):
+        return self._frames[index]
+
+    def __iter__(self):
+        return iter(self._frames)
+
+    @property
+    def duration(self) -> float:
+        """Seconds from the first to the last frame."""
+        return float(self.timestamps[-1] - self.timestamps[0]) if len(self) > 1 else 0.0
