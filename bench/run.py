@@ -270,6 +270,11 @@ def plot_trajectories(path: Path, seq: CachedSequence, trajs: dict, title: str) 
                        {"color": "black", "lw": 2.2}))
     for name, traj in trajs.items():
         series.append((name, t, traj.poses, style(name)))
+    _xyz_figure(plt, fig, top, axes, series, "top view", title, path)
+
+
+def _xyz_figure(plt, fig, top, axes, series, top_title: str, title: str, path: Path) -> None:
+    """Draw ``(name, t, poses, style)`` series as a top view (x, z) and x, y, z over time."""
     for name, tt, poses, st in series:
         p = np.asarray(poses)[:, :3, 3]
         top.plot(p[:, 0], p[:, 2], label=name, **st)
@@ -277,7 +282,7 @@ def plot_trajectories(path: Path, seq: CachedSequence, trajs: dict, title: str) 
             ax.plot(tt, p[:, i], **st)
     top.set_xlabel("x [m]")
     top.set_ylabel("z [m]")
-    top.set_title("top view")
+    top.set_title(top_title)
     top.axis("equal")
     top.legend(fontsize=7)
     for i, ax in enumerate(axes):
@@ -328,23 +333,8 @@ def plot_labels_and_peers(path: Path, seq: CachedSequence, trajs: dict, outs: St
     top = fig.add_subplot(gs[:, 1])
     axes = [fig.add_subplot(gs[i * len(picks) // 3, 2]) for i in range(min(3, len(picks)))]
     t = seq.timestamps - seq.timestamps[0]
-    for name, traj in trajs.items():
-        p = np.asarray(traj.poses)[:, :3, 3]
-        top.plot(p[:, 0], p[:, 2], label=name, **style(name))
-        for i, ax in enumerate(axes):
-            ax.plot(t, p[:, i], **style(name))
-    top.set_xlabel("x [m]")
-    top.set_ylabel("z [m]")
-    top.set_title("top view (no ground truth)")
-    top.axis("equal")
-    top.legend(fontsize=7)
-    for i, ax in enumerate(axes):
-        ax.set_ylabel(f"{'xyz'[i]} [m]")
-    axes[-1].set_xlabel("time [s]")
-    fig.suptitle(title)
-    fig.tight_layout()
-    fig.savefig(path, dpi=80)
-    plt.close(fig)
+    series = [(name, t, traj.poses, style(name)) for name, traj in trajs.items()]
+    _xyz_figure(plt, fig, top, axes, series, "top view (no ground truth)", title, path)
 
 
 def stage_panels(path: Path, seq: CachedSequence, outs: StepOutput, cell: int,

@@ -56,8 +56,10 @@ def estimate_egomotion(pts_prev, pts_cur, weights, params: Params, *, cfg: Confi
     usable = weights > 0
     n_usable = jnp.sum(usable)
     s_z = noise_scale(pts_prev[:, 2])
-    # weighted least squares: a point's weight is its inverse noise variance
-    w0 = jnp.where(usable, weights / (s_z * s_z), 0.0).astype(jnp.float32)
+    # a point's weight falls with its expected noise (1/sigma rather than the statistically
+    # optimal 1/sigma^2: that let near, mislabelled object points pull the fit, fixed_camera_1
+    # ATE 0.6 -> 190 mm, while 1/sigma keeps most of the gain on static scenes, 6.6 -> 4.9 mm)
+    w0 = jnp.where(usable, weights / s_z, 0.0).astype(jnp.float32)
 
     def scaled_residuals(T):
         r = jnp.sqrt(residuals(T, pts_prev, pts_cur) + 1e-12) / s_z
