@@ -448,7 +448,7 @@ def write_report(out: Path, res: dict) -> None:
           table(["sequence"] + all_methods, rows), ""]
 
     L += ["## Segmentation (thesis Table 5.3 layout)", ""]
-    L += [("jaxvo's temporal identifiers at the grid points (identifier >= 2 = moving) against "
+    L += [("jaxvo's moving grid points (`StepOutput.moving`: a moving temporal identifier, or a moving identifier in the pair's matched measurement) against "
           "the true object masks at the cell centres of the image each pair's labels are "
           "anchored on; counted over the whole sequence. *Plug-in mask* scores the pixel "
           "masks handed to the peers (moving cells grown by one cell) against the true "
