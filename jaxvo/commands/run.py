@@ -37,6 +37,7 @@ def add_arguments(p: argparse.ArgumentParser) -> None:
 
 
 def run(args: argparse.Namespace) -> int:
+    import resource
     import time
     from collections import Counter
 
@@ -122,6 +123,8 @@ def run(args: argparse.Namespace) -> int:
         "first_frame_pair_seconds": round(times[1], 3) if len(times) > 1 else None,
         "skipped": dict(skipped),
         "interrupted": interrupted,
+        # this process's high-water mark (Linux reports KiB)
+        "peak_rss_mib": round(resource.getrusage(resource.RUSAGE_SELF).ru_maxrss / 1024, 1),
     }
     if gt is not None and written >= 3:
         from jaxvo.io import read_trajectory
@@ -142,6 +145,7 @@ def run(args: argparse.Namespace) -> int:
               f"(first pair {summary['first_frame_pair_seconds']} s, compile included)")
         total_skip = sum(skipped.values())
         print(f"  skipped    {total_skip} of {n - 1} frame pairs")
+        print(f"  memory     {summary['peak_rss_mib']:.0f} MiB peak resident")
         for reason, count in skipped.most_common():
             print(f"    {count:5d}  {reason}")
         if "ate_rmse_m" in summary:
