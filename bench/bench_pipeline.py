@@ -115,8 +115,8 @@ def bench_memory(tmp: str) -> dict:
     return {
         "sequence": str(seq_dir),
         "frames": summary["frames"],
-        # the child's own high-water mark: RUSAGE_CHILDREN would also count the pages of
-        # this (large) process that the fork shares before exec
+        # the child's own high-water mark (VmHWM): RUSAGE_CHILDREN would also count the
+        # pages of this (large) process that the fork shares before exec
         "peak_rss_mib": summary["peak_rss_mib"],
         "wall_s": round(wall, 1),
         "frames_per_second_reported": summary["frames_per_second"],
