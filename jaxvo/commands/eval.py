@@ -118,19 +118,26 @@ def run(args: argparse.Namespace) -> int:
     return 0
 
 
-def _ate_report(args, res, n_gt: int, n_est: int) -> dict:
-    if res.alignment is None:
-        alignment = "none"
-    else:
-        alignment = "Sim(3) Umeyama" if args.scale else "SE(3) Umeyama (rigid, no scale)"
+def _report_head(metric: str, args, res, n_gt: int, n_est: int) -> dict:
+    """The fields every report starts with: what was compared and how it was associated."""
     return {
-        "metric": "ate",
+        "metric": metric,
         "gt": args.gt,
         "est": args.est,
         "poses_gt": n_gt,
         "poses_est": n_est,
         "pairs": res.num_pairs,
         "max_diff_s": res.max_diff,
+    }
+
+
+def _ate_report(args, res, n_gt: int, n_est: int) -> dict:
+    if res.alignment is None:
+        alignment = "none"
+    else:
+        alignment = "Sim(3) Umeyama" if args.scale else "SE(3) Umeyama (rigid, no scale)"
+    return {
+        **_report_head("ate", args, res, n_gt, n_est),
         "alignment": alignment,
         "scale": res.alignment.scale if res.alignment is not None else 1.0,
         "results": {"trans": {"unit": "m", **res.stats.as_dict()}},
@@ -139,13 +146,7 @@ def _ate_report(args, res, n_gt: int, n_est: int) -> dict:
 
 def _rpe_report(args, res, n_gt: int, n_est: int) -> dict:
     return {
-        "metric": "rpe",
-        "gt": args.gt,
-        "est": args.est,
-        "poses_gt": n_gt,
-        "poses_est": n_est,
-        "pairs": res.num_pairs,
-        "max_diff_s": res.max_diff,
+        **_report_head("rpe", args, res, n_gt, n_est),
         "delta": res.delta,
         "delta_unit": res.delta_unit,
         "all_pairs": res.all_pairs,
