@@ -81,19 +81,24 @@ class Odometry:
         """Feed one frame: ``bgr`` (H, W, 3) uint8, ``depth`` (H, W) float32 metres (0 = none)."""
         t = float(self._index) / 30.0 if timestamp is None else float(timestamp)
         if self._tracker is None:  # the first frame sets the image size and the grid
-            h, w = np.shape(depth)[:2]
+            if np.ndim(depth) != 2:
+                from jaxvo.errors import InputError
+
+                raise InputError("the first frame has no (H, W) depth image: cannot set the grid")
+            h, w = np.shape(depth)
             self._tracker = GridFlowTracker(self.intrinsics, self.cfg, height=h, width=w)
             self._grid = self._tracker.grid
+            self._state = init_pipeline(cfg=self.cfg, grid=self._grid, T_w_c0=self._T_w_c0)
         flow = self._tracker.push(bgr, depth)
         index = self._index
         self._index += 1
         self.timestamps.append(t)
-        if flow is None:  # the first frame: nothing to compare with yet
-            self._state = init_pipeline(cfg=self.cfg, grid=self._grid, T_w_c0=self._T_w_c0)
-            self.poses.append(self._T_w_c0.copy())
+        if flow is None:  # no earlier good frame to compare with: the pose stays
+            T = np.asarray(self._state.T_w_c, np.float64)
+            self.poses.append(T)
             n = self._grid[0] * self._grid[1]
-            return FrameResult(index, t, self._T_w_c0.copy(), Status.OK,
-                               np.zeros(n, np.int32), np.zeros(n, bool), None)
+            return FrameResult(index, t, T, Status.OK, np.zeros(n, np.int32), np.zeros(n, bool),
+                               None)
         self._state, out = jit_step(
             self._state, flow, self.key, self.params, cfg=self.cfg, grid=self._grid
         )

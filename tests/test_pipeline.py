@@ -90,3 +90,15 @@ def test_one_frame_sequence_is_a_clear_error():
     one = make_sequence("static", frames=1, seed=0)
     with pytest.raises(InputError, match="needs 2 or more"):
         run_sequence(one, cfg=CFG)
+
+
+def test_streaming_survives_bad_frames_and_carries_the_pose(seq):
+    odo = Odometry(seq.intrinsics, cfg=CFG, seed=0)
+    f0, f1, f2 = seq[0], seq[1], seq[2]
+    odo.process(f0.bgr, f0.depth, f0.timestamp)
+    bad = odo.process(f1.bgr[:100], f1.depth[:100], f1.timestamp)  # wrong size
+    assert bad.status == Status.BAD_INPUT
+    np.testing.assert_array_equal(bad.T_w_c, np.eye(4))  # pose carried over the bad frame
+    good = odo.process(f2.bgr, f2.depth, f2.timestamp)  # pairs with frame 0, the last good one
+    assert good.status == Status.OK and np.all(np.isfinite(good.T_w_c))
+    assert len(odo.trajectory) == 3
