@@ -64,3 +64,23 @@ def test_wrong_depth_scale_is_reported(seq_dir, tmp_path, capsys):
 def test_demo_unknown_scenario_lists_the_valid_ones(capsys):
     assert main(["demo", "--scenario", "nope"]) == 2
     assert "fixed_camera_1" in capsys.readouterr().err
+
+
+def test_all_invalid_depth_skips_every_pair_with_its_reason(seq_dir, tmp_path, capsys):
+    blank = tmp_path / "blank"
+    blank.mkdir()
+    for f in seq_dir.iterdir():
+        if f.name == "depth":
+            (blank / "depth").mkdir()
+            for png in f.iterdir():
+                cv2.imwrite(str(blank / "depth" / png.name), np.zeros((480, 640), np.uint16))
+        elif f.is_dir():
+            (blank / f.name).symlink_to(f, target_is_directory=True)
+        else:
+            (blank / f.name).write_text(f.read_text())
+    rc = main(["run", str(blank), "--out", str(tmp_path / "t.txt"), "-q", "--json"])
+    summary = json.loads(capsys.readouterr().out)
+    assert rc == 1  # ran, but no frame pair could be used
+    assert summary["poses_written"] == 8  # every pose still written (carried)
+    assert list(summary["skipped"]) == ["too few valid flow vectors (textureless, blurred or no depth)"]
+    assert "scores_not_computed" in summary  # no NaN figure

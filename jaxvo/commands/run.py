@@ -145,11 +145,15 @@ def run(args: argparse.Namespace) -> int:
         from jaxvo.metrics import ate, rpe
 
         est = read_trajectory(args.out)
-        a = ate(gt, est, max_diff=args.max_diff)
-        r1 = rpe(gt, est, delta=1, delta_unit="frames", max_diff=args.max_diff)
-        summary["ate_rmse_m"] = round(a.stats.rmse, 5)
-        summary["rpe_trans_rmse_m_per_frame"] = round(r1.trans.rmse, 5)
-        summary["rpe_rot_rmse_deg_per_frame"] = round(r1.rot.rmse, 4)
+        try:
+            a = ate(gt, est, max_diff=args.max_diff)
+            r1 = rpe(gt, est, delta=1, delta_unit="frames", max_diff=args.max_diff)
+        except InputError as exc:  # e.g. every pose carried: nothing to align
+            summary["scores_not_computed"] = str(exc)
+        else:
+            summary["ate_rmse_m"] = round(a.stats.rmse, 5)
+            summary["rpe_trans_rmse_m_per_frame"] = round(r1.trans.rmse, 5)
+            summary["rpe_rot_rmse_deg_per_frame"] = round(r1.rot.rmse, 4)
 
     if args.json:
         print(json.dumps(summary, indent=1))
@@ -162,6 +166,8 @@ def run(args: argparse.Namespace) -> int:
         print(f"  memory     {summary['peak_rss_mib']:.0f} MiB peak resident")
         for reason, count in skipped.most_common():
             print(f"    {count:5d}  {reason}")
+        if "scores_not_computed" in summary:
+            print(f"  ATE / RPE  not computed: {summary['scores_not_computed']}")
         if "ate_rmse_m" in summary:
             print(f"  ATE        {summary['ate_rmse_m']:.4f} m rmse (aligned, ground truth in folder)")
             print(f"  RPE        {summary['rpe_trans_rmse_m_per_frame']:.4f} m, "
