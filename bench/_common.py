@@ -55,6 +55,14 @@ def machine() -> dict:
     }
 
 
+def machine_line() -> str:
+    """:func:`machine` as one line for the benchmarks' printed headers."""
+    m = machine()
+    return (f"{m['platform']}; {m['cpu_model']}; {m['cores']} cores; python {m['python']}; "
+            f"numpy {m['numpy']}; jax {m['jax']} ({', '.join(m['jax_devices'])}); "
+            f"opencv {m['opencv']}; load average {m['load_average_start']}")
+
+
 # The in-memory copy of a sequence moved into the package (jaxvo.io.InMemorySequence).
 CachedSequence = InMemorySequence
 

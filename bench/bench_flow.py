@@ -14,11 +14,11 @@ from __future__ import annotations
 import argparse
 import dataclasses
 import os
-import platform
 import time
 
 import cv2
 import numpy as np
+from _common import machine_line
 
 from jaxvo.camera import Intrinsics, read_camera_file
 from jaxvo.config import Config
@@ -96,8 +96,7 @@ def main() -> None:
     if args.threads is not None:
         cv2.setNumThreads(args.threads)
 
-    print(f"platform    {platform.platform()}  python {platform.python_version()}")
-    print(f"cpu         {platform.processor() or platform.machine()}  count {os.cpu_count()}")
+    print(f"machine     {machine_line()}")
     print(f"opencv      {cv2.__version__}  threads {cv2.getNumThreads()}")
     print(f"load avg    {' '.join(f'{x:.2f}' for x in os.getloadavg())} (before)")
 

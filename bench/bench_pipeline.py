@@ -17,7 +17,6 @@ from __future__ import annotations
 import argparse
 import json
 import os
-import platform
 import subprocess
 import sys
 import tempfile
@@ -26,6 +25,7 @@ import time
 import jax
 import jax.numpy as jnp
 import numpy as np
+from _common import machine
 
 from jaxvo.config import Config, Params, grid_shape, params_as_arrays
 from jaxvo.flow import flows_for_sequence
@@ -33,27 +33,6 @@ from jaxvo.io import data_root
 from jaxvo.odometry import Odometry
 from jaxvo.pipeline import run_scan
 from jaxvo.synth import make_sequence, write_sequence
-
-
-def machine() -> dict:
-    cpu = "unknown"
-    try:
-        with open("/proc/cpuinfo") as fh:
-            for line in fh:
-                if line.startswith("model name"):
-                    cpu = line.split(":", 1)[1].strip()
-                    break
-    except OSError:
-        pass
-    return {
-        "platform": platform.platform(),
-        "cpu": cpu,
-        "cores": os.cpu_count(),
-        "python": platform.python_version(),
-        "jax": jax.__version__,
-        "device": str(jax.devices()[0]),
-        "load_average": os.getloadavg(),
-    }
 
 
 def bench_streaming(frames: list, K) -> dict:

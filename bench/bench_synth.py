@@ -13,25 +13,14 @@ frame (all threads), which contention inflates less. The budget is 20 ms a frame
 from __future__ import annotations
 
 import argparse
-import os
-import platform
 import time
 
-import cv2
-import jax
 import numpy as np
+from _common import machine_line
 
 from jaxvo import synth
 
 BUDGET_MS = 20.0
-
-
-def machine() -> str:
-    load = os.getloadavg() if hasattr(os, "getloadavg") else ("?",) * 3
-    return (f"{platform.platform()}; {platform.processor() or platform.machine()}; "
-            f"{os.cpu_count()} CPUs; load average {load[0]:.2f}; python "
-            f"{platform.python_version()}; numpy {np.__version__}; jax {jax.__version__} "
-            f"({jax.devices()[0].platform}); opencv {cv2.__version__}")
 
 
 def time_frames(seq) -> tuple[float, np.ndarray, np.ndarray]:
@@ -53,7 +42,7 @@ def main() -> int:
     parser.add_argument("--frames", type=int, default=121)
     parser.add_argument("--scenario", nargs="*", default=list(synth.SCENARIOS))
     args = parser.parse_args()
-    print(f"machine: {machine()}")
+    print(f"machine: {machine_line()}")
     print(f"frames per run: {args.frames} (first apart, then {args.frames - 1} timed)")
     print(f"{'scenario':16s} {'options':8s} {'first s':>8s} {'median ms':>10s} "
           f"{'p10 ms':>7s} {'p90 ms':>7s} {'cpu ms':>7s}  budget {BUDGET_MS:.0f} ms (wall median)")

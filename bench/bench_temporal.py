@@ -11,14 +11,13 @@ Run: ``.venv/bin/python bench/bench_temporal.py [--frames 200]``
 from __future__ import annotations
 
 import argparse
-import os
-import platform
 import time
 from typing import NamedTuple
 
 import jax
 import jax.numpy as jnp
 import numpy as np
+from _common import machine_line
 
 from jaxvo.config import Config, Params, grid_shape, params_as_arrays
 from jaxvo.temporal import init_temporal, update_temporal
@@ -87,11 +86,8 @@ def main():
         times.append(time.perf_counter() - t0)
     ms = np.asarray(times) * 1e3
 
-    dev = jax.devices()[0]
     print("bench_temporal: update_temporal, one frame")
-    print(f"  machine   {platform.node()} {platform.machine()} {platform.processor() or ''}")
-    print(f"  cpus      {os.cpu_count()} (shared: medians reported)")
-    print(f"  python    {platform.python_version()}  jax {jax.__version__}  device {dev}")
+    print(f"  machine   {machine_line()} (shared cores: medians reported)")
     print(
         f"  grid      {grid[0]}x{grid[1]} (640x480, {cfg.cell} px), max_ids {cfg.max_ids}, "
         f"match_window {cfg.match_window}, max_segments {cfg.max_segments}"
