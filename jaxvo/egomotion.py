@@ -15,6 +15,7 @@ import jax
 import jax.numpy as jnp
 
 from jaxvo.config import Config, Params
+from jaxvo.geometry import masked_median
 from jaxvo.procrustes import fit_rigid_cols, residuals_cols
 from jaxvo.status import Status
 
@@ -22,14 +23,6 @@ from jaxvo.status import Status
 def noise_scale(z):
     """Expected depth-noise scale at depth ``z`` metres, relative to 1 m (structured light ~ z^2)."""
     return 0.5 + 0.5 * z * z
-
-
-def _masked_median(x, mask):
-    """Median of ``x`` over ``mask`` (0 when the mask is empty), by one sort."""
-    k = jnp.sum(mask)
-    xs = jnp.sort(jnp.where(mask, x, jnp.inf))
-    mid = jnp.clip((k - 1) // 2, 0, x.shape[0] - 1)
-    return jnp.where(k > 0, xs[mid], 0.0)
 
 
 def estimate_egomotion(pts_prev, pts_cur, weights, params: Params, *, cfg: Config):
@@ -67,7 +60,7 @@ def estimate_egomotion(pts_prev, pts_cur, weights, params: Params, *, cfg: Confi
     def scaled_residuals(T):
         r = jnp.sqrt(residuals_cols(T, src, dst) + 1e-12) / s_z
         # 1.4826 * median |u| estimates the standard deviation of Gaussian residuals
-        sigma = 1.4826 * _masked_median(r, usable)
+        sigma = 1.4826 * masked_median(r, usable)
         c = jnp.clip(2.0 * sigma, 1e-3, params.ego_huber)
         return r, c
 

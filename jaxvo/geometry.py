@@ -1,4 +1,5 @@
-"""Rigid-body helpers shared by the device-side stages (pure ``jax.numpy``).
+"""Rigid-body helpers, and the masked median, shared by the device-side stages (pure
+``jax.numpy``).
 
 Conventions, used everywhere in jaxvo:
 
@@ -40,3 +41,17 @@ def transform_points(T, points):
 
 def identity_pose(dtype=jnp.float32):
     return jnp.eye(4, dtype=dtype)
+
+
+def masked_median(x, mask):
+    """Median of ``x[mask]`` for a fixed-shape ``(n,)`` vector, 0 when the mask is empty.
+
+    One sort with the masked-out lanes moved to the end (a finite sentinel, so no
+    ``inf - inf`` can appear downstream); the mean of the two middle values.
+    """
+    n = x.shape[0]
+    k = jnp.sum(mask)
+    srt = jnp.sort(jnp.where(mask, x, 1e30))
+    lo = srt[jnp.clip((k - 1) // 2, 0, n - 1)]
+    hi = srt[jnp.clip(k // 2, 0, n - 1)]
+    return jnp.where(k > 0, 0.5 * (lo + hi), 0.0)

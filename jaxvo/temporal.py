@@ -38,6 +38,7 @@ import jax
 import jax.numpy as jnp
 
 from jaxvo.config import Config, Params
+from jaxvo.geometry import masked_median
 from jaxvo.status import Status
 
 _NEVER = -(2**30)  # last_seen of an identifier never observed: always free
@@ -255,16 +256,6 @@ def _update_models(state: TemporalState, meas, max_age, *, cfg: Config):
 # --------------------------------------------------------------------------------------
 
 
-def _masked_median(x, mask):
-    """Median of ``x[mask]`` (0 when the mask is empty), fixed shape, no NaN."""
-    n = x.shape[0]
-    k = jnp.sum(mask)
-    srt = jnp.sort(jnp.where(mask, x, _BIG))
-    lo = srt[jnp.clip((k - 1) // 2, 0, n - 1)]
-    hi = srt[jnp.clip(k // 2, 0, n - 1)]
-    return jnp.where(k > 0, 0.5 * (lo + hi), 0.0)
-
-
 def compensation_weights(disp, flow_valid, *, cfg: Config, grid: tuple[int, int]):
     """Where each current cell's model comes from: thesis eqs. (4.8), (4.9).
 
@@ -287,7 +278,7 @@ def compensation_weights(disp, flow_valid, *, cfg: Config, grid: tuple[int, int]
     n = rows * cols
     ok = flow_valid & jnp.all(jnp.isfinite(disp), axis=1)
     d_safe = jnp.where(ok[:, None], disp, 0.0)
-    med = jnp.stack([_masked_median(d_safe[:, 0], ok), _masked_median(d_safe[:, 1], ok)])
+    med = jnp.stack([masked_median(d_safe[:, 0], ok), masked_median(d_safe[:, 1], ok)])
     d = jnp.where(ok[:, None], d_safe, med[None, :]) / cfg.cell
 
     r = (jnp.arange(n) // cols).astype(jnp.float32)
