@@ -39,10 +39,6 @@ def transform_points(T, points):
     return jnp.einsum("...ij,...nj->...ni", R, points) + t[..., None, :]
 
 
-def identity_pose(dtype=jnp.float32):
-    return jnp.eye(4, dtype=dtype)
-
-
 def masked_median(x, mask):
     """Median of ``x[mask]`` for a fixed-shape ``(n,)`` vector, 0 when the mask is empty.
 

@@ -85,18 +85,6 @@ def label_image(ids: np.ndarray, height: int, width: int, cell: int) -> np.ndarr
     return palette(grid_to_pixels(ids, height, width, cell))
 
 
-def flow_arrows(bgr, uv_prev, uv_cur, valid, *, step: int = 1) -> np.ndarray:
-    """Grid flow drawn as arrows from the previous grid point to its tracked position."""
-    out = bgr.copy()
-    for (x0, y0), (x1, y1), v in zip(uv_prev[::step], uv_cur[::step], valid[::step]):
-        if v:
-            cv2.arrowedLine(
-                out, (int(x0), int(y0)), (round(float(x1)), round(float(y1))), (255, 255, 255), 1,
-                tipLength=0.3,
-            )
-    return out
-
-
 def overlay_panel(bgr: np.ndarray, out, cell: int, *, scale: float = 0.5) -> np.ndarray:
     """Thesis Fig. 5.1-style panel of one frame pair's internal stages, side by side:
     image with the temporal labels ("Model"), raw hypotheses ("Hypotheses"), spatial

@@ -1,0 +1,42 @@
+"""Grid label maps as pixel masks and overlays."""
+
+import numpy as np
+
+from jaxvo.masks import dynamic_pixels, grid_to_pixels, label_image, moving_at_grid, overlay
+
+H, W, CELL = 50, 70, 16  # 3 x 4 cells with a strip of 2 rows / 6 columns left over
+
+
+def test_grid_to_pixels_blocks_and_edge_strip():
+    vals = np.arange(12)
+    img = grid_to_pixels(vals, H, W, CELL)
+    assert img.shape == (H, W)
+    assert img[0, 0] == 0 and img[15, 15] == 0 and img[16, 16] == 5
+    assert img[49, 69] == 11  # the strip below / right takes the nearest cell
+
+
+def test_moving_at_grid_reads_cell_centres():
+    mask = np.zeros((H, W), np.uint8)
+    mask[16:32, 32:48] = 2  # exactly cell (1, 2)
+    got = moving_at_grid(mask, CELL)
+    assert got.shape == (12,) and got.sum() == 1 and got[1 * 4 + 2]
+
+
+def test_dynamic_pixels_accepts_flags_or_ids_and_grows_by_cells():
+    ids = np.ones(12, np.int32)
+    ids[5] = 3
+    exact = dynamic_pixels(ids, H, W, CELL, grow=0)
+    np.testing.assert_array_equal(exact, dynamic_pixels(ids >= 2, H, W, CELL, grow=0))
+    assert exact.sum() == CELL * CELL and exact[20, 20]
+    grown = dynamic_pixels(ids, H, W, CELL, grow=1)
+    assert grown[0, 0] and grown.sum() > exact.sum()
+
+
+def test_overlay_and_label_image_shapes():
+    bgr = np.full((H, W, 3), 100, np.uint8)
+    ids = np.array([0, 1, 2, 3] * 3)
+    out = overlay(bgr, ids, CELL)
+    assert out.shape == bgr.shape and out.dtype == np.uint8
+    assert (out[0, 0] == 100).all()  # unknown cells untouched
+    assert (out[0, 40] != 100).any()  # moving cells tinted
+    assert label_image(ids, H, W, CELL).shape == (H, W, 3)
