@@ -33,3 +33,8 @@ def test_masked_median_matches_numpy_and_is_zero_when_empty():
         # exact up to float32 rounding of the middle mean: 1e-6
         np.testing.assert_allclose(float(masked_median(x, mask)), np.median(x[mask]), atol=1e-6)
     assert float(masked_median(jnp.ones(5), jnp.zeros(5, bool))) == 0.0
+    # ties, signed zeros, huge magnitudes: the bisection works on the float bit patterns
+    x = np.array([-0.0, 0.0, 3.0, 3.0, -1e30, 1e30, -2.5, 7.0], np.float32)
+    for sel in ([0, 1], [2, 3, 6], [4, 5], [4, 6, 7, 2], list(range(8))):
+        mask = np.isin(np.arange(8), sel)
+        assert float(masked_median(x, mask)) == np.median(x[mask])
