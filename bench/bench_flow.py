@@ -7,12 +7,17 @@ the steady state. Other processes share the cores, so the figures are medians / 
 many pairs, and the load average is printed next to them.
 
     .venv/bin/python bench/bench_flow.py [--threads N] [--pairs 200] [--thesis-lk]
+        [--baseline OLD_FLOW_PY]
+
+``--baseline`` times another version of jaxvo/flow.py in the same run, the two trackers
+taking each frame in turn, e.g. ``git show HEAD~1:jaxvo/flow.py > /tmp/flow_old.py``.
 """
 
 from __future__ import annotations
 
 import argparse
 import dataclasses
+import importlib.util
 import os
 import time
 
@@ -58,30 +63,42 @@ def generated(n: int):
     return Intrinsics(525.0, 525.0, 319.5, 239.5), frames
 
 
-def run(K, frames, cfg: Config, pairs: int):
-    """Stream frames (looping, with a reset at each wrap) until ``pairs`` pairs are timed."""
+def load_tracker_class(path: str):
+    """``GridFlowTracker`` of another flow.py (e.g. ``git show HEAD~3:jaxvo/flow.py``)."""
+    spec = importlib.util.spec_from_file_location("baseline_flow", path)
+    module = importlib.util.module_from_spec(spec)
+    spec.loader.exec_module(module)
+    return module.GridFlowTracker
+
+
+def run(K, frames, cfg: Config, pairs: int, classes) -> list[dict]:
+    """Stream frames (looping, with a reset at each wrap) until ``pairs`` pairs are timed.
+
+    Each frame goes to one tracker of every class in ``classes`` in turn, so that they
+    share the load of the moment and their medians compare.
+    """
     h, w = frames[0][0].shape[:2]
-    tracker = GridFlowTracker(K, cfg, height=h, width=w)
-    wall, cpu, valid = [], [], []
-    first = None
+    trackers = [cls(K, cfg, height=h, width=w) for cls in classes]
+    stats = [{"first": None, "wall": [], "cpu": [], "valid": [], "n": t.n} for t in trackers]
     i = 0
-    while len(wall) < pairs:
+    while len(stats[0]["wall"]) < pairs:
         img, depth = frames[i % len(frames)]
-        if i % len(frames) == 0:
-            tracker.reset()
-        t0, c0 = time.perf_counter(), time.thread_time()
-        flow = tracker.push(img, depth)
-        t1, c1 = time.perf_counter(), time.thread_time()
+        for tracker, s in zip(trackers, stats):
+            if i % len(frames) == 0:
+                tracker.reset()
+            t0, c0 = time.perf_counter(), time.thread_time()
+            flow = tracker.push(img, depth)
+            t1, c1 = time.perf_counter(), time.thread_time()
+            if flow is None:
+                continue
+            if s["first"] is None:
+                s["first"] = (t1 - t0) * 1e3
+                continue
+            s["wall"].append((t1 - t0) * 1e3)
+            s["cpu"].append((c1 - c0) * 1e3)
+            s["valid"].append(flow.valid.mean())
         i += 1
-        if flow is None:
-            continue
-        if first is None:
-            first = (t1 - t0) * 1e3
-            continue
-        wall.append((t1 - t0) * 1e3)
-        cpu.append((c1 - c0) * 1e3)
-        valid.append(flow.valid.mean())
-    return first, np.array(wall), np.array(cpu), float(np.mean(valid)), tracker.n
+    return stats
 
 
 def main() -> None:
@@ -91,6 +108,11 @@ def main() -> None:
     ap.add_argument("--frames", type=int, default=50, help="frames read per sequence")
     ap.add_argument(
         "--thesis-lk", action="store_true", help="also time the thesis LK (window 21, 3 levels)"
+    )
+    ap.add_argument(
+        "--baseline",
+        metavar="FLOW_PY",
+        help="also time the GridFlowTracker of this flow.py, interleaved pair by pair",
     )
     args = ap.parse_args()
     if args.threads is not None:
@@ -111,17 +133,26 @@ def main() -> None:
     configs = [("default", Config())]
     if args.thesis_lk:
         configs.append(("thesis LK 21/3", dataclasses.replace(Config(), lk_window=21, lk_levels=3)))
+    classes = [("", GridFlowTracker)]
+    if args.baseline:
+        classes.append((" (baseline)", load_tracker_class(args.baseline)))
     print(
-        f"\n{'sequence':32s} {'config':15s} {'n':>5s} {'first':>7s} {'median':>7s} "
+        f"\n{'sequence':32s} {'config':26s} {'n':>5s} {'first':>7s} {'median':>7s} "
         f"{'p90':>7s} {'cpu med':>7s} {'valid':>6s}   (ms per frame pair)"
     )
     for name, K, frames in sets:
         for label, cfg in configs:
-            first, wall, cpu, valid, n = run(K, frames, cfg, args.pairs)
-            print(
-                f"{name:32s} {label:15s} {n:5d} {first:7.2f} {np.median(wall):7.2f} "
-                f"{np.percentile(wall, 90):7.2f} {np.median(cpu):7.2f} {valid:6.3f}"
-            )
+            stats = run(K, frames, cfg, args.pairs, [cls for _, cls in classes])
+            for (tag, _), s in zip(classes, stats):
+                wall = np.array(s["wall"])
+                print(
+                    f"{name:32s} {label + tag:26s} {s['n']:5d} {s['first']:7.2f} "
+                    f"{np.median(wall):7.2f} {np.percentile(wall, 90):7.2f} "
+                    f"{np.median(s['cpu']):7.2f} {np.mean(s['valid']):6.3f}"
+                )
+            if len(stats) > 1:
+                ratio = np.median(stats[0]["wall"]) / np.median(stats[1]["wall"])
+                print(f"{'':32s} {'median / baseline':26s} {ratio:18.2f}")
     print(f"load avg    {' '.join(f'{x:.2f}' for x in os.getloadavg())} (after)")
     print("cpu med     CPU time of the calling thread: all of it with --threads 1 only")
     print("target      <= 5 ms per pair at 640x480, 16 px cells (1200 points)")
