@@ -12,10 +12,21 @@ to the current image with pyramidal Lucas-Kanade. A track is kept only if
 Kept tracks are back-projected into previous and current 3D points (metres). Shapes are
 fixed: ``n = rows * cols`` points whatever passes, invalid ones zeroed.
 
-Speed: each frame is converted to grey, refined and sampled at the grid once
-(:class:`GridFlowTracker` keeps the previous frame). OpenCV's Python binding cannot take the
-pyramids of ``cv2.buildOpticalFlowPyramid`` back into ``cv2.calcOpticalFlowPyrLK``
-(opencv/opencv#4777), so each LK call rebuilds them; LK itself is most of the time per pair.
+Speed (about 2 us of LK per point and direction is most of the time per pair):
+
+* the checks run cheapest first, each on the points that passed the ones before: no depth
+  at the grid point, then forward LK, then the image bounds, similarity and depth at the
+  tracked point, then backward LK and the forward-backward error. LK tracks each point on
+  its own, so the flow is the same as checking every point (tests compare bit for bit);
+* depth is refined only at the pixels the bilinear lookups read (:func:`depth_at`), with
+  the same values as refining the whole image (:func:`refine_depth`);
+* each frame is converted to grey and its depth looked up at the grid once; the tracker
+  keeps that for the next pair.
+
+OpenCV 5.0's Python binding still takes no pyramid from ``cv2.buildOpticalFlowPyramid``
+in ``cv2.calcOpticalFlowPyrLK`` (images only: opencv/opencv#4777), so each LK call
+rebuilds both pyramids (about 0.3 ms a call); its LK runs on the calling thread whatever
+``cv2.setNumThreads`` says.
 
 Host only: numpy and OpenCV, never traced.
 """
@@ -72,38 +83,12 @@ def stack_flows(flows: list[GridFlow]) -> GridFlow:
 # ----------------------------------------------------------------------------- depth
 
 
-class _RefineWork:
-    """Scratch buffers of :func:`refine_depth`, reused frame after frame.
-
-    Fresh (H, W) arrays cost page faults on every call (several ms at 640x480 here), more
-    than the filtering itself. Two output buffers alternate so that the previous frame's
-    refined depth stays intact while the current one is written.
-    """
-
-    def __init__(self, height: int, width: int):
-        shape = (height, width)
-        self.trusted = np.empty(shape, np.uint8)
-        self.far, self.total, self.count, self.mean, self.a, self.b = (
-            np.empty(shape, np.float32) for _ in range(6)
-        )
-        self.m1 = np.empty(shape, bool)
-        self.m2 = np.empty(shape, bool)
-        self._outs = (np.empty(shape, np.float32), np.empty(shape, np.float32))
-        self._turn = 0
-
-    def next_out(self) -> np.ndarray:
-        self._turn ^= 1
-        return self._outs[self._turn]
-
-
-def refine_depth(
-    depth: np.ndarray, cfg: Config = DEFAULT_CONFIG, *, work: _RefineWork | None = None
-) -> np.ndarray:
+def refine_depth(depth: np.ndarray, cfg: Config = DEFAULT_CONFIG) -> np.ndarray:
     """Refined depth image: holes filled from similar neighbours, flying pixels dropped.
 
-    Works on the whole image with OpenCV box / morphology filters, once per frame (the
-    tracker keeps the result and reuses its buffers): a few whole-image passes cost about as
-    much as gathering the 8x8 neighbourhoods of 2 x n points in numpy, and stay simple.
+    The definition, on the whole image with OpenCV box / morphology filters. The tracker
+    needs it only at the pixels that its bilinear lookups read and computes just those with
+    :func:`depth_at`, which gives the same values.
 
     1. Readings outside ``[cfg.depth_min, cfg.depth_max]`` or not finite become 0.
     2. A hole is filled with the mean of the valid pixels in its ``(2 r + 1)^2`` window
@@ -119,51 +104,173 @@ def refine_depth(
     Args:
         depth: (H, W) float metres, 0 = no reading.
         cfg: thresholds (flow section of :class:`Config`).
-        work: scratch buffers from a tracker (the result is then one of its buffers).
 
     Returns:
         (H, W) float32 metres, 0 = no trustworthy depth.
     """
     d = np.asarray(depth, np.float32)
-    w = work if work is not None else _RefineWork(*d.shape)
-    out = w.next_out()
     jump = np.float32(cfg.depth_jump)
-    cv2.inRange(d, cfg.depth_min, cfg.depth_max, dst=w.trusted)  # 255 / 0; NaN fails
-    out.fill(0)
-    cv2.copyTo(d, w.trusted, out)
-    w.far.fill(_FAR)  # the same depths, holes far away, so a minimum filter skips them
-    cv2.copyTo(d, w.trusted, w.far)
+    trusted = cv2.inRange(d, cfg.depth_min, cfg.depth_max)  # 255 / 0; NaN fails
+    out = np.zeros_like(d)
+    cv2.copyTo(d, trusted, out)
+    far = np.full_like(d, _FAR)  # the same depths, holes far away, so a minimum filter skips them
+    cv2.copyTo(d, trusted, far)
 
     k = 2 * cfg.fill_radius + 1
     box = np.ones((k, k), np.uint8)
     border = cv2.BORDER_CONSTANT
-    cv2.boxFilter(out, -1, (k, k), dst=w.total, normalize=False, borderType=border)
+    total = cv2.boxFilter(out, -1, (k, k), normalize=False, borderType=border)
     # 255 per valid neighbour
-    cv2.boxFilter(w.trusted, cv2.CV_32F, (k, k), dst=w.count, normalize=False, borderType=border)
-    np.maximum(w.count, np.float32(1), out=w.mean)
-    np.divide(w.total, w.mean, out=w.mean)
-    w.mean *= np.float32(255)
-    cv2.dilate(out, box, dst=w.a)
-    cv2.erode(w.far, box, dst=w.b)
-    np.subtract(w.a, w.b, out=w.a)  # range of the valid neighbours
-    np.multiply(w.mean, jump, out=w.b)
-    np.less_equal(w.a, w.b, out=w.m1)
-    np.greater_equal(w.count, np.float32(255 * cfg.fill_min_valid), out=w.m2)
-    w.m1 &= w.m2
+    count = cv2.boxFilter(trusted, cv2.CV_32F, (k, k), normalize=False, borderType=border)
+    mean = total / np.maximum(count, np.float32(1)) * np.float32(255)
+    spread = cv2.dilate(out, box) - cv2.erode(far, box)  # range of the valid neighbours
+    fill = (spread <= mean * jump) & (count >= np.float32(255 * cfg.fill_min_valid))
     if not cfg.depth_smooth:
-        np.equal(w.trusted, 0, out=w.m2)
-        w.m1 &= w.m2
-    np.copyto(out, w.mean, where=w.m1)
-    np.copyto(w.far, w.mean, where=w.m1)
+        fill &= trusted == 0
+    np.copyto(out, mean, where=fill)
+    np.copyto(far, mean, where=fill)
 
     three = np.ones((3, 3), np.uint8)
-    cv2.dilate(out, three, dst=w.a)
-    cv2.erode(w.far, three, dst=w.b)
-    np.subtract(w.a, w.b, out=w.a)
-    np.multiply(out, jump, out=w.b)
-    np.greater(w.a, w.b, out=w.m1)  # also true at holes next to readings: they stay 0
-    np.copyto(out, np.float32(0), where=w.m1)
+    spread = cv2.dilate(out, three) - cv2.erode(far, three)
+    out[spread > out * jump] = 0  # also true at holes next to readings: they stay 0
     return out
+
+
+def _window_1d(a: np.ndarray, k: int, op: np.ufunc, axis: int, dtype=None) -> np.ndarray:
+    """``op`` over every run of ``k`` entries along ``axis`` (0 or 1), computed in ``dtype``.
+
+    Runs of 1, 2, 4, ... entries are combined by doubling and the binary digits of ``k``
+    picked from them: 3 operations for k = 5 instead of 4.
+    """
+    m = a.shape[axis] - k + 1
+
+    def part(x: np.ndarray, start: int, stop: int) -> np.ndarray:
+        return x[start:stop] if axis == 0 else x[:, start:stop]
+
+    runs, span, offset, out = a, 1, 0, None  # runs[i] = op over a[i : i + span]
+    while True:
+        if k & span:
+            piece = part(runs, offset, offset + m)
+            out = piece if out is None else op(out, piece)
+            offset += span
+        if offset == k:
+            return out
+        runs = op(part(runs, 0, runs.shape[axis] - span), part(runs, span, None), dtype=dtype)
+        span *= 2
+
+
+def _windows(a: np.ndarray, k: int, op: np.ufunc, dtype=None) -> np.ndarray:
+    """``op`` over every k x k window of the leading two axes: (s, s, ...) -> (s-k+1, s-k+1, ...)."""
+    return _window_1d(_window_1d(a, k, op, 0, dtype), k, op, 1, dtype)
+
+
+def _refine_blocks(raw: np.ndarray, inside: np.ndarray | None, cfg: Config) -> np.ndarray:
+    """:func:`refine_depth` at the central 2x2 pixels of raw depth blocks.
+
+    A refined pixel depends on the step-2 values of its 3x3 neighbourhood, and each of
+    those on its ``(2 r + 1)^2`` window of raw readings, so a 2x2 block needs the
+    ``s = 2 + 2 (r + 1)`` square of raw pixels around it. The operations and their float32
+    rounding are those of :func:`refine_depth`; the window sums are exact in float64 (as in
+    OpenCV's box filter), so the results are equal bit for bit. Selections are written as
+    arithmetic: ``np.where`` costs several times more on these arrays.
+
+    Args:
+        raw: (s, s, n) raw depth, metres; the point axis last keeps the slices contiguous.
+        inside: (s, s, n) bool, the pixel lies in the image (pixels outside count as the
+            image border does in :func:`refine_depth`); ``None`` if all do.
+        cfg: thresholds.
+
+    Returns:
+        (2, 2, n) float32 refined depth, 0 = none.
+    """
+    r = cfg.fill_radius
+    jump = np.float32(cfg.depth_jump)
+    d = raw.astype(np.float32, copy=False)
+    trusted = (d >= np.float32(cfg.depth_min)) & (d <= np.float32(cfg.depth_max))  # NaN fails
+    if inside is not None:
+        trusted &= inside
+    out = d * trusted
+    out[np.isnan(out)] = 0  # NaN and inf readings (untrusted, times 0)
+    far = out + _FAR * ~trusted  # holes far away, so a minimum filter skips them
+
+    k = 2 * r + 1
+    total = _windows(out, k, np.add, np.float64).astype(np.float32)
+    count = _windows(trusted, k, np.add, np.uint16) * np.float32(255)
+    mean = total / np.maximum(count, np.float32(1)) * np.float32(255)
+    spread = _windows(out, k, np.maximum) - _windows(far, k, np.minimum)
+    fill = (spread <= mean * jump) & (count >= np.float32(255 * cfg.fill_min_valid))
+    inner = (slice(r, -r), slice(r, -r))
+    if inside is not None:
+        fill &= inside[inner]  # outside the image there is no pixel to fill
+    if not cfg.depth_smooth:
+        fill &= ~trusted[inner]
+    out = np.where(fill, mean, out[inner])
+    far = np.where(fill, mean, far[inner])
+
+    spread = _windows(out, 3, np.maximum) - _windows(far, 3, np.minimum)
+    centre = out[1:-1, 1:-1]
+    return centre * ~(spread > centre * jump)
+
+
+class _Lookup(NamedTuple):
+    """Where a bilinear depth lookup at points ``uv`` reads, set up once per point set."""
+
+    ax: np.ndarray  # (n,) float32 bilinear weight of the right-hand column
+    ay: np.ndarray  # (n,) float32 bilinear weight of the lower row
+    inside: np.ndarray  # (n,) bool, the 2x2 footprint lies in the image
+    x0: np.ndarray  # (n,) intp top-left pixel of the footprint (0 where not inside)
+    y0: np.ndarray  # (n,) intp
+    raw_index: np.ndarray  # (s, s, n) intp flat indices of the raw pixels refinement reads
+    raw_inside: np.ndarray | None  # (s, s, n) bool, that raw pixel lies in the image; None: all
+
+
+def _lookup(uv: np.ndarray, height: int, width: int, cfg: Config) -> _Lookup:
+    x = uv[:, 0].astype(np.float32)
+    y = uv[:, 1].astype(np.float32)
+    finite = np.isfinite(x) & np.isfinite(y)
+    x = np.where(finite, x, -1.0)
+    y = np.where(finite, y, -1.0)
+    x0 = np.floor(x)
+    y0 = np.floor(y)
+    inside = finite & (x0 >= 0) & (y0 >= 0) & (x0 <= width - 2) & (y0 <= height - 2)
+    xi = np.where(inside, x0, 0).astype(np.intp)
+    yi = np.where(inside, y0, 0).astype(np.intp)
+
+    reach = cfg.fill_radius + 1
+    offsets = np.arange(2 + 2 * reach) - reach
+    # Usually every block lies in the image: one broadcast add. Points without a footprint
+    # read some block in the image; their values are never used.
+    bx = np.where(inside, xi, reach)
+    by = np.where(inside, yi, reach)
+    if ((bx >= reach) & (bx <= width - 2 - reach)).all() and (
+        (by >= reach) & (by <= height - 2 - reach)
+    ).all():
+        raw_index = (by * width + bx) + (offsets[:, None, None] * width + offsets[None, :, None])
+        raw_inside = None
+    else:
+        ys, xs = yi + offsets[:, None], xi + offsets[:, None]  # (s, n)
+        raw_inside = ((ys >= 0) & (ys < height))[:, None] & ((xs >= 0) & (xs < width))[None]
+        raw_index = np.clip(ys, 0, height - 1)[:, None] * width + np.clip(xs, 0, width - 1)[None]
+    return _Lookup(
+        ax=(x - x0).astype(np.float32),
+        ay=(y - y0).astype(np.float32),
+        inside=inside,
+        x0=xi,
+        y0=yi,
+        raw_index=raw_index,
+        raw_inside=raw_inside,
+    )
+
+
+def _bilinear(taps: np.ndarray, look: _Lookup, cfg: Config) -> tuple[np.ndarray, np.ndarray]:
+    """Bilinear depth from (2, 2, n) refined taps, valid where they agree (see bilinear_depth)."""
+    d00, d01, d10, d11 = taps[0, 0], taps[0, 1], taps[1, 0], taps[1, 1]
+    ax, ay = look.ax, look.ay
+    lo = np.minimum(np.minimum(d00, d01), np.minimum(d10, d11))
+    hi = np.maximum(np.maximum(d00, d01), np.maximum(d10, d11))
+    ok = look.inside & (lo > 0) & (hi - lo <= cfg.depth_jump * lo)
+    z = (1 - ay) * ((1 - ax) * d00 + ax * d01) + ay * ((1 - ax) * d10 + ax * d11)
+    return np.where(ok, z, np.float32(0)).astype(np.float32), ok
 
 
 def bilinear_depth(
@@ -182,29 +289,36 @@ def bilinear_depth(
     Returns:
         ``(z, ok)``: (n,) float32 metres (0 where not ok) and (n,) bool.
     """
-    h, w = depth.shape
-    x = uv[:, 0].astype(np.float32)
-    y = uv[:, 1].astype(np.float32)
-    finite = np.isfinite(x) & np.isfinite(y)
-    x = np.where(finite, x, -1.0)
-    y = np.where(finite, y, -1.0)
-    x0 = np.floor(x)
-    y0 = np.floor(y)
-    inside = finite & (x0 >= 0) & (y0 >= 0) & (x0 <= w - 2) & (y0 <= h - 2)
-    xi = np.where(inside, x0, 0).astype(np.intp)
-    yi = np.where(inside, y0, 0).astype(np.intp)
-    ax = (x - x0).astype(np.float32)
-    ay = (y - y0).astype(np.float32)
-    d00 = depth[yi, xi]
-    d01 = depth[yi, xi + 1]
-    d10 = depth[yi + 1, xi]
-    d11 = depth[yi + 1, xi + 1]
-    taps = np.stack([d00, d01, d10, d11])
-    lo = taps.min(axis=0)
-    hi = taps.max(axis=0)
-    ok = inside & (lo > 0) & (hi - lo <= cfg.depth_jump * lo)
-    z = (1 - ay) * ((1 - ax) * d00 + ax * d01) + ay * ((1 - ax) * d10 + ax * d11)
-    return np.where(ok, z, np.float32(0)).astype(np.float32), ok
+    look = _lookup(uv, *depth.shape, cfg)
+    rows = look.y0 + np.arange(2)[:, None, None]
+    cols = look.x0 + np.arange(2)[None, :, None]
+    return _bilinear(depth[rows, cols], look, cfg)
+
+
+def _depth_at(depth: np.ndarray, look: _Lookup, cfg: Config) -> tuple[np.ndarray, np.ndarray]:
+    raw = np.asarray(depth).reshape(-1).take(look.raw_index)
+    return _bilinear(_refine_blocks(raw, look.raw_inside, cfg), look, cfg)
+
+
+def depth_at(
+    depth: np.ndarray, uv: np.ndarray, cfg: Config = DEFAULT_CONFIG
+) -> tuple[np.ndarray, np.ndarray]:
+    """``bilinear_depth(refine_depth(depth), uv)``, refining only the pixels it reads.
+
+    Each point reads the refined 2x2 pixels around it, which depend on the
+    ``(2 + 2 (r + 1))^2`` raw pixels around those (8x8 for ``r = cfg.fill_radius = 2``):
+    for the 1200 grid points that is about a quarter of a 640x480 image, gathered and
+    refined in a few numpy operations instead of whole-image filters.
+
+    Args:
+        depth: (H, W) float metres, raw (0 = no reading).
+        uv: (n, 2) pixels (x, y).
+        cfg: thresholds.
+
+    Returns:
+        ``(z, ok)``: (n,) float32 metres (0 where not ok) and (n,) bool.
+    """
+    return _depth_at(depth, _lookup(uv, *np.shape(depth), cfg), cfg)
 
 
 # ----------------------------------------------------------------------------- patches
@@ -223,6 +337,8 @@ def sample_patches(grey: np.ndarray, uv: np.ndarray, side: int) -> np.ndarray:
     Returns:
         (n, side * side) float32 grey values (borders replicated).
     """
+    if len(uv) == 0:
+        return np.zeros((0, side * side), np.float32)  # cv2.remap rejects empty maps
     ox, oy = _patch_offsets(side)
     map_x = (uv[:, 0:1] + ox[None, :]).astype(np.float32)
     map_y = (uv[:, 1:2] + oy[None, :]).astype(np.float32)
@@ -247,11 +363,10 @@ def patch_correlation(a: np.ndarray, b: np.ndarray) -> np.ndarray:
 class _Frame(NamedTuple):
     """What the tracker keeps of a frame so that it is processed once."""
 
-    grey: np.ndarray  # (H, W) uint8
-    depth: np.ndarray  # (H, W) float32 metres, refined
+    grey: np.ndarray  # (H, W) uint8, for LK
+    grey_f: np.ndarray  # (H, W) float32, for the similarity patches
     z_grid: np.ndarray  # (n,) float32 metres at the grid centres (0 = none)
     z_grid_ok: np.ndarray  # (n,) bool
-    patches_grid: np.ndarray  # (n, patch^2) float32 grey patches at the grid centres
 
 
 def _as_grey(bgr, height: int, width: int) -> np.ndarray | None:
@@ -275,7 +390,7 @@ def _as_depth(depth, height: int, width: int) -> np.ndarray | None:
 class GridFlowTracker:
     """Streaming grid flow: feed frames in order, get the flow of each consecutive pair.
 
-    Each frame is converted to grey, its depth refined and sampled at the grid once; the
+    Each frame is converted to grey and its refined depth looked up at the grid once; the
     tracker keeps that as the previous frame. A frame that is unreadable or of the wrong
     size yields an all-invalid ``BAD_INPUT`` flow and is skipped: the previous frame stays,
     so the next pair spans the gap (consistent with a pose carried over the skipped frame).
@@ -293,10 +408,10 @@ class GridFlowTracker:
         self.grid = grid_shape(self.height, self.width, cfg.cell)
         self.uv_grid = grid_pixels(self.height, self.width, cfg.cell)  # (n, 2) float32
         self.n = self.uv_grid.shape[0]
+        self._grid_lookup = _lookup(self.uv_grid, self.height, self.width, cfg)
         self._win = (cfg.lk_window, cfg.lk_window)
         self._criteria = (cv2.TERM_CRITERIA_COUNT | cv2.TERM_CRITERIA_EPS, cfg.lk_iters, cfg.lk_eps)
         self._prev: _Frame | None = None
-        self._work = _RefineWork(self.height, self.width)
 
     @property
     def has_previous(self) -> bool:
@@ -305,16 +420,6 @@ class GridFlowTracker:
     def reset(self) -> None:
         """Forget the previous frame (the next frame starts a new pair chain)."""
         self._prev = None
-
-    def _ingest(self, bgr, depth) -> _Frame | None:
-        grey = _as_grey(bgr, self.height, self.width)
-        d = _as_depth(depth, self.height, self.width)
-        if grey is None or d is None:
-            return None
-        refined = refine_depth(d, self.cfg, work=self._work)
-        z, ok = bilinear_depth(refined, self.uv_grid, self.cfg)
-        patches = sample_patches(grey, self.uv_grid, self.cfg.patch)
-        return _Frame(grey, refined, z, ok, patches)
 
     def push(self, bgr, depth) -> GridFlow | None:
         """Add the next frame; the flow from the previous frame to it.
@@ -328,50 +433,70 @@ class GridFlowTracker:
             frame is kept as the previous one); an all-invalid flow with ``BAD_INPUT`` if this
             frame is unreadable or of another size.
         """
-        cur = self._ingest(bgr, depth)
-        if cur is None:
+        grey = _as_grey(bgr, self.height, self.width)
+        d = _as_depth(depth, self.height, self.width)
+        if grey is None or d is None:
             return invalid_flow(self.uv_grid, Status.BAD_INPUT)
+        z, ok = _depth_at(d, self._grid_lookup, self.cfg)
+        cur = _Frame(grey, grey.astype(np.float32), z, ok)
         prev, self._prev = self._prev, cur
         if prev is None:
             return None
-        return self._track(prev, cur)
+        return self._track(prev, cur, d)
 
-    def _track(self, prev: _Frame, cur: _Frame) -> GridFlow:
+    def _lk(self, src: np.ndarray, dst: np.ndarray, pts: np.ndarray):
+        """LK positions in ``dst`` of ``pts`` (m, 2) in ``src``, and whether each converged."""
+        if len(pts) == 0:
+            return pts, np.zeros(0, bool)
+        found, st, _ = cv2.calcOpticalFlowPyrLK(
+            src, dst, pts, None,
+            winSize=self._win, maxLevel=self.cfg.lk_levels, criteria=self._criteria,
+        )  # fmt: skip
+        return found, st[:, 0] == 1
+
+    def _track(self, prev: _Frame, cur: _Frame, depth: np.ndarray) -> GridFlow:
+        """The checks of the module docstring, cheapest first, each on the survivors of the
+        last: LK costs about 2 us per point and direction, most of the time per pair, and
+        tracks each point on its own, so following only the points that can still pass
+        gives the same flow as checking every point."""
         cfg = self.cfg
         uv0 = self.uv_grid
-        uv1, st1, _ = cv2.calcOpticalFlowPyrLK(
-            prev.grey, cur.grey, uv0, None,
-            winSize=self._win, maxLevel=cfg.lk_levels, criteria=self._criteria,
-        )  # fmt: skip
-        uv_back, st0, _ = cv2.calcOpticalFlowPyrLK(
-            cur.grey, prev.grey, uv1, None,
-            winSize=self._win, maxLevel=cfg.lk_levels, criteria=self._criteria,
-        )  # fmt: skip
-        ok = (st1[:, 0] == 1) & (st0[:, 0] == 1) & np.isfinite(uv1).all(axis=1)
-        uv1 = np.where(ok[:, None], uv1, uv0)
-        uv_back = np.where(ok[:, None], uv_back, uv0)
-        inside = (
+        idx = np.flatnonzero(prev.z_grid_ok)  # no depth at the start: never a valid track
+
+        uv1, ok = self._lk(prev.grey, cur.grey, uv0[idx])
+        ok &= np.isfinite(uv1).all(axis=1)
+        ok &= (
             (uv1[:, 0] >= 0) & (uv1[:, 1] >= 0)
             & (uv1[:, 0] <= self.width - 1) & (uv1[:, 1] <= self.height - 1)
         )  # fmt: skip
-        fb = np.hypot(*(uv_back - uv0).T)
-        ok &= inside & (fb <= cfg.fb_max)
+        idx, uv1 = idx[ok], uv1[ok]
 
-        sim = patch_correlation(prev.patches_grid, sample_patches(cur.grey, uv1, cfg.patch))
+        sim = patch_correlation(
+            sample_patches(prev.grey_f, uv0[idx], cfg.patch),
+            sample_patches(cur.grey_f, uv1, cfg.patch),
+        )
+        z1, ok = _depth_at(depth, _lookup(uv1, self.height, self.width, cfg), cfg)
         ok &= sim >= cfg.min_similarity
+        idx, uv1, z1 = idx[ok], uv1[ok], z1[ok]
 
-        z1, z1_ok = bilinear_depth(cur.depth, uv1, cfg)
-        ok &= prev.z_grid_ok & z1_ok
+        uv_back, ok = self._lk(cur.grey, prev.grey, uv1)
+        ok &= np.hypot(*(uv_back - uv0[idx]).T) <= cfg.fb_max  # NaN fails
+        idx, uv1, z1 = idx[ok], uv1[ok], z1[ok]
 
-        p0 = backproject(uv0, prev.z_grid, self.K).astype(np.float32)
-        p1 = backproject(uv1, z1, self.K).astype(np.float32)
-        keep = ok[:, None]
+        valid = np.zeros(self.n, bool)
+        valid[idx] = True
+        pts_prev = np.zeros((self.n, 3), np.float32)
+        pts_cur = np.zeros((self.n, 3), np.float32)
+        pts_prev[idx] = backproject(uv0[idx], prev.z_grid[idx], self.K)
+        pts_cur[idx] = backproject(uv1, z1, self.K)
+        uv_cur = uv0.copy()
+        uv_cur[idx] = uv1
         return GridFlow(
-            pts_prev=np.where(keep, p0, np.float32(0)),
-            pts_cur=np.where(keep, p1, np.float32(0)),
+            pts_prev=pts_prev,
+            pts_cur=pts_cur,
             uv_prev=uv0.copy(),
-            uv_cur=np.where(keep, uv1, uv0).astype(np.float32),
-            valid=ok,
+            uv_cur=uv_cur,
+            valid=valid,
             status=np.int32(Status.OK),
         )
 

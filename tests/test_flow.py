@@ -15,6 +15,7 @@ from jaxvo.flow import (
     GridFlow,
     GridFlowTracker,
     bilinear_depth,
+    depth_at,
     flows_for_sequence,
     grid_flow,
     patch_correlation,
@@ -263,6 +264,50 @@ def test_bilinear_depth_on_planar_ramp():
     assert not ok2.any() and not z2.any()
 
 
+def rough_depth(seed: int, h: int = H, w: int = W, holes: int = 20) -> np.ndarray:
+    """Depth with what refinement acts on: a step edge, a slanted plane, sensor noise,
+    holes (single pixels and blocks), NaN and out-of-range readings, up to the borders."""
+    rng = np.random.default_rng(seed)
+    ys, xs = np.mgrid[0:h, 0:w]
+    d = np.where(xs < w // 3, 1.2, 2.0 + 0.004 * ys).astype(np.float32)
+    d += rng.normal(0, 0.01, d.shape).astype(np.float32)
+    d[rng.random(d.shape) < 0.05] = 0.0
+    d[rng.random(d.shape) < 0.01] = np.nan
+    d[rng.random(d.shape) < 0.01] = 25.0  # beyond depth_max
+    for y, x in rng.integers(0, (h, w), (holes, 2)):
+        d[y : y + rng.integers(2, 40), x : x + rng.integers(2, 40)] = 0.0
+    return d
+
+
+@pytest.mark.parametrize(
+    "cfg",
+    [CFG, dataclasses.replace(CFG, depth_smooth=False), dataclasses.replace(CFG, fill_radius=1)],
+    ids=["default", "no_smoothing", "radius_1"],
+)
+def test_depth_at_equals_whole_image_refinement(cfg):
+    # The tracker refines only the pixels it reads; the reference refines the whole image
+    # with OpenCV filters and interpolates. Equal bit for bit (no tolerance), at random
+    # points everywhere and at points right at the borders.
+    d = rough_depth(6)
+    rng = np.random.default_rng(7)
+    uv = np.concatenate(
+        [
+            rng.uniform((-1, -1), (W, H), (20000, 2)),
+            [[0, 0], [0.5, H - 2], [W - 2, 3.25], [W - 1.5, H - 1.5], [2.5, 240.0]],
+        ]
+    ).astype(np.float32)
+    z, ok = depth_at(d, uv, cfg)
+    z_ref, ok_ref = bilinear_depth(refine_depth(d, cfg), uv, cfg)
+    assert ok_ref.mean() > 0.5  # the comparison covers many valid taps
+    np.testing.assert_array_equal(ok, ok_ref)
+    np.testing.assert_array_equal(z, z_ref)
+    # points away from the borders take the tracker's fast path; the same values
+    inner = (uv[:, 0] > 8) & (uv[:, 0] < W - 8) & (uv[:, 1] > 8) & (uv[:, 1] < H - 8)
+    z_in, ok_in = depth_at(d, uv[inner], cfg)
+    np.testing.assert_array_equal(z_in, z_ref[inner])
+    np.testing.assert_array_equal(ok_in, ok_ref[inner])
+
+
 # ----------------------------------------------------------------------------- bad input
 
 
@@ -351,6 +396,54 @@ def test_streaming_matches_function_form(tex0):
         np.testing.assert_array_equal(x, y)
 
 
+def reference_flow(b0, d0, b1, d1, cam, cfg) -> GridFlow:
+    """The checks of thesis 2.2 applied to every grid point, each on the whole image:
+    LK both ways on all points, whole-image depth refinement, all patches."""
+    g0, g1 = (cv2.cvtColor(b, cv2.COLOR_BGR2GRAY) for b in (b0, b1))
+    h, w = g0.shape
+    uv0 = grid_pixels(h, w, cfg.cell)
+    lk = {
+        "winSize": (cfg.lk_window, cfg.lk_window),
+        "maxLevel": cfg.lk_levels,
+        "criteria": (cv2.TERM_CRITERIA_COUNT | cv2.TERM_CRITERIA_EPS, cfg.lk_iters, cfg.lk_eps),
+    }
+    uv1, st1, _ = cv2.calcOpticalFlowPyrLK(g0, g1, uv0, None, **lk)
+    back, st0, _ = cv2.calcOpticalFlowPyrLK(g1, g0, uv1, None, **lk)
+    ok = (st1[:, 0] == 1) & (st0[:, 0] == 1) & np.isfinite(uv1).all(axis=1)
+    uv1 = np.where(ok[:, None], uv1, uv0)
+    ok &= (uv1 >= 0).all(axis=1) & (uv1[:, 0] <= w - 1) & (uv1[:, 1] <= h - 1)
+    ok &= np.hypot(*(np.where(ok[:, None], back, uv0) - uv0).T) <= cfg.fb_max
+    sim = patch_correlation(sample_patches(g0, uv0, cfg.patch), sample_patches(g1, uv1, cfg.patch))
+    ok &= sim >= cfg.min_similarity
+    z0, ok0 = bilinear_depth(refine_depth(d0, cfg), uv0, cfg)
+    z1, ok1 = bilinear_depth(refine_depth(d1, cfg), uv1, cfg)
+    ok &= ok0 & ok1
+    keep = ok[:, None]
+    return GridFlow(
+        pts_prev=np.where(keep, backproject(uv0, z0, cam), 0).astype(np.float32),
+        pts_cur=np.where(keep, backproject(uv1, z1, cam), 0).astype(np.float32),
+        uv_prev=uv0,
+        uv_cur=np.where(keep, uv1, uv0).astype(np.float32),
+        valid=ok,
+        status=np.int32(Status.OK),
+    )
+
+
+def test_tracker_equals_checking_every_point(tex0):
+    # The tracker follows only the points that can still pass (LK tracks each point on
+    # its own) and refines depth only where it reads it: the same flow bit for bit.
+    A = cv2.getRotationMatrix2D((W / 2, H / 2), 0.8, 1.01)
+    A[:, 2] += (2.1, -1.3)
+    cur = warp(tex0, A)
+    cur[100:180, 200:300] = texture(9)[100:180, 200:300]  # fails forward-backward
+    d0, d1 = rough_depth(1, holes=100), rough_depth(2, holes=100)
+    flow = grid_flow(bgr(tex0), d0, bgr(cur), d1, K, CFG)
+    ref = reference_flow(bgr(tex0), d0, bgr(cur), d1, K, CFG)
+    assert 0.3 < ref.valid.mean() < 0.85  # the checks rejected many points
+    for name, a, b in zip(GridFlow._fields, flow, ref):
+        np.testing.assert_array_equal(a, b, err_msg=name)
+
+
 # ----------------------------------------------------------------------------- real data
 
 
@@ -390,3 +483,6 @@ def test_real_pair(name, min_valid):
     ).all()
     # 30 Hz hand-held motion: tracked displacements stay small (tolerance 40 px)
     assert np.abs(flow.uv_cur[v] - flow.uv_prev[v]).max() < 40
+    ref = reference_flow(b0, d0, b1, d1, cam, CFG)
+    for field, a, b in zip(GridFlow._fields, flow, ref):
+        np.testing.assert_array_equal(a, b, err_msg=field)  # as checking every point
