@@ -43,6 +43,10 @@ from jaxvo.status import Status
 # Stand-in for "no hypothesis explains this point" in residual minima (m^2): finite so that
 # no inf - inf can appear, large enough that exp(-lambda * _FAR) is 0.
 _FAR = 1e6
+# Near tie of two residuals (m^2): within this factor of the smallest (twice the distance),
+# plus (1 mm)^2 so that points both motions fit almost exactly also count as tied.
+_TIE = 4.0
+_TIE_FLOOR = 1e-6
 
 
 class Segmentation(NamedTuple):
@@ -208,11 +212,11 @@ def _search_work(state, key, pts_prev, pts_cur, valid, tau2, tau_s2, params, *, 
     return _SearchState(entropy, err_min, count, done), hyp
 
 
-def _cluster_refine(start, active, pts_prev, pts_cur, valid, tau2, *, cfg):
+def _cluster_refine(start, active, pts_prev, pts_cur, valid, tau2, *, cfg, grid):
     """Algorithm 2 lines 3-11 for all clusters at once, by alternating assignment.
 
-    Each trip gives every point to the active cluster motion that explains it best (if it
-    is an inlier of it) and refits every motion on its own points. Refining the clusters
+    Each trip gives every point to one active cluster motion it is an inlier of (see
+    :func:`_assign`) and refits every motion on its own points. Refining the clusters
     jointly rather than one by one keeps a slow object's motion from being pulled into the
     background's (see :func:`_refine`).
 
@@ -221,27 +225,27 @@ def _cluster_refine(start, active, pts_prev, pts_cur, valid, tau2, *, cfg):
       active: (C,) bool, slots that hold a cluster.
 
     Returns:
-      motions (C, 4, 4), residuals (C, n) m^2, inliers (C, n) bool: the points assigned to
-      each cluster.
+      motions (C, 4, 4), residuals (C, n) m^2, inliers (C, n) bool (every point each
+      motion explains), own (C, n) bool (the points assigned to each cluster).
     """
 
     def assign(motions):
         err = jax.vmap(lambda t: residuals_cols(t, pts_prev, pts_cur))(motions)
-        cand = active[:, None] & valid[None, :] & (err <= tau2[None, :])
-        best = jnp.argmin(jnp.where(cand, err, _FAR * 10), axis=0)
-        own = (jnp.arange(motions.shape[0])[:, None] == best[None, :]) & jnp.any(cand, axis=0)
-        return err, own
+        inl = active[:, None] & valid[None, :] & (err <= tau2[None, :])
+        best, has = _assign(err, inl, active)
+        own = (jnp.arange(motions.shape[0])[:, None] == best[None, :]) & has[None, :]
+        return err, inl, own
 
     def trip(motions, _):
-        _, own = assign(motions)
+        _, _, own = assign(motions)
         refit, ok = jax.vmap(lambda w: fit_rigid_cols(pts_prev, pts_cur, w))(
             own.astype(jnp.float32)
         )
         return jnp.where((ok & active)[:, None, None], refit, motions), None
 
     motions, _ = lax.scan(trip, start, None, length=cfg.cluster_refine_iters)
-    err, own = assign(motions)
-    return motions, jnp.where(active[:, None], err, _FAR), own
+    err, inl, own = assign(motions)
+    return motions, jnp.where(active[:, None], err, _FAR), inl, own
 
 
 def _apply(T, pts):
@@ -250,10 +254,22 @@ def _apply(T, pts):
 
 
 def _assign(err, inliers, keep):
-    """Per point: index of the kept segment with the smallest residual among those it is an
-    inlier of, and whether there is one. ``err``/``inliers`` (C, n), ``keep`` (C,)."""
+    """Per point: index of the kept segment it belongs to, and whether there is one.
+
+    A point takes the segment that explains it best, except that a near tie (a residual
+    within ``_TIE`` times the smallest) goes to the segment with the most inliers. At 3 m the
+    depth-scaled threshold exceeds a slow object's motion per frame, so both the object's
+    and the background's motion explain the far wall; by residual alone, noise handed a
+    share of it to the object in about half of the frames of ``fixed_camera_1``.
+
+    ``err``/``inliers`` (C, n), ``keep`` (C,).
+    """
     cand = inliers & keep[:, None]
-    best = jnp.argmin(jnp.where(cand, err, _FAR * 10), axis=0)
+    e = jnp.where(cand, err, _FAR * 10)
+    e_min = jnp.min(e, axis=0)
+    near = cand & (e <= _TIE * e_min + _TIE_FLOOR)
+    size = jnp.sum(cand, axis=1)
+    best = jnp.argmax(jnp.where(near, size[:, None], -1), axis=0)
     return best, jnp.any(cand, axis=0)
 
 
@@ -348,10 +364,11 @@ def segment(key, pts_prev, pts_cur, valid, params, *, cfg, grid):
     )
     top = jnp.argsort(jnp.where(chosen, -size_h, 1), stable=True)[:n_slots]
     members = jax.nn.one_hot(top, big_h, dtype=bool) & chosen[top][:, None]
-    motions, err_c, inl_c = _cluster_refine(
-        hyps.motion[top], jnp.any(members, axis=1), pts_prev, pts_cur, valid, tau2, cfg=cfg
+    motions, err_c, inl_c, own_c = _cluster_refine(
+        hyps.motion[top], jnp.any(members, axis=1), pts_prev, pts_cur, valid, tau2,
+        cfg=cfg, grid=grid,
     )
-    n_c = jnp.sum(inl_c, axis=1)
+    n_c = jnp.sum(own_c, axis=1)
     big_enough = jnp.any(members, axis=1) & (n_c > params.min_segment_points)
 
     # Merge: the same motion found twice. Cluster k duplicates a larger kept cluster j when
@@ -361,7 +378,7 @@ def segment(key, pts_prev, pts_cur, valid, params, *, cfg, grid):
     # less than the inlier threshold at depth.
     pred = jax.vmap(lambda t: _apply(t, pts_prev))(motions)  # (C, 3, n)
     gap = jnp.sum((pred[:, None] - pred[None, :]) ** 2, axis=2)  # (C k, C j, n)
-    close = jnp.sum(inl_c[:, None, :] & (gap <= 0.25 * tau2), axis=2)
+    close = jnp.sum(own_c[:, None, :] & (gap <= 0.25 * tau2), axis=2)
     same = close / jnp.maximum(n_c[:, None], 1) > 1.0 - params.cluster_eps  # (k, j)
     order = jnp.argsort(-n_c, stable=True)
 
