@@ -409,6 +409,10 @@ class GridFlowTracker:
         self.uv_grid = grid_pixels(self.height, self.width, cfg.cell)  # (n, 2) float32
         self.n = self.uv_grid.shape[0]
         self._grid_lookup = _lookup(self.uv_grid, self.height, self.width, cfg)
+        # Float grey images for the patches. A fresh 1.2 MB array per frame cost ~370 page
+        # faults per pair (~1 ms here: the heap is trimmed and regrown each time); instead
+        # two buffers take turns, the previous frame holding the other one.
+        self._grey_f = tuple(np.empty((self.height, self.width), np.float32) for _ in range(2))
         self._win = (cfg.lk_window, cfg.lk_window)
         self._criteria = (cv2.TERM_CRITERIA_COUNT | cv2.TERM_CRITERIA_EPS, cfg.lk_iters, cfg.lk_eps)
         self._prev: _Frame | None = None
@@ -438,7 +442,10 @@ class GridFlowTracker:
         if grey is None or d is None:
             return invalid_flow(self.uv_grid, Status.BAD_INPUT)
         z, ok = _depth_at(d, self._grid_lookup, self.cfg)
-        cur = _Frame(grey, grey.astype(np.float32), z, ok)
+        held = self._prev.grey_f if self._prev is not None else None
+        grey_f = self._grey_f[1] if held is self._grey_f[0] else self._grey_f[0]
+        np.copyto(grey_f, grey)
+        cur = _Frame(grey, grey_f, z, ok)
         prev, self._prev = self._prev, cur
         if prev is None:
             return None
@@ -475,8 +482,10 @@ class GridFlowTracker:
             sample_patches(prev.grey_f, uv0[idx], cfg.patch),
             sample_patches(cur.grey_f, uv1, cfg.patch),
         )
+        ok = sim >= cfg.min_similarity  # rejects more than the depth check, for less
+        idx, uv1 = idx[ok], uv1[ok]
+
         z1, ok = _depth_at(depth, _lookup(uv1, self.height, self.width, cfg), cfg)
-        ok &= sim >= cfg.min_similarity
         idx, uv1, z1 = idx[ok], uv1[ok], z1[ok]
 
         uv_back, ok = self._lk(cur.grey, prev.grey, uv1)
