@@ -58,7 +58,10 @@ class Config:
     match_window: int = 5  # tMinSize: previous frames the label matching looks back over
 
     # --- ego-motion ---
-    ego_iters: int = 10  # robust re-weighting iterations (20 % outliers need ~10 to be shed)
+    # robust re-weighting iterations: 5 and 10 score the same (ATE within 0.1 mm on four
+    # synthetic scenes and 7-Scenes; fixed_camera_2 37 vs 41 mm, within its seed-to-seed
+    # spread) since measured-moving points are left out beforehand
+    ego_iters: int = 5
 
 
 class Params(NamedTuple):
