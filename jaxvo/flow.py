@@ -12,7 +12,7 @@ to the current image with pyramidal Lucas-Kanade. A track is kept only if
 Kept tracks are back-projected into previous and current 3D points (metres). Shapes are
 fixed: ``n = rows * cols`` points whatever passes, invalid ones zeroed.
 
-Speed (about 2 us of LK per point and direction is most of the time per pair):
+Speed (LK, 1-2 us per point and direction here, is most of the time per pair):
 
 * the checks run cheapest first, each on the points that passed the ones before: no depth
   at the grid point, then forward LK, then the image bounds, similarity and depth at the
@@ -194,7 +194,7 @@ def _refine_blocks(raw: np.ndarray, inside: np.ndarray | None, cfg: Config) -> n
     far = out + _FAR * ~trusted  # holes far away, so a minimum filter skips them
 
     k = 2 * r + 1
-    total = _windows(out, k, np.add, np.float64).astype(np.float32)
+    total = _windows(out.astype(np.float64), k, np.add).astype(np.float32)
     count = _windows(trusted, k, np.add, np.uint16) * np.float32(255)
     mean = total / np.maximum(count, np.float32(1)) * np.float32(255)
     spread = _windows(out, k, np.maximum) - _windows(far, k, np.minimum)
@@ -467,7 +467,7 @@ class GridFlowTracker:
 
     def _track(self, prev: _Frame, cur: _Frame, depth: np.ndarray) -> GridFlow:
         """The checks of the module docstring, cheapest first, each on the survivors of the
-        last: LK costs about 2 us per point and direction, most of the time per pair, and
+        last: LK costs 1-2 us per point and direction, most of the time per pair, and
         tracks each point on its own, so following only the points that can still pass
         gives the same flow as checking every point."""
         cfg = self.cfg
