@@ -155,13 +155,18 @@ def jit_step(state, flow, key, params, *, cfg: Config, grid):
 def _scan(flows, key, params, T_w_c0, cfg, grid):
     # The spatial stage carries no state: segment cfg.scan_batch frames per vmapped call,
     # which shares XLA's per-operation cost on the CPU (1.5x faster than one by one), then
-    # run the stateful stages frame by frame.
-    keys = jax.vmap(lambda i: frame_key(key, i))(jnp.arange(flows.valid.shape[0]))
+    # run the stateful stages frame by frame. The frames are padded to a whole number of
+    # batches (the padding's results are dropped) so that only one batched body compiles.
+    n = flows.valid.shape[0]
+    b = max(1, min(cfg.scan_batch, n))
+    keys = jax.vmap(lambda i: frame_key(key, i))(jnp.arange(n + (-n) % b))
+    padded = jax.tree.map(lambda a: jnp.concatenate([a, a[: (-n) % b]]), flows)
     segs = jax.lax.map(
         lambda fk: spatial_step(fk[0], fk[1], params, cfg=cfg, grid=grid),
-        (flows, keys),
-        batch_size=cfg.scan_batch,
+        (padded, keys),
+        batch_size=b,
     )
+    segs = jax.tree.map(lambda a: a[:n], segs)
 
     def body(state, flow_seg):
         flow, seg = flow_seg
