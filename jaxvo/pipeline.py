@@ -24,11 +24,10 @@ import jax.numpy as jnp
 from jaxvo.config import Config, Params
 from jaxvo.egomotion import estimate_egomotion
 from jaxvo.geometry import invert_pose
-from jaxvo.spatial import segment
+from jaxvo.procrustes import residuals
+from jaxvo.spatial import inlier_threshold, segment
 from jaxvo.status import Status, first_failure
-from jaxvo.temporal import TemporalState, init_temporal, update_temporal
-
-STATIC_ID = 1  # thesis section 4.1: identifier 1 is the static background
+from jaxvo.temporal import STATIC_ID, TemporalState, init_temporal, update_temporal
 
 
 class PipelineState(NamedTuple):
@@ -37,6 +36,8 @@ class PipelineState(NamedTuple):
     temporal: TemporalState  # dual-mode grid model, identifiers, label history
     T_w_c: jax.Array  # (4, 4) float32, pose of the latest camera (camera-to-world)
     frame: jax.Array  # () int32, frame pairs processed so far
+    T_last: jax.Array  # (4, 4) float32, the last accepted ego-motion T_cur_prev
+    have_last: jax.Array  # () bool, whether T_last holds an accepted ego-motion yet
 
 
 class StepOutput(NamedTuple):
@@ -80,10 +81,23 @@ def static_weights(tout, valid):
     return jnp.where(use_agreed, agreed, model).astype(jnp.float32)
 
 
+def follows_prediction(seg, pts_prev, pts_cur, valid, T_pred, params: Params, *, cfg: Config):
+    """(max_segments,) bool: whether most of each segment's points move as ``T_pred`` (the
+    camera motion predicted from the previous frame) says static points do, within the
+    spatial stage's inlier threshold."""
+    z = jnp.maximum(pts_prev[:, 2], pts_cur[:, 2])
+    tau = inlier_threshold(z, params.inlier_dist, params)
+    follows = valid & (residuals(T_pred, pts_prev, pts_cur) <= tau * tau)
+    member = seg.labels[None, :] == jnp.arange(1, cfg.max_segments + 1)[:, None]
+    n = jnp.sum(member, axis=1)
+    return 2 * jnp.sum(member & follows[None, :], axis=1) > n
+
+
 def init_pipeline(*, cfg: Config, grid: tuple[int, int], T_w_c0=None) -> PipelineState:
     """Start state: empty grid model and the first camera pose (identity by default)."""
     T0 = jnp.eye(4, dtype=jnp.float32) if T_w_c0 is None else jnp.asarray(T_w_c0, jnp.float32)
-    return PipelineState(init_temporal(cfg=cfg, grid=grid), T0, jnp.int32(0))
+    eye = jnp.eye(4, dtype=jnp.float32)
+    return PipelineState(init_temporal(cfg=cfg, grid=grid), T0, jnp.int32(0), eye, jnp.bool_(False))
 
 
 def spatial_step(flow, key, params: Params, *, cfg: Config, grid):
@@ -112,8 +126,12 @@ def step(state: PipelineState, flow, key, params: Params, *, cfg: Config, grid, 
         seg = spatial_step(flow, key, params, cfg=cfg, grid=grid)
 
     disp = flow.uv_cur - flow.uv_prev
+    # after the first accepted ego-motion, the previous one predicts the background's
+    consistent = follows_prediction(
+        seg, flow.pts_prev, flow.pts_cur, valid, state.T_last, params, cfg=cfg
+    ) & state.have_last
     temporal, tout = update_temporal(
-        state.temporal, seg, disp, valid, params, cfg=cfg, grid=grid
+        state.temporal, seg, disp, valid, params, cfg=cfg, grid=grid, consistent=consistent
     )
 
     static_w = static_weights(tout, valid)
@@ -138,7 +156,9 @@ def step(state: PipelineState, flow, key, params: Params, *, cfg: Config, grid, 
         matched=tout.matched,
         num_segments=seg.num_segments,
     )
-    return PipelineState(temporal, T_w_c, state.frame + 1), out
+    T_last = jnp.where(ok, T_cur_prev, state.T_last)
+    have_last = state.have_last | ok
+    return PipelineState(temporal, T_w_c, state.frame + 1, T_last, have_last), out
 
 
 def frame_key(key, index):

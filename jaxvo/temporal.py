@@ -42,6 +42,7 @@ from jaxvo.geometry import masked_median
 from jaxvo.status import Status
 
 _NEVER = -(2**30)  # last_seen of an identifier never observed: always free
+STATIC_ID = 1  # thesis section 4.1: identifier 1 is the static background
 _BIG = 1e30  # sort key of masked-out lanes (finite, so no inf - inf can appear)
 
 
@@ -203,6 +204,38 @@ def _assign_identifiers(state: TemporalState, seg_labels, params: Params, *, cfg
     return segment_ids, n_seg
 
 
+def _prefer_consistent_background(segment_ids, n_seg, consistent):
+    """Give the background identifier to a segment that moves as the camera was predicted
+    to, when the segment that matched it does not.
+
+    Label matching (eq. 4.1) goes by overlap alone. When a large object stops, the spatial
+    stage merges it with the background for a few frames; when it moves again, it can
+    overlap the background's past area more than the background itself does, take
+    identifier 1, and the camera follows the object (``fixed_camera_2``: 400 mm of drift
+    in one run of four); or the merged segment keeps the object's identifier and no
+    segment has the background's. The largest consistent segment takes identifier 1 when
+    the matched one is not consistent (and is at most twice its size) or when no segment
+    matched identifier 1; a wrong prediction (a sudden camera move, where no segment is
+    consistent) changes nothing.
+
+    Args:
+      segment_ids: (S,) int32 identifiers from the matching; n_seg: (S,) float32 sizes;
+      consistent: (S,) bool, most of the segment's points follow the predicted motion.
+    """
+    s = segment_ids.shape[0]
+    is_bg = segment_ids == STATIC_ID
+    has_bg = jnp.any(is_bg)
+    cur = jnp.argmax(is_bg)
+    cand = consistent & (n_seg > 0) & (~has_bg | (2.0 * n_seg >= n_seg[cur]))
+    best = jnp.argmax(jnp.where(cand, n_seg, -1.0))
+    swap = jnp.any(cand) & ~(has_bg & consistent[cur])
+    idx = jnp.arange(s)
+    # the segment that had identifier 1 takes the chosen one's (0 if it had none)
+    others = jnp.where(has_bg & (idx == cur), segment_ids[best], segment_ids)
+    swapped = jnp.where(idx == best, STATIC_ID, others)
+    return jnp.where(swap, swapped, segment_ids).astype(jnp.int32)
+
+
 # --------------------------------------------------------------------------------------
 # Dual-mode simple Gaussian model (section 4.2.1)
 # --------------------------------------------------------------------------------------
@@ -354,6 +387,7 @@ def update_temporal(
     *,
     cfg: Config,
     grid: tuple[int, int],
+    consistent=None,
 ) -> tuple[TemporalState, TemporalOut]:
     """One frame of motion temporal segmentation (Algorithm 3, eqs. 4.1-4.9).
 
@@ -369,6 +403,9 @@ def update_temporal(
       params: ``min_match_corr``, ``max_age`` (frames), ``id_retention`` (frames); floats or
         traced arrays.
       cfg, grid: static.
+      consistent: optional (max_segments,) bool per spatial label 1..S: whether the
+        segment follows the camera motion predicted from the previous frame (see
+        :func:`_prefer_consistent_background`); None keeps the thesis's matching alone.
 
     Returns:
       ``(state, out)``: the state compensated to the current image's grid, and a
@@ -381,7 +418,9 @@ def update_temporal(
     labels = jnp.where(measured, labels, 0)
 
     # 4.1: identifiers for the segments
-    segment_ids, _ = _assign_identifiers(state, labels, params, cfg=cfg)
+    segment_ids, n_seg = _assign_identifiers(state, labels, params, cfg=cfg)
+    if consistent is not None:
+        segment_ids = _prefer_consistent_background(segment_ids, n_seg, consistent)
     matched = jnp.where(measured, segment_ids[jnp.clip(labels - 1, 0, s - 1)], 0)
     seen = jnp.any(jax.nn.one_hot(segment_ids - 1, cfg.max_ids, dtype=bool), axis=0)
     obs_count = state.obs_count + seen.astype(jnp.int32)

@@ -18,6 +18,7 @@ from jaxvo.config import Config, Params, params_as_arrays
 from jaxvo.temporal import (
     TemporalOut,
     TemporalState,
+    _prefer_consistent_background,
     compensate_models,
     compensation_weights,
     init_temporal,
@@ -155,6 +156,30 @@ def test_empty_segments_and_ids_give_zero_not_nan():
 
 
 # ---------------------------------------------------------------- identifiers (4.1)
+
+
+@pytest.mark.parametrize(
+    "ids, sizes, consistent, expected",
+    [
+        # the matched background does not follow the prediction, a large segment does: swap
+        ([1, 3, 0], [400, 500, 0], [False, True, False], [3, 1, 0]),
+        # the matched background follows the prediction: matching stands
+        ([1, 3, 0], [400, 500, 0], [True, True, False], [1, 3, 0]),
+        # nothing follows the prediction (a sudden camera move): matching stands
+        ([1, 3, 0], [400, 500, 0], [False, False, False], [1, 3, 0]),
+        # the consistent segment is under half the matched one's size: matching stands
+        ([1, 3, 2], [400, 150, 40], [False, True, False], [1, 3, 2]),
+        # no segment matched the background: the largest consistent one takes it
+        ([2, 3, 0], [900, 60, 0], [True, True, False], [1, 3, 0]),
+    ],
+)
+def test_background_identifier_goes_to_the_segment_that_moves_as_predicted(
+    ids, sizes, consistent, expected
+):
+    got = _prefer_consistent_background(
+        jnp.asarray(ids, jnp.int32), jnp.asarray(sizes, jnp.float32), jnp.asarray(consistent)
+    )
+    np.testing.assert_array_equal(np.asarray(got), expected)
 
 
 def test_ids_stable_when_spatial_stage_permutes_segments(step):
