@@ -11,17 +11,25 @@ from __future__ import annotations
 import jax.numpy as jnp
 
 
-def jaccard_distance(inliers):
+def overlaps(inliers):
+    """(H, H) float32 ``|A n B|`` of boolean sets ``inliers`` (H, n); the diagonal holds the
+    set sizes. The one product both the Jaccard distance and the spatial stage's member
+    choice need."""
+    f = inliers.astype(jnp.float32)
+    return f @ f.T
+
+
+def jaccard_distance(inliers, inter=None):
     """Pairwise Jaccard distance ``1 - |A n B| / |A u B|`` of boolean sets.
 
     Args:
       inliers: (H, n) bool, one inlier set per hypothesis.
+      inter: optional :func:`overlaps` of ``inliers``, when already computed.
 
     Returns:
       (H, H) float32 distances in [0, 1]; 1 between two empty sets.
     """
-    f = inliers.astype(jnp.float32)
-    inter = f @ f.T
+    inter = overlaps(inliers) if inter is None else inter
     size = jnp.diagonal(inter)
     union = size[:, None] + size[None, :] - inter
     return 1.0 - inter / jnp.maximum(union, 1.0)

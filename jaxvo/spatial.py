@@ -36,7 +36,7 @@ import jax
 import jax.numpy as jnp
 from jax import lax
 
-from jaxvo.cluster import dbscan, jaccard_distance
+from jaxvo.cluster import dbscan, jaccard_distance, overlaps
 from jaxvo.procrustes import fit_rigid_cols, residuals_cols
 from jaxvo.status import Status
 
@@ -334,8 +334,10 @@ def segment(key, pts_prev, pts_cur, valid, params, *, cfg, grid):
     hyp_labels = jnp.where(jnp.any(hyps.inliers, axis=0), hyp_best + 1, 0).astype(jnp.int32)
 
     # --- Algorithm 2: cluster the hypotheses, refine each cluster ------------------------
+    inter = overlaps(hyps.inliers)  # (H, H) shared inlier counts
     labels_h, _ = dbscan(
-        jaccard_distance(hyps.inliers), hyps.found, params.cluster_eps, params.cluster_min_samples
+        jaccard_distance(hyps.inliers, inter), hyps.found, params.cluster_eps,
+        params.cluster_min_samples,
     )
     # At most max_segments clusters can be output, so only that many are refined, each from
     # one member. Members are taken in order of inlier count; a member whose inliers lie
@@ -343,9 +345,8 @@ def segment(key, pts_prev, pts_cur, valid, params, *, cfg, grid):
     # re-discovery of that motion and is passed over, so that the next member of its
     # cluster (possibly a small moving object chained to it through a bridging hypothesis)
     # can stand for the cluster instead.
-    size_h = jnp.sum(hyps.inliers, axis=1)
-    inl_h = hyps.inliers.astype(jnp.float32)
-    covered = (inl_h @ inl_h.T) / jnp.maximum(size_h[:, None], 1)  # (k, j)
+    size_h = jnp.diagonal(inter)
+    covered = inter / jnp.maximum(size_h[:, None], 1)  # (k, j)
     by_size = jnp.argsort(-jnp.where(hyps.found, size_h, -1), stable=True)
 
     def choose(i, carry):
