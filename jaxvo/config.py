@@ -67,6 +67,9 @@ class Config:
     # synthetic scenes and 7-Scenes; fixed_camera_2 37 vs 41 mm, within its seed-to-seed
     # spread) since measured-moving points are left out beforehand
     ego_iters: int = 5
+    # Gauss-Newton steps on the image-plane and depth errors after the 3D fit
+    # (egomotion.refine_reprojection; 0 turns it off)
+    ego_reprojection_iters: int = 3
 
 
 class Params(NamedTuple):

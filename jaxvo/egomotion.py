@@ -15,7 +15,7 @@ import jax
 import jax.numpy as jnp
 
 from jaxvo.config import Config, Params
-from jaxvo.geometry import masked_median
+from jaxvo.geometry import make_pose, masked_median
 from jaxvo.procrustes import fit_rigid_cols, residuals_cols
 from jaxvo.status import Status
 
@@ -23,6 +23,80 @@ from jaxvo.status import Status
 def noise_scale(z):
     """Expected depth-noise scale at depth ``z`` metres, relative to 1 m (structured light ~ z^2)."""
     return 0.5 + 0.5 * z * z
+
+
+def _skew(v):
+    z = jnp.zeros_like(v[0])
+    return jnp.stack([
+        jnp.stack([z, -v[2], v[1]]), jnp.stack([v[2], z, -v[0]]), jnp.stack([-v[1], v[0], z])
+    ])
+
+
+def _exp_so3(w):
+    """Rodrigues: rotation (3, 3) of the rotation vector ``w`` (3,)."""
+    theta2 = jnp.sum(w * w)
+    theta = jnp.sqrt(theta2 + 1e-30)
+    small = theta2 < 1e-10
+    a = jnp.where(small, 1.0 - theta2 / 6.0, jnp.sin(theta) / theta)
+    b = jnp.where(small, 0.5 - theta2 / 24.0, (1.0 - jnp.cos(theta)) / (theta2 + 1e-30))
+    k = _skew(w)
+    return jnp.eye(3, dtype=w.dtype) + a * k + b * (k @ k)
+
+
+def refine_reprojection(T, src, dst, weights, iters):
+    """Gauss-Newton on the image-plane and depth errors, each in units of its own scale.
+
+    The 3D-3D fit treats a point's error as isotropic, but the depth noise of an RGB-D
+    camera lies along the viewing ray and is several times the lateral error of the
+    tracked pixel; least squares on such points shortens the estimated motion (3 % with a
+    plain fit on the synthetic static scene). The tracked pixel carries no depth noise: its
+    direction is ``dst / dst_z``. So the pose is refined, from the 3D-3D estimate and on its
+    inliers, on the error of ``T src`` in the current view split into an image-plane part
+    (normalised image coordinates, the classic 3D-2D error) and a depth part, each divided
+    by its robust scale (1.4826 median, Huber weights at twice it, 0 beyond three): the
+    data say how much each is worth. Image error alone helped the synthetic scenes but not
+    7-Scenes, whose depth is not registered to its colour image exactly.
+
+    Args:
+      T: (4, 4) starting pose; src, dst: (3, n) columns; weights: (n,) bool or float.
+      iters: Gauss-Newton steps (static).
+    """
+    w = jnp.asarray(weights, jnp.float32)
+    m = dst[:2] / jnp.where(dst[2] > 0, dst[2], 1.0)  # (2, n) normalised image coordinates
+
+    def gn(_, T):
+        q = T[:3, :3] @ src + T[:3, 3:4]
+        z = jnp.where(q[2] > 1e-6, q[2], 1e-6)
+        u, v = q[0] / z, q[1] / z
+        ru, rv = u - m[0], v - m[1]
+        # Huber weights at twice a robust scale of the image error, 0 beyond three
+        e = jnp.sqrt(ru * ru + rv * rv + 1e-20)
+        c = jnp.maximum(2.0 * 1.4826 * masked_median(e, w > 0), 1e-5)
+        wr = jnp.where(e < 3.0 * c, w * jnp.minimum(1.0, c / e), 0.0)
+        # d(u, v)/d(q) times d(q)/d(xi) for a left perturbation xi = (omega, nu):
+        # dq = -[q]x omega + nu
+        iz = 1.0 / z
+        du = jnp.stack([-u * q[1] * iz, iz * q[2] + u * q[0] * iz, -q[1] * iz,
+                        iz, jnp.zeros_like(iz), -u * iz])
+        dv = jnp.stack([-iz * q[2] - v * q[1] * iz, v * q[0] * iz, q[0] * iz,
+                        jnp.zeros_like(iz), iz, -v * iz])
+        rz = q[2] - dst[2]
+        cz = jnp.maximum(2.0 * 1.4826 * masked_median(jnp.abs(rz), wr > 0), 1e-6)
+        wz = jnp.where(jnp.abs(rz) < 3.0 * cz, wr * jnp.minimum(1.0, cz / jnp.abs(rz + 1e-20)), 0.0)
+        dz = jnp.stack([q[1], -q[0], jnp.zeros_like(iz), jnp.zeros_like(iz),
+                        jnp.zeros_like(iz), jnp.ones_like(iz)])
+        a, b = 1.0 / (c * c), 1.0 / (cz * cz)
+        H = a * ((du * wr) @ du.T + (dv * wr) @ dv.T) + b * ((dz * wz) @ dz.T)
+        g = a * ((du * wr) @ ru + (dv * wr) @ rv) + b * ((dz * wz) @ rz)
+        H = H + 1e-9 * jnp.trace(H) * jnp.eye(6, dtype=H.dtype)
+        xi = -jnp.linalg.solve(H, g)
+        dR = _exp_so3(xi[:3])
+        R = dR @ T[:3, :3]
+        t = dR @ T[:3, 3] + xi[3:]
+        good = jnp.all(jnp.isfinite(xi)) & (jnp.sum(wr > 0) >= 6)
+        return jnp.where(good, make_pose(R, t), T)
+
+    return jax.lax.fori_loop(0, iters, gn, T)
 
 
 def estimate_egomotion(pts_prev, pts_cur, weights, params: Params, *, cfg: Config):
@@ -74,6 +148,8 @@ def estimate_egomotion(pts_prev, pts_cur, weights, params: Params, *, cfg: Confi
     T, ok = jax.lax.fori_loop(0, cfg.ego_iters, reweight, (T0, ok0))
     r, c = scaled_residuals(T)
     inliers = usable & (r < 3.0 * c)
+    if cfg.ego_reprojection_iters > 0:
+        T = refine_reprojection(T, src, dst, inliers, cfg.ego_reprojection_iters)
 
     status = jnp.where(
         n_usable < params.min_static_points,
