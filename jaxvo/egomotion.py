@@ -7,6 +7,9 @@ pose is ``T_w_cur = T_w_prev @ inv(T_cur_prev)``.
 The fit is the weighted Procrustes of thesis eqs. (2.1), (2.2) on the static points,
 refined by iteratively re-weighted least squares with Huber weights so that a few points
 the temporal model mislabels (object edges, late-detected objects) cannot pull the pose.
+A last few Gauss-Newton steps (:func:`refine_reprojection`, our addition to the thesis)
+weigh the image-plane and depth parts of the error separately, because RGB-D depth noise
+lies along the viewing ray and biases the isotropic 3D fit.
 """
 
 from __future__ import annotations
