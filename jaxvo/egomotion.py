@@ -18,7 +18,7 @@ import jax
 import jax.numpy as jnp
 
 from jaxvo.config import Config, Params
-from jaxvo.geometry import make_pose, masked_median
+from jaxvo.geometry import make_pose, masked_median, so3_exp
 from jaxvo.procrustes import fit_rigid_cols, residuals_cols
 from jaxvo.status import Status
 
@@ -28,22 +28,17 @@ def noise_scale(z):
     return 0.5 + 0.5 * z * z
 
 
-def _skew(v):
-    z = jnp.zeros_like(v[0])
-    return jnp.stack([
-        jnp.stack([z, -v[2], v[1]]), jnp.stack([v[2], z, -v[0]]), jnp.stack([-v[1], v[0], z])
-    ])
+def _huber_threshold(x, mask):
+    """Twice the robust standard deviation of ``x[mask]``: 1.4826 * median |x| estimates
+    the standard deviation of Gaussian residuals, and a fifth of outliers cannot inflate
+    it."""
+    return 2.0 * 1.4826 * masked_median(x, mask)
 
 
-def _exp_so3(w):
-    """Rodrigues: rotation (3, 3) of the rotation vector ``w`` (3,)."""
-    theta2 = jnp.sum(w * w)
-    theta = jnp.sqrt(theta2 + 1e-30)
-    small = theta2 < 1e-10
-    a = jnp.where(small, 1.0 - theta2 / 6.0, jnp.sin(theta) / theta)
-    b = jnp.where(small, 0.5 - theta2 / 24.0, (1.0 - jnp.cos(theta)) / (theta2 + 1e-30))
-    k = _skew(w)
-    return jnp.eye(3, dtype=w.dtype) + a * k + b * (k @ k)
+def _huber_weights(r, c, w):
+    """Weights ``w`` times Huber's ``min(1, c / r)`` for residual sizes ``r >= 0``; 0 beyond
+    ``3 c``."""
+    return jnp.where(r < 3.0 * c, w * jnp.minimum(1.0, c / jnp.maximum(r, 1e-20)), 0.0)
 
 
 def refine_reprojection(T, src, dst, weights, iters):
@@ -56,8 +51,8 @@ def refine_reprojection(T, src, dst, weights, iters):
     direction is ``dst / dst_z``. So the pose is refined, from the 3D-3D estimate and on its
     inliers, on the error of ``T src`` in the current view split into an image-plane part
     (normalised image coordinates, the classic 3D-2D error) and a depth part, each divided
-    by its robust scale (1.4826 median, Huber weights at twice it, 0 beyond three): the
-    data say how much each is worth. Image error alone helped the synthetic scenes but not
+    by its robust scale (Huber weights as in the 3D re-weighting): the data say how much
+    each is worth. Image error alone helped the synthetic scenes but not
     7-Scenes, whose depth is not registered to its colour image exactly.
 
     Args:
@@ -72,10 +67,9 @@ def refine_reprojection(T, src, dst, weights, iters):
         z = jnp.where(q[2] > 1e-6, q[2], 1e-6)
         u, v = q[0] / z, q[1] / z
         ru, rv = u - m[0], v - m[1]
-        # Huber weights at twice a robust scale of the image error, 0 beyond three
         e = jnp.sqrt(ru * ru + rv * rv + 1e-20)
-        c = jnp.maximum(2.0 * 1.4826 * masked_median(e, w > 0), 1e-5)
-        wr = jnp.where(e < 3.0 * c, w * jnp.minimum(1.0, c / e), 0.0)
+        c = jnp.maximum(_huber_threshold(e, w > 0), 1e-5)
+        wr = _huber_weights(e, c, w)
         # d(u, v)/d(q) times d(q)/d(xi) for a left perturbation xi = (omega, nu):
         # dq = -[q]x omega + nu
         iz = 1.0 / z
@@ -84,8 +78,8 @@ def refine_reprojection(T, src, dst, weights, iters):
         dv = jnp.stack([-iz * q[2] - v * q[1] * iz, v * q[0] * iz, q[0] * iz,
                         jnp.zeros_like(iz), iz, -v * iz])
         rz = q[2] - dst[2]
-        cz = jnp.maximum(2.0 * 1.4826 * masked_median(jnp.abs(rz), wr > 0), 1e-6)
-        wz = jnp.where(jnp.abs(rz) < 3.0 * cz, wr * jnp.minimum(1.0, cz / jnp.abs(rz + 1e-20)), 0.0)
+        cz = jnp.maximum(_huber_threshold(jnp.abs(rz), wr > 0), 1e-6)
+        wz = _huber_weights(jnp.abs(rz), cz, wr)
         dz = jnp.stack([q[1], -q[0], jnp.zeros_like(iz), jnp.zeros_like(iz),
                         jnp.zeros_like(iz), jnp.ones_like(iz)])
         a, b = 1.0 / (c * c), 1.0 / (cz * cz)
@@ -93,7 +87,7 @@ def refine_reprojection(T, src, dst, weights, iters):
         g = a * ((du * wr) @ ru + (dv * wr) @ rv) + b * ((dz * wz) @ rz)
         H = H + 1e-9 * jnp.trace(H) * jnp.eye(6, dtype=H.dtype)
         xi = -jnp.linalg.solve(H, g)
-        dR = _exp_so3(xi[:3])
+        dR = so3_exp(xi[:3])
         R = dR @ T[:3, :3]
         t = dR @ T[:3, 3] + xi[3:]
         good = jnp.all(jnp.isfinite(xi)) & (jnp.sum(wr > 0) >= 6)
@@ -136,16 +130,12 @@ def estimate_egomotion(pts_prev, pts_cur, weights, params: Params, *, cfg: Confi
 
     def scaled_residuals(T):
         r = jnp.sqrt(residuals_cols(T, src, dst) + 1e-12) / s_z
-        # 1.4826 * median |u| estimates the standard deviation of Gaussian residuals
-        sigma = 1.4826 * masked_median(r, usable)
-        c = jnp.clip(2.0 * sigma, 1e-3, params.ego_huber)
-        return r, c
+        return r, jnp.clip(_huber_threshold(r, usable), 1e-3, params.ego_huber)
 
     def reweight(_, carry):
         T, _ok = carry
         r, c = scaled_residuals(T)
-        huber = jnp.minimum(1.0, c / jnp.maximum(r, 1e-9))
-        return fit_rigid_cols(src, dst, jnp.where(r < 3.0 * c, w0 * huber, 0.0))
+        return fit_rigid_cols(src, dst, _huber_weights(r, c, w0))
 
     T0, ok0 = fit_rigid_cols(src, dst, w0)
     T, ok = jax.lax.fori_loop(0, cfg.ego_iters, reweight, (T0, ok0))

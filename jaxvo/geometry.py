@@ -34,6 +34,23 @@ def invert_pose(T):
     return make_pose(Rt, -jnp.einsum("...ij,...j->...i", Rt, t))
 
 
+def so3_exp(w):
+    """Rodrigues: the rotation (3, 3) of the rotation vector ``w`` (3,), radians; Taylor
+    terms near 0 so that no 0 / 0 appears."""
+    theta2 = jnp.sum(w * w)
+    theta = jnp.sqrt(theta2 + 1e-30)
+    small = theta2 < 1e-10
+    a = jnp.where(small, 1.0 - theta2 / 6.0, jnp.sin(theta) / theta)
+    b = jnp.where(small, 0.5 - theta2 / 24.0, (1.0 - jnp.cos(theta)) / (theta2 + 1e-30))
+    zero = jnp.zeros_like(w[0])
+    k = jnp.stack([
+        jnp.stack([zero, -w[2], w[1]]),
+        jnp.stack([w[2], zero, -w[0]]),
+        jnp.stack([-w[1], w[0], zero]),
+    ])
+    return jnp.eye(3, dtype=w.dtype) + a * k + b * (k @ k)
+
+
 def transform_points(T, points):
     """Apply ``(..., 4, 4)`` pose ``T`` to ``(..., n, 3)`` points."""
     R = T[..., :3, :3]

@@ -212,7 +212,7 @@ def _search_work(state, key, pts_prev, pts_cur, valid, tau2, tau_s2, params, *, 
     return _SearchState(entropy, err_min, count, done), hyp
 
 
-def _cluster_refine(start, active, pts_prev, pts_cur, valid, tau2, *, cfg, grid):
+def _cluster_refine(start, active, pts_prev, pts_cur, valid, tau2, *, cfg):
     """Algorithm 2 lines 3-11 for all clusters at once, by alternating assignment.
 
     Each trip gives every point to one active cluster motion it is an inlier of (see
@@ -366,8 +366,7 @@ def segment(key, pts_prev, pts_cur, valid, params, *, cfg, grid):
     top = jnp.argsort(jnp.where(chosen, -size_h, 1), stable=True)[:n_slots]
     members = jax.nn.one_hot(top, big_h, dtype=bool) & chosen[top][:, None]
     motions, err_c, inl_c, own_c = _cluster_refine(
-        hyps.motion[top], jnp.any(members, axis=1), pts_prev, pts_cur, valid, tau2,
-        cfg=cfg, grid=grid,
+        hyps.motion[top], jnp.any(members, axis=1), pts_prev, pts_cur, valid, tau2, cfg=cfg
     )
     n_c = jnp.sum(own_c, axis=1)
     big_enough = jnp.any(members, axis=1) & (n_c > params.min_segment_points)

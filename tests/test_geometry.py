@@ -38,3 +38,15 @@ def test_masked_median_matches_numpy_and_is_zero_when_empty():
     for sel in ([0, 1], [2, 3, 6], [4, 5], [4, 6, 7, 2], list(range(8))):
         mask = np.isin(np.arange(8), sel)
         assert float(masked_median(x, mask)) == np.median(x[mask])
+
+
+def test_so3_exp_is_the_rotation_about_the_axis_and_exact_near_zero():
+    from jaxvo.geometry import so3_exp
+
+    axis = np.array([1.0, -2.0, 0.5]) / np.linalg.norm([1.0, -2.0, 0.5])
+    for angle in (0.0, 1e-7, 0.3, 2.5):
+        K = np.array([[0, -axis[2], axis[1]], [axis[2], 0, -axis[0]], [-axis[1], axis[0], 0]])
+        ref = np.eye(3) + np.sin(angle) * K + (1 - np.cos(angle)) * K @ K
+        got = np.asarray(so3_exp(jnp.asarray(axis * angle, jnp.float32)))
+        assert np.all(np.isfinite(got))
+        np.testing.assert_allclose(got, ref, atol=2e-6)
