@@ -32,19 +32,16 @@ import numpy as np
 sys.path.insert(0, str(Path(__file__).resolve().parent))
 from _common import machine_line
 
+from jaxvo.camera import project
 from jaxvo.config import Config, Params, grid_shape, params_as_arrays
 from jaxvo.flow import flows_for_sequence
-from jaxvo.masks import moving_at_grid
+from jaxvo.masks import ids_at_grid
 from jaxvo.metrics import SegmentationScores
 from jaxvo.pipeline import frame_key
 from jaxvo.spatial import segment
 from jaxvo.synth import SCENARIOS, make_sequence
 
 MIN_PX = 1.0  # an object moving this much or less in the image is not counted as a motion
-
-
-def _project(K, pts):
-    return np.stack([K.fx * pts[:, 0] / pts[:, 2] + K.cx, K.fy * pts[:, 1] / pts[:, 2] + K.cy], 1)
 
 
 def true_motions(seq, k, flow, ids, min_points):
@@ -60,8 +57,8 @@ def true_motions(seq, k, flow, ids, min_points):
         T_o = np.linalg.inv(cams[k + 1]) @ traj.poses[k + 1] @ np.linalg.inv(traj.poses[k]) @ cams[k]
         moved = p @ T_o[:3, :3].T + T_o[:3, 3]
         still = p @ T_c2_c1[:3, :3].T + T_c2_c1[:3, 3]
-        px = np.median(np.linalg.norm(_project(seq.intrinsics, moved)
-                                      - _project(seq.intrinsics, still), axis=1))
+        px = np.median(np.linalg.norm(project(moved, seq.intrinsics)
+                                      - project(still, seq.intrinsics), axis=1))
         if px > MIN_PX:
             count += 1
         else:
@@ -86,14 +83,14 @@ def score_scenario(name, frames, seed, cfg, params):
         times.append(time.perf_counter() - t)
         labels = np.asarray(s.labels)
         mask = seq[k].mask
-        truth = moving_at_grid(mask, cfg.cell)
-        ids = moving_ids(mask, cfg.cell)
+        ids = ids_at_grid(mask, cfg.cell)
+        truth = ids > 0
         on_static = np.bincount(labels[valid & ~truth & (labels > 0)], minlength=2)
         background = int(np.argmax(on_static[1:]) + 1) if on_static[1:].any() else 1
         keep = valid & (labels > 0)
         scores.add((labels != background) & keep, truth)
         measured.add((labels != background) & keep, truth & keep)
-        n_true, slow = true_motions(seq, k, flows, ids, params_min_points(params))
+        n_true, slow = true_motions(seq, k, flows, ids, float(params.min_segment_points))
         hit = int(s.num_segments) == n_true
         right += hit
         total += 1
@@ -104,17 +101,6 @@ def score_scenario(name, frames, seed, cfg, params):
             "f_measured": measured.f_measure, "right": right, "total": total,
             "right_fast": right_fast, "total_fast": total_fast,
             "ms": 1e3 * float(np.median(times[1:]))}
-
-
-def moving_ids(mask, cell):
-    rows, cols = mask.shape[0] // cell, mask.shape[1] // cell
-    ys = (np.arange(rows) * cell + cell // 2).astype(int)
-    xs = (np.arange(cols) * cell + cell // 2).astype(int)
-    return mask[np.ix_(ys, xs)].ravel()
-
-
-def params_min_points(params):
-    return float(np.asarray(params.min_segment_points))
 
 
 def main(argv=None):
