@@ -107,9 +107,12 @@ def main(argv=None):
     ap = argparse.ArgumentParser(description=__doc__.splitlines()[0])
     ap.add_argument("--frames", type=int, default=90)
     ap.add_argument("--seed", type=int, default=0)
-    ap.add_argument("--scenarios", nargs="*",
-                    default=[s for s in SCENARIOS if s != "static"])
+    ap.add_argument("--scenarios", nargs="+", choices=list(SCENARIOS), metavar="SCENARIO",
+                    default=[s for s in SCENARIOS if s != "static"],
+                    help=f"synthetic scenarios (default: all but static; from {', '.join(SCENARIOS)})")
     args = ap.parse_args(argv)
+    if args.frames < 2:
+        ap.error("--frames must be at least 2 (one frame pair)")
     cfg, params = Config(), params_as_arrays(Params())
     print(machine_line())
     print(f"{args.frames} frames, seed {args.seed}, grid points; motions: frames with the true "
