@@ -170,6 +170,10 @@ def main() -> None:
         help="also time the GridFlowTracker of this flow.py, taking turns (own processes)",
     )
     args = ap.parse_args()
+    if args.baseline and not os.path.isfile(args.baseline):
+        ap.error(f"--baseline: no such file: {args.baseline}")
+    if args.pairs < 1 or args.frames < 2:
+        ap.error("--pairs must be at least 1 and --frames at least 2")
     if args.threads is not None:
         cv2.setNumThreads(args.threads)
 
