@@ -23,6 +23,12 @@ Design decisions where the thesis leaves room (each also noted where it is imple
 * A new identifier is the least observed (frames with a segment carrying it) among the free
   ones; the background identifier ``1`` is preferred whenever it is free (first frame, or
   background lost for ``id_retention`` frames), so the largest unmatched segment takes it.
+* The candidate also takes over at once where the measurement is decisive: an object
+  seen elsewhere has left the cell, or a tracked segment that moves unlike the predicted
+  camera motion has entered it (see ``_update_models``); the thesis waits up to
+  ``max_age`` frames in both cases.
+* Compensation moves a cell without flow as its identifier's valid cells move on average
+  (the thesis leaves such cells open; see ``compensation_weights``).
 * After a swap the demoted model is cleared, as in the model the thesis builds on
   (Yi et al., MCD5.8ms, ref. [20]); keeping it would let a single erroneous label swap back.
   The swap is checked only on frames where the candidate was updated.
@@ -248,8 +254,27 @@ def _blend(prob, age, meas_1h, max_age):
     return new_prob, jnp.minimum(age + 1.0, max_age)
 
 
-def _update_models(state: TemporalState, meas, max_age, *, cfg: Config):
+def _update_models(state: TemporalState, meas, seen, moving, max_age, *, cfg: Config):
     """Apply the update criteria of section 4.2.1 with the matched label ``meas`` (n,).
+
+    Besides the thesis's swap (the candidate saturates or outgrows the apparent model), the
+    candidate takes over at once where the measurement is decisive:
+
+    * vacated: the cell's apparent identifier is a moving object that this frame's
+      measurement shows elsewhere (``seen``), so the object has left the cell. Waiting up
+      to ``max_age`` frames left a trail of the object behind it: precision of the moving
+      points 0.75-0.80 on the synthetic scenes, 0.92-0.96 with this rule.
+    * entered: the cell's segment does not follow the predicted camera motion (``moving``)
+      and carries an identifier seen within the matching window, so an object tracked as
+      moving has come into the cell. Without it a large object that starts to move stays
+      static in the model and drags the ego-motion (``fixed_camera_2``, 8 seeds: ATE
+      13-47 mm before, 0.3-12 mm after). A new identifier alone does not count: spurious
+      splits of a real static scene (7-Scenes) would pass into the model.
+
+    Args:
+      meas: (n,) int32 matched identifier per cell, 0 = no measurement.
+      seen: (max_ids,) bool identifiers present in this frame's measurement.
+      moving: (n,) bool the cell's segment moves unlike the predicted camera motion.
 
     Returns the new ``(app_prob, app_age, cand_prob, cand_age, ids)``.
     """
@@ -270,9 +295,13 @@ def _update_models(state: TemporalState, meas, max_age, *, cfg: Config):
     cand_p = jnp.where(cand_touch[:, None], cand_p, state.cand_prob)
     cand_a = jnp.where(cand_touch, cand_a, state.cand_age)
 
-    # swap when the candidate saturates or outgrows the apparent model; the demoted model
-    # is cleared (as in [20]) so a lone erroneous label cannot swap it straight back
-    swap = cand_touch & ((cand_a >= max_age) | (cand_a > app_a))
+    # swap when the candidate saturates or outgrows the apparent model, or at once when the
+    # measurement is decisive (see above); the demoted model is cleared (as in [20]) so a
+    # lone erroneous label cannot swap it straight back
+    vacated = seen[jnp.clip(app_label - 1, 0, m - 1)] & ~app_empty & (app_label != STATIC_ID)
+    recent = state.frame - state.last_seen <= cfg.match_window
+    entered = moving & (meas != STATIC_ID) & recent[jnp.clip(meas - 1, 0, m - 1)]
+    swap = cand_touch & ((cand_a >= max_age) | (cand_a > app_a) | vacated | entered)
     app_p = jnp.where(swap[:, None], cand_p, app_p)
     app_a = jnp.where(swap, cand_a, app_a)
     cand_p = jnp.where(swap[:, None], 0.0, cand_p)
@@ -289,11 +318,14 @@ def _update_models(state: TemporalState, meas, max_age, *, cfg: Config):
 # --------------------------------------------------------------------------------------
 
 
-def compensation_weights(disp, flow_valid, *, cfg: Config, grid: tuple[int, int]):
+def compensation_weights(disp, flow_valid, *, cfg: Config, grid: tuple[int, int], ids=None):
     """Where each current cell's model comes from: thesis eqs. (4.8), (4.9).
 
-    Current cell ``i`` looks back to ``p_i - d_i`` (``d_i`` = displacement at cell ``i``;
-    invalid flow takes the median displacement of the valid cells). A cell-sized square
+    Current cell ``i`` looks back to ``p_i - d_i`` (``d_i`` = displacement at cell ``i``).
+    A cell without valid flow takes the mean displacement of the valid cells of its
+    identifier in ``ids``, else the median displacement of all valid cells. (The median
+    alone moved an object's unmeasured cells with the background, leaving its label behind
+    wherever depth is missing: composite 7-Scenes scene, moving F 0.70 -> 0.80.) A cell-sized square
     centred there overlaps at most four previous cells; the overlap areas, normalised to sum
     1 over the cells inside the grid, are the bilinear weights. A source centre outside the
     area the grid covers leaves the cell empty.
@@ -302,6 +334,7 @@ def compensation_weights(disp, flow_valid, *, cfg: Config, grid: tuple[int, int]
       disp: (n, 2) float32 ``uv_cur - uv_prev`` per grid point, pixels (x, y).
       flow_valid: (n,) bool.
       cfg, grid: static; ``cfg.cell`` is the cell size in pixels.
+      ids: optional (n,) int32 identifier per cell (0 = none) on the same grid.
 
     Returns:
       ``(idx (n, 4) int32 previous cells, w (n, 4) float32 weights, nearest (n,) int32
@@ -312,7 +345,15 @@ def compensation_weights(disp, flow_valid, *, cfg: Config, grid: tuple[int, int]
     ok = flow_valid & jnp.all(jnp.isfinite(disp), axis=1)
     d_safe = jnp.where(ok[:, None], disp, 0.0)
     med = jnp.stack([masked_median(d_safe[:, 0], ok), masked_median(d_safe[:, 1], ok)])
-    d = jnp.where(ok[:, None], d_safe, med[None, :]) / cfg.cell
+    fill = jnp.broadcast_to(med, d_safe.shape)
+    if ids is not None:
+        id_1h = jax.nn.one_hot(ids - 1, cfg.max_ids, dtype=jnp.float32) * ok[:, None]
+        count = id_1h.sum(axis=0)
+        mean = (id_1h.T @ d_safe) / jnp.maximum(count, 1.0)[:, None]
+        slot = jnp.clip(ids - 1, 0, cfg.max_ids - 1)
+        own = (ids > 0) & (count[slot] > 0)
+        fill = jnp.where(own[:, None], mean[slot], fill)
+    d = jnp.where(ok[:, None], d_safe, fill) / cfg.cell
 
     r = (jnp.arange(n) // cols).astype(jnp.float32)
     c = (jnp.arange(n) % cols).astype(jnp.float32)
@@ -357,7 +398,8 @@ def compensate_models(prob, age, idx, w):
 
 
 def _compensate_state(state: TemporalState, disp, flow_valid, *, cfg: Config, grid):
-    idx, w, nearest, inside = compensation_weights(disp, flow_valid, cfg=cfg, grid=grid)
+    idx, w, nearest, inside = compensation_weights(disp, flow_valid, cfg=cfg, grid=grid,
+                                                   ids=state.ids)
     app_p, app_a = compensate_models(state.app_prob, state.app_age, idx, w)
     cand_p, cand_a = compensate_models(state.cand_prob, state.cand_age, idx, w)
     # label maps are categorical: nearest neighbour instead of interpolation
@@ -427,7 +469,13 @@ def update_temporal(
     last_seen = jnp.where(seen, state.frame, state.last_seen)
 
     # 4.2.1: update the grid models with the matched label as measurement
-    app_p, app_a, cand_p, cand_a, ids = _update_models(state, matched, params.max_age, cfg=cfg)
+    if consistent is None:
+        moving = jnp.zeros_like(measured)
+    else:
+        moving = measured & ~consistent[jnp.clip(labels - 1, 0, s - 1)]
+    app_p, app_a, cand_p, cand_a, ids = _update_models(
+        state, matched, seen, moving, params.max_age, cfg=cfg
+    )
 
     # the window keeps this frame's identifier map; unmeasured cells keep the grid's label
     id_map = jnp.where(matched > 0, matched, ids)
