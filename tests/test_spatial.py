@@ -254,3 +254,29 @@ def test_vmap_over_params_without_recompiling():
             assert int(out.status[i]) == Status.OK
             assert best_f(out.labels[i], truth, valid, 1) >= F_MIN
     assert len(traces) == 1
+
+
+def test_samples_take_valid_neighbours_on_a_sparse_grid():
+    """A fifth of the grid valid (as with motion blur): the m - 1 neighbours of a seed are
+    valid cells within the sample radius, not offsets that mostly land on invalid cells
+    (then about one sample in 125 had all its points valid)."""
+    from jaxvo.spatial import _draw_samples
+
+    rows, cols = GRID
+    valid = np.random.default_rng(0).uniform(size=rows * cols) < 0.2
+    draw = jax.jit(lambda k: _draw_samples(k, jnp.asarray(valid, jnp.float32),
+                                           jnp.asarray(valid), cfg=CFG, grid=GRID))
+    idx = np.concatenate([np.asarray(draw(jax.random.key(s))) for s in range(50)])
+    assert idx.shape == (50 * CFG.num_candidates, CFG.sample_size)
+    assert valid[idx[:, 0]].all()  # seeds follow the entropy (here: the valid cells)
+    r, c = idx // cols, idx % cols
+    near = (np.abs(r - r[:, :1]) <= CFG.sample_radius) & (np.abs(c - c[:, :1]) <= CFG.sample_radius)
+    assert near.all()
+    distinct = np.array([len(set(row)) == len(row) for row in idx.tolist()])
+    usable = valid[idx].all(axis=1) & distinct
+    assert usable.mean() > 0.3, usable.mean()
+
+
+def test_sparse_valid_grid_still_finds_the_motions(seg, params):
+    scene = make_scene(3, TWO, invalid=0.8)
+    check_scene(run(seg, 0, scene, params), scene, 2)
