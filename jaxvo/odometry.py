@@ -69,6 +69,7 @@ class Odometry:
         self._state = None
         self._grid = None
         self._index = 0
+        self._pending = None  # a frame dispatched by submit() whose result is not out yet
         self.timestamps: list[float] = []
         self.poses: list[np.ndarray] = []
 
@@ -78,7 +79,35 @@ class Odometry:
         return Trajectory(np.asarray(self.timestamps, np.float64), np.asarray(self.poses))
 
     def process(self, bgr: np.ndarray, depth: np.ndarray, timestamp: float | None = None):
-        """Feed one frame: ``bgr`` (H, W, 3) uint8, ``depth`` (H, W) float32 metres (0 = none)."""
+        """Feed one frame: ``bgr`` (H, W, 3) uint8, ``depth`` (H, W) float32 metres (0 = none).
+
+        Returns this frame's :class:`FrameResult` (a result still pending from
+        :meth:`submit` is completed first)."""
+        self.flush()
+        return self._finish(self._dispatch(bgr, depth, timestamp))
+
+    def submit(self, bgr: np.ndarray, depth: np.ndarray, timestamp: float | None = None):
+        """Pipelined :meth:`process`: feed one frame, get the result of the frame before it.
+
+        The device step of this frame is left running while the caller fetches the next
+        frame and the next call computes its flow on the host, so a frame costs about the
+        larger of the two instead of their sum (measured 9.0-9.4 against 11.4-12.3 ms per
+        frame here); each result arrives one frame later. Call :meth:`flush` after the last
+        frame for its result. Poses, labels and statuses are those of :meth:`process`.
+
+        Returns:
+          The previous frame's :class:`FrameResult`, or None for the first frame.
+        """
+        previous, self._pending = self._pending, self._dispatch(bgr, depth, timestamp)
+        return None if previous is None else self._finish(previous)
+
+    def flush(self):
+        """The result of the frame last given to :meth:`submit`, or None if none is pending."""
+        previous, self._pending = self._pending, None
+        return None if previous is None else self._finish(previous)
+
+    def _dispatch(self, bgr, depth, timestamp):
+        """Host flow of this frame's pair and the (asynchronous) device step."""
         t = float(self._index) / 30.0 if timestamp is None else float(timestamp)
         if self._tracker is None:  # the first frame sets the image size and the grid
             if np.ndim(depth) != 2:
@@ -92,19 +121,24 @@ class Odometry:
         flow = self._tracker.push(bgr, depth)
         index = self._index
         self._index += 1
-        self.timestamps.append(t)
         if flow is None:  # no earlier good frame to compare with: the pose stays
-            T = np.asarray(self._state.T_w_c, np.float64)
-            self.poses.append(T)
-            n = self._grid[0] * self._grid[1]
-            return FrameResult(index, t, T, Status.OK, np.zeros(n, np.int32), np.zeros(n, bool),
-                               None)
+            return index, t, self._state.T_w_c, None
         self._state, out = jit_step(
             self._state, flow, self.key, self.params, cfg=self.cfg, grid=self._grid
         )
-        out = jax.tree.map(np.asarray, out)
-        T = np.asarray(out.T_w_c, np.float64)
+        return index, t, out.T_w_c, out
+
+    def _finish(self, pending) -> FrameResult:
+        """Wait for a dispatched frame, record its pose and return its result."""
+        index, t, T, out = pending
+        T = np.asarray(T, np.float64)
+        self.timestamps.append(t)
         self.poses.append(T)
+        if out is None:
+            n = self._grid[0] * self._grid[1]
+            return FrameResult(index, t, T, Status.OK, np.zeros(n, np.int32), np.zeros(n, bool),
+                               None)
+        out = jax.tree.map(np.asarray, out)
         return FrameResult(index, t, T, Status(int(out.status)), out.ids, out.static, out)
 
 

@@ -65,6 +65,26 @@ def test_streaming_matches_scan_and_compiles_once(scan_result, seq):
     assert r.status in tuple(Status)
 
 
+def test_pipelined_submit_gives_the_results_of_process_one_frame_late(seq):
+    frames = list(seq)[:6]
+    sync = Odometry(seq.intrinsics, cfg=CFG, seed=3)
+    want = [sync.process(f.bgr, f.depth, f.timestamp) for f in frames]
+    piped = Odometry(seq.intrinsics, cfg=CFG, seed=3)
+    got = [piped.submit(f.bgr, f.depth, f.timestamp) for f in frames]
+    assert got[0] is None  # the first call only starts the pipeline
+    got = got[1:] + [piped.flush()]
+    assert piped.flush() is None  # nothing left pending
+    for a, b in zip(want, got):
+        assert (a.index, a.timestamp, a.status) == (b.index, b.timestamp, b.status)
+        np.testing.assert_array_equal(a.T_w_c, b.T_w_c)
+        np.testing.assert_array_equal(a.ids, b.ids)
+    np.testing.assert_array_equal(sync.trajectory.poses, piped.trajectory.poses)
+    # process() after submit() completes the pending frame first, in order
+    piped.submit(frames[0].bgr, frames[0].depth, 9.0)
+    r = piped.process(frames[1].bgr, frames[1].depth, 10.0)
+    assert list(piped.trajectory.timestamps[-2:]) == [9.0, 10.0] and r.timestamp == 10.0
+
+
 def test_study_vmaps_seeds_and_params_and_matches_single_runs(flows, seq, scan_result):
     grid = grid_shape(seq.height, seq.width, CFG.cell)
     T0 = jnp.asarray(seq.groundtruth.poses[0], jnp.float32)
