@@ -84,3 +84,28 @@ def test_all_invalid_depth_skips_every_pair_with_its_reason(seq_dir, tmp_path, c
     assert summary["poses_written"] == 8  # every pose still written (carried)
     assert list(summary["skipped"]) == ["too few valid flow vectors (textureless, blurred or no depth)"]
     assert "scores_not_computed" in summary  # no NaN figure
+
+
+def test_interrupted_run_keeps_every_pose_computed(seq_dir, tmp_path, capsys, monkeypatch):
+    """Ctrl-C during the 6th frame: the five frames given to the (pipelined) odometry all
+    reach the trajectory file, the one still in flight included; exit code 130."""
+    from jaxvo.odometry import Odometry
+
+    real_submit = Odometry.submit
+    calls = {"n": 0}
+
+    def submit(self, *a, **kw):
+        calls["n"] += 1
+        if calls["n"] == 6:
+            raise KeyboardInterrupt
+        return real_submit(self, *a, **kw)
+
+    monkeypatch.setattr(Odometry, "submit", submit)
+    traj = tmp_path / "traj.txt"
+    masks = tmp_path / "masks"
+    rc = main(["run", str(seq_dir), "--out", str(traj), "--masks", str(masks), "-q", "--json"])
+    summary = json.loads(capsys.readouterr().out)
+    assert rc == 130 and summary["interrupted"]
+    est = read_trajectory(traj)
+    assert len(est) == 5 and summary["poses_written"] == 5
+    assert len(list(masks.glob("*.png"))) == 4  # one label mask per frame pair
