@@ -280,3 +280,50 @@ def test_samples_take_valid_neighbours_on_a_sparse_grid():
 def test_sparse_valid_grid_still_finds_the_motions(seg, params):
     scene = make_scene(3, TWO, invalid=0.8)
     check_scene(run(seg, 0, scene, params), scene, 2)
+
+
+def _pose(motion):
+    T = np.eye(4, dtype=np.float32)
+    T[:3, :3], T[:3, 3] = motion
+    return T
+
+
+@pytest.mark.parametrize("case", ["object", "background_again", "too_few"])
+def test_leftover_points_become_a_segment_only_when_they_move_apart(params, case):
+    """A moving block that no kept segment explains (as when joint refinement has lost it)
+    becomes a segment of its own; leftovers that move as a kept segment does, or that are
+    too few, do not."""
+    from jaxvo.procrustes import residuals_cols
+    from jaxvo.spatial import _leftover_segment, inlier_threshold
+
+    prev, cur, valid, truth = make_scene(4, TWO)
+    n_slots = CFG.max_segments
+    src, dst = jnp.asarray(prev.T), jnp.asarray(cur.T)
+    z = jnp.maximum(src[2], dst[2])
+    tau2 = inlier_threshold(z, params.inlier_dist, params) ** 2
+    motions = np.broadcast_to(np.eye(4, dtype=np.float32), (n_slots, 4, 4)).copy()
+    motions[0] = _pose(CAMERA)
+    motions = jnp.asarray(motions)
+    err = jax.vmap(lambda t: residuals_cols(t, src, dst))(motions)
+    inl = jnp.asarray(valid)[None] & (err <= tau2[None])
+    keep = jnp.zeros((n_slots,), bool).at[0].set(True)
+    left = valid & ~np.asarray(inl[0])
+    if case == "background_again":
+        left = valid & (truth == 0) & (np.arange(len(valid)) % 2 == 0)  # background points
+    elif case == "too_few":  # as many as min_segment_points, spread over the block
+        idx = np.flatnonzero(left & (truth == 1))
+        idx = idx[np.linspace(0, len(idx) - 1, int(params.min_segment_points)).astype(int)]
+        left = np.zeros_like(left)
+        left[idx] = True
+    pred = jax.vmap(lambda t: t[:3, :3] @ src + t[:3, 3:4])(motions)
+    m, _, i, k = _leftover_segment(motions, err, inl, keep, jnp.asarray(left), pred, src, dst,
+                                   tau2, params)
+    k, i = np.asarray(k), np.asarray(i)
+    if case == "object":
+        assert k.tolist() == [True, True] + [False] * (n_slots - 2)
+        block = truth == 1
+        assert f_measure(i[1], block, valid) >= F_MIN
+        np.testing.assert_allclose(np.asarray(m[1, :3, :3]), OBJECT_B[0], atol=1e-2)
+    else:
+        assert k.tolist() == [True] + [False] * (n_slots - 1)
+        np.testing.assert_array_equal(np.asarray(m), np.asarray(motions))
