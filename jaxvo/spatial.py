@@ -293,6 +293,20 @@ def _assign(err, inliers, keep):
     return best, jnp.any(cand, axis=0)
 
 
+def _same_motion(pred_a, own_a, pred_b, tau2, eps):
+    """(A, B) bool: motion ``b`` moves more than ``1 - eps`` of ``a``'s own points to where
+    motion ``a`` does, within half the inlier threshold: the same motion found twice.
+
+    Comparing the motions where ``a``'s points are (not inlier-set overlap) keeps a small
+    object whose motion differs from the camera's by less than the inlier threshold at
+    depth. ``pred_a`` (A, 3, n) and ``pred_b`` (B, 3, n) are the points moved by each
+    motion; ``own_a`` (A, n) bool.
+    """
+    gap = jnp.sum((pred_a[:, None] - pred_b[None, :]) ** 2, axis=2)  # (A, B, n)
+    close = jnp.sum(own_a[:, None, :] & (gap <= 0.25 * tau2), axis=2)
+    return close > (1.0 - eps) * jnp.sum(own_a, axis=1)[:, None]
+
+
 def _leftover_segment(motions, err_c, inl_c, keep, left, pred, pts_prev, pts_cur, tau2, params):
     """One more segment from the valid points no kept segment explains, when they move
     together and unlike every kept segment.
@@ -302,25 +316,27 @@ def _leftover_segment(motions, err_c, inl_c, keep, left, pred, pts_prev, pts_cur
     background; the object's points are then inliers of no segment (fixed_camera_2, frames
     49-54 with one key: 586 object points unlabelled). A fit on the leftover points, refined
     once on its inliers among them, is kept in a free slot if it has more than
-    ``min_segment_points`` inliers and is not a kept motion again (the test of the merge
-    step: within half the threshold of a kept motion for more than 1 - eps of them).
+    ``min_segment_points`` inliers and is not a kept motion again (:func:`_same_motion`).
+
+    Returns:
+      ``(motions, err_c, inl_c, keep)`` with the new segment in slot ``slot`` when added,
+      ``slot``, and ``new`` (n,) bool: its points (all False when none was added). They are
+      inliers of no other kept segment, so they are its points in the labelling too.
     """
     inl = left
     for _ in range(2):
         motion, ok = fit_rigid_cols(pts_prev, pts_cur, inl.astype(jnp.float32))
         err = residuals_cols(motion, pts_prev, pts_cur)
         inl = left & (err <= tau2) & ok
-    count = jnp.sum(inl)
-    gap = jnp.sum((_apply(motion, pts_prev)[None] - pred) ** 2, axis=1)  # (C, n)
-    close = jnp.sum(inl[None, :] & (gap <= 0.25 * tau2), axis=1)
-    again = jnp.any(keep & (close > (1.0 - params.cluster_eps) * count))
+    again = _same_motion(_apply(motion, pts_prev)[None], inl[None], pred, tau2,
+                         params.cluster_eps)[0]
     slot = jnp.argmin(keep)  # the first free slot
-    add = ok & ~jnp.all(keep) & (count > params.min_segment_points) & ~again
+    add = ~jnp.all(keep) & (jnp.sum(inl) > params.min_segment_points) & ~jnp.any(keep & again)
     at = add & (jnp.arange(keep.shape[0]) == slot)
     motions = jnp.where(at[:, None, None], motion, motions)
     err_c = jnp.where(at[:, None], err, err_c)
     inl_c = jnp.where(at[:, None], inl, inl_c)
-    return motions, err_c, inl_c, keep | at
+    return motions, err_c, inl_c, keep | at, slot, inl & add
 
 
 def _counts(best, has, c):
@@ -421,15 +437,9 @@ def segment(key, pts_prev, pts_cur, valid, params, *, cfg, grid):
     n_c = jnp.sum(own_c, axis=1)
     big_enough = jnp.any(members, axis=1) & (n_c > params.min_segment_points)
 
-    # Merge: the same motion found twice. Cluster k duplicates a larger kept cluster j when
-    # j's motion moves k's inliers to where k's motion does, within half the inlier
-    # threshold, for more than 1 - eps of them. Comparing the motions where k's points are
-    # (not inlier-set overlap) keeps a small object whose motion differs from the camera's by
-    # less than the inlier threshold at depth.
+    # Merge: the same motion found twice (cluster k duplicates a larger kept cluster j).
     pred = jax.vmap(lambda t: _apply(t, pts_prev))(motions)  # (C, 3, n)
-    gap = jnp.sum((pred[:, None] - pred[None, :]) ** 2, axis=2)  # (C k, C j, n)
-    close = jnp.sum(own_c[:, None, :] & (gap <= 0.25 * tau2), axis=2)
-    same = close / jnp.maximum(n_c[:, None], 1) > 1.0 - params.cluster_eps  # (k, j)
+    same = _same_motion(pred, own_c, pred, tau2, params.cluster_eps)  # (k, j)
     order = jnp.argsort(-n_c, stable=True)
 
     def merge(k, keep):
@@ -443,11 +453,11 @@ def segment(key, pts_prev, pts_cur, valid, params, *, cfg, grid):
     best, has = _assign(err_c, inl_c, keep)
     keep = keep & (_counts(best, has, n_slots) > params.min_segment_points)
     best, has = _assign(err_c, inl_c, keep)
-    motions, err_c, inl_c, keep = _leftover_segment(
+    motions, err_c, inl_c, keep, slot, new = _leftover_segment(
         motions, err_c, inl_c, keep, valid & ~has, pred, pts_prev, pts_cur, tau2, params
     )
-    best, has = _assign(err_c, inl_c, keep)
-    has = has & valid
+    best = jnp.where(new, slot, best)
+    has = (has | new) & valid
     sizes = jnp.where(keep, _counts(best, has, n_slots), 0)
     rank_order = jnp.argsort(-sizes, stable=True)  # slot of label 1, 2, ...
     rank = jnp.argsort(rank_order)  # label - 1 of each slot

@@ -316,14 +316,17 @@ def test_leftover_points_become_a_segment_only_when_they_move_apart(params, case
         left = np.zeros_like(left)
         left[idx] = True
     pred = jax.vmap(lambda t: t[:3, :3] @ src + t[:3, 3:4])(motions)
-    m, _, i, k = _leftover_segment(motions, err, inl, keep, jnp.asarray(left), pred, src, dst,
+    m, _, i, k, slot, new = _leftover_segment(motions, err, inl, keep, jnp.asarray(left), pred, src, dst,
                                    tau2, params)
-    k, i = np.asarray(k), np.asarray(i)
+    k, i, new = np.asarray(k), np.asarray(i), np.asarray(new)
     if case == "object":
         assert k.tolist() == [True, True] + [False] * (n_slots - 2)
+        assert int(slot) == 1
+        np.testing.assert_array_equal(new, i[1])
         block = truth == 1
         assert f_measure(i[1], block, valid) >= F_MIN
         np.testing.assert_allclose(np.asarray(m[1, :3, :3]), OBJECT_B[0], atol=1e-2)
     else:
         assert k.tolist() == [True] + [False] * (n_slots - 1)
+        assert not new.any()
         np.testing.assert_array_equal(np.asarray(m), np.asarray(motions))
