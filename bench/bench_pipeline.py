@@ -36,7 +36,7 @@ from jaxvo.pipeline import run_scan
 from jaxvo.synth import make_sequence, write_sequence
 
 
-def bench_streaming(frames: list, K, *, pipelined: bool = False) -> dict:
+def bench_streaming(frames: list, K, *, pipelined: bool = False, compiled: bool = False) -> dict:
     """Per-frame wall time of ``Odometry.process`` (latency: the frame's pose is back when
     the call returns), or of ``Odometry.submit`` (throughput: the call returns the previous
     frame's result while this frame's device step keeps running)."""
@@ -49,8 +49,10 @@ def bench_streaming(frames: list, K, *, pipelined: bool = False) -> dict:
         times.append(time.perf_counter() - t0)
     odo.flush()
     steady = np.asarray(times[3:]) * 1e3
+    # the step compiles on the first pair's call; a second run in this process reuses it
+    first = "first_pair_s_step_already_compiled" if compiled else "first_pair_s_compile_included"
     return {
-        "first_pair_s_compile_included": round(max(times[1:3]), 2),
+        first: round(max(times[1:3]), 2),
         "median_ms_per_frame": round(float(np.median(steady)), 2),
         "p90_ms_per_frame": round(float(np.percentile(steady, 90)), 2),
         "frames": len(frames),
@@ -121,7 +123,8 @@ def main() -> None:
     print("machine:", res["machine"], flush=True)
     res["streaming"] = bench_streaming(frames, seq.intrinsics)
     print("streaming, process (flow + jitted step per frame):", res["streaming"], flush=True)
-    res["streaming_pipelined"] = bench_streaming(frames, seq.intrinsics, pipelined=True)
+    res["streaming_pipelined"] = bench_streaming(frames, seq.intrinsics, pipelined=True,
+                                                 compiled=True)
     print("streaming, submit (pipelined, results one frame late):", res["streaming_pipelined"],
           flush=True)
     res["scan"] = bench_scan(seq, Config())

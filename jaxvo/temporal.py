@@ -325,7 +325,9 @@ def compensation_weights(disp, flow_valid, *, cfg: Config, grid: tuple[int, int]
     A cell without valid flow takes the mean displacement of the valid cells of its
     identifier in ``ids``, else the median displacement of all valid cells. (The median
     alone moved an object's unmeasured cells with the background, leaving its label behind
-    wherever depth is missing: composite 7-Scenes scene, moving F 0.70 -> 0.80.) A cell-sized square
+    wherever depth is missing: composite 7-Scenes scene, moving F 0.70 -> 0.80.)
+
+    A cell-sized square
     centred there overlaps at most four previous cells; the overlap areas, normalised to sum
     1 over the cells inside the grid, are the bilinear weights. A source centre outside the
     area the grid covers leaves the cell empty.
