@@ -55,7 +55,9 @@ class Config:
     cluster_refine_iters: int = 2
     max_segments: int = 8  # most distinct motions kept per frame
     # frames a recorded sequence segments per vmapped call (run_scan, run_study): XLA's CPU
-    # runtime then shares its per-operation cost; 8 measured 1.5x faster than 1, 16 no faster
+    # runtime then shares its per-operation cost; 8 measured 1.5x faster than 1, 16 no faster.
+    # On a GPU a whole sequence per call (scan_batch >= frames) ran 1.4x faster than 8
+    # (docs/report/pipeline_h100.md)
     scan_batch: int = 8
 
     # --- temporal segmentation (thesis chapter 4, Algorithm 3) ---
