@@ -83,7 +83,9 @@ class Params(NamedTuple):
     # stop when the mean entropy falls below this (Algorithm 1, line 3). A fully explained
     # point still has entropy 1 - exp(-delta) = 0.00995, so the rule can only fire above
     # that floor; a slow object on a tenth of the image keeps the mean near 0.02 (0.05 here
-    # stopped the search before the object was sampled; 0.012 and 0.005 score the same)
+    # stopped the search before the object was sampled; 0.012 and 0.005 score the same).
+    # With 2 mm of noise the mean stays above it, so the search also ends once at most
+    # min_segment_points valid points are inliers of no hypothesis; 0 runs all H trips
     s_min: float = 0.012
     # inlier distance at 1 m depth, metres: ~3 sigma of the refined depth's frame-to-frame
     # noise; a hand-held object moves 1-3 cm per frame at 30 Hz, slower near turns (8 mm

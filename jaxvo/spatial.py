@@ -3,7 +3,9 @@
 ``segment`` turns the (n, 3) point pairs of one frame pair into rigid-motion segments:
 
 1. hypothesis search (Algorithm 1): ``H`` fixed trips of a ``lax.scan`` carrying a ``done``
-   flag (the thesis's ``while h < H and mean(S) > S_min``). Each trip draws
+   flag (the thesis's ``while h < H and mean(S) > S_min``, and also done once at most
+   ``N_threshold`` valid points are inliers of no hypothesis: no segment is left to find;
+   ``s_min = 0`` turns both early stops off). Each trip draws
    ``cfg.num_candidates`` minimal samples at once: a seed point weighted by the entropy ``S``
    (inverse-CDF sampling), and ``m - 1`` valid points at random grid offsets within
    ``cfg.sample_radius`` cells of it. A sample whose own points fit its motion is verified;
@@ -228,7 +230,13 @@ def _search_work(state, key, pts_prev, pts_cur, valid, tau2, tau_s2, params, *, 
     err_min = jnp.where(found, jnp.minimum(state.err_min, err_all), state.err_min)
     entropy = _entropy(err_min, valid, params)
     count = state.count + found.astype(jnp.int32)
-    done = state.done | (count >= cfg.num_hypotheses) | (_mean_valid(entropy, valid) < params.s_min)
+    # Also done when no segment is left to find: Algorithm 2 drops segments of at most
+    # N_threshold points, and no more valid points than that lie outside every hypothesis.
+    unexplained = jnp.sum(valid & (err_min > tau2))
+    done = (
+        state.done | (count >= cfg.num_hypotheses) | (_mean_valid(entropy, valid) < params.s_min)
+        | ((unexplained <= params.min_segment_points) & (params.s_min > 0))
+    )
     return _SearchState(entropy, err_min, count, done), hyp
 
 

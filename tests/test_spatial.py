@@ -185,6 +185,18 @@ def test_two_motions(seg, params):
     assert hyp.max() <= int(out.num_hypotheses) or hyp.max() <= CFG.num_hypotheses
 
 
+def test_search_stops_once_every_point_is_explained(seg, params):
+    """Algorithm 1 ends when no segment could be left to find: at most N_threshold valid
+    points lie outside every hypothesis's inliers. With 1.5 mm noise the mean entropy
+    stays above S_min, so the entropy rule alone would run all H trips."""
+    scene = make_scene(6, [], noise=0.0015)
+    out = run(seg, 0, scene, params)
+    check_scene(out, scene, 1)
+    assert int(out.num_hypotheses) == 1
+    out = run(seg, 0, make_scene(6, TWO, noise=0.0015), params)
+    assert 2 <= int(out.num_hypotheses) < CFG.num_hypotheses
+
+
 def test_three_motions(seg, params):
     scene = make_scene(1, THREE)
     check_scene(run(seg, 1, scene, params), scene, 3)
