@@ -9,7 +9,17 @@ from pathlib import Path
 
 import numpy as np
 
-from jaxvo.io import InMemorySequence
+from jaxvo.io import InMemorySequence, data_root
+
+# The real sequences the benchmarks read from the data root (``$JAXVO_DATA``), when present.
+SEVEN_SCENES = "7scenes_static_0000_0299"
+TUM_WALKING = "tum_fr3_walking_halfsphere_50"
+REAL_SEQUENCES = (TUM_WALKING, SEVEN_SCENES)
+
+
+def real_present(names=REAL_SEQUENCES) -> list[str]:
+    """Those of ``names`` found as TUM-layout folders under the data root."""
+    return [n for n in names if (data_root() / n / "associations.txt").is_file()]
 
 
 def cpu_model() -> str:

@@ -27,14 +27,12 @@ import time
 
 import cv2
 import numpy as np
-from _common import machine_line
+from _common import machine_line, real_present
 
 from jaxvo.camera import Intrinsics, read_camera_file
 from jaxvo.config import Config
 from jaxvo.flow import GridFlowTracker
 from jaxvo.io import data_root
-
-SEQUENCES = ("tum_fr3_walking_halfsphere_50", "7scenes_static_0000_0299")
 
 
 def load_real(name: str, limit: int):
@@ -181,7 +179,7 @@ def main() -> None:
     print(f"opencv      {cv2.__version__}  threads {cv2.getNumThreads()}")
     print(f"load avg    {' '.join(f'{x:.2f}' for x in os.getloadavg())} (before)")
 
-    names = [n for n in SEQUENCES if (data_root() / n / "associations.txt").is_file()]
+    names = real_present()
     names = names or ["generated_pan"]
 
     configs = [("default", Config())]

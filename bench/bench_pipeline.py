@@ -26,7 +26,7 @@ import time
 import jax
 import jax.numpy as jnp
 import numpy as np
-from _common import machine
+from _common import SEVEN_SCENES, machine
 
 from jaxvo.config import Config, Params, grid_shape, params_as_arrays
 from jaxvo.flow import flows_for_sequence
@@ -85,7 +85,7 @@ def bench_scan(seq, cfg: Config, repeats: int = 5) -> dict:
 
 
 def bench_memory(tmp: str) -> dict:
-    seq_dir = data_root() / "7scenes_static_0000_0299"
+    seq_dir = data_root() / SEVEN_SCENES
     if not (seq_dir / "rgb.txt").is_file():
         seq_dir = os.path.join(tmp, "synthetic_300")
         write_sequence(make_sequence("handheld_slow", frames=300, seed=0), seq_dir)

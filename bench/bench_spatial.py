@@ -31,15 +31,13 @@ import jax.numpy as jnp
 import numpy as np
 
 sys.path.insert(0, str(Path(__file__).resolve().parent))
-from _common import load_average, machine
+from _common import load_average, machine, real_present
 
 from jaxvo.config import Config, Params, grid_shape, params_as_arrays
 from jaxvo.flow import flows_for_sequence
 from jaxvo.io import InMemorySequence, data_root, open_sequence
 from jaxvo.procrustes import fit_rigid
 from jaxvo.spatial import segment
-
-REAL = ("tum_fr3_walking_halfsphere_50", "7scenes_static_0000_0299")
 
 
 def _rotation(axis, angle):
@@ -85,9 +83,7 @@ def make_frames(num, grid, seed=0):
 def real_frames(num, cfg):
     """The grid flow of the first ``num`` pairs of each real sequence present, as frames."""
     frames = []
-    for name in REAL:
-        if not (data_root() / name / "associations.txt").is_file():
-            continue
+    for name in real_present():
         flows = flows_for_sequence(InMemorySequence(open_sequence(data_root() / name), num + 1), cfg)
         for k in range(len(flows.valid)):
             valid = flows.valid[k] & (flows.status[k] == 0)

@@ -25,7 +25,14 @@ import jax.numpy as jnp
 import numpy as np
 
 sys.path.insert(0, str(Path(__file__).resolve().parent))
-from _common import CachedSequence, load_average, machine, peak_rss_mib
+from _common import (
+    SEVEN_SCENES,
+    TUM_WALKING,
+    CachedSequence,
+    load_average,
+    machine,
+    peak_rss_mib,
+)
 
 from jaxvo.config import Config, Params, grid_shape, params_as_arrays
 from jaxvo.egomotion import estimate_egomotion
@@ -42,8 +49,6 @@ from jaxvo.status import Status
 from jaxvo.synth import SCENARIOS, composite_sequence, make_sequence
 from jaxvo.temporal import init_temporal, update_temporal
 
-SEVEN_SCENES = "7scenes_static_0000_0299"
-TUM_WALKING = "tum_fr3_walking_halfsphere_50"
 JAXVO = "jaxvo"
 
 
