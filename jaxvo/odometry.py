@@ -91,8 +91,9 @@ class Odometry:
 
         The device step of this frame is left running while the caller fetches the next
         frame and the next call computes its flow on the host, so a frame costs about the
-        larger of the two instead of their sum (measured 9.0-9.4 against 11.4-12.3 ms per
-        frame here); each result arrives one frame later. Call :meth:`flush` after the last
+        larger of the two instead of their sum (``bench/bench_pipeline.py`` on 2 cores: medians
+        of 7.4-8.8 against 10.1-14.9 ms per frame over several runs); each result arrives
+        one frame later. Call :meth:`flush` after the last
         frame for its result. Poses, labels and statuses are those of :meth:`process`.
 
         Returns:
