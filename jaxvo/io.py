@@ -3,6 +3,7 @@
 from __future__ import annotations
 
 import os
+import re
 from pathlib import Path
 from typing import NamedTuple
 
@@ -246,6 +247,14 @@ def _read_image(path: Path, flags: int) -> np.ndarray:
     return img
 
 
+def tum_preset_from_name(name: str) -> str | None:
+    """The TUM RGB-D calibration a folder's name points to, as the benchmark names its
+    downloads (``rgbd_dataset_freiburg3_walking_xyz``, or short ``fr3_walking_xyz``);
+    ``None`` if the name names no Freiburg camera."""
+    m = re.search(r"freiburg([123])|(?:^|[^a-z0-9])fr([123])(?:[^0-9]|$)", name.lower())
+    return None if m is None else f"tum_fr{m.group(1) or m.group(2)}"
+
+
 class TumSequence:
     """An RGB-D sequence in the TUM layout, frames read from disk only when asked for.
 
@@ -259,7 +268,9 @@ class TumSequence:
     Args:
       path: the folder.
       camera: a preset name of :data:`jaxvo.camera.PRESETS` or an :class:`Intrinsics`;
-        overrides ``camera.txt``. One of the two is required.
+        overrides ``camera.txt``. Without either, a folder named as the TUM benchmark
+        names its downloads (``..._freiburg3_...``) takes that camera's preset; otherwise
+        one of the two is required.
       max_diff: largest colour-depth time difference when pairing them, seconds.
     """
 
@@ -275,7 +286,7 @@ class TumSequence:
             raise InputError(f"sequence folder not found: {root}")
         self.path = root
         self.name = root.resolve().name
-        self.intrinsics = self._intrinsics(root, camera)
+        self.intrinsics, self.camera_source = self._intrinsics(root, camera)
 
         assoc = root / "associations.txt"
         if assoc.is_file():
@@ -316,24 +327,29 @@ class TumSequence:
         self.height, self.width = first.shape[:2]
 
     @staticmethod
-    def _intrinsics(root: Path, camera: str | Intrinsics | None) -> Intrinsics:
+    def _intrinsics(root: Path, camera: str | Intrinsics | None) -> tuple[Intrinsics, str]:
+        """The intrinsics and where they came from (said in ``jaxvo run``'s summary)."""
         if isinstance(camera, Intrinsics):
-            return camera
+            return camera, "given"
         if camera is not None:
             try:
-                return preset(camera)
+                return preset(camera), f"preset {camera}"
             except ValueError as exc:
                 raise InputError(str(exc)) from None
         cam_file = root / "camera.txt"
-        if not cam_file.is_file():
+        if cam_file.is_file():
+            try:
+                return read_camera_file(cam_file), str(cam_file)
+            except ValueError as exc:
+                raise InputError(str(exc)) from None
+        # a TUM download as it unpacks: no camera.txt, the camera in the folder's name
+        guess = tum_preset_from_name(root.resolve().name)
+        if guess is None:
             raise InputError(
                 f"{root}: no camera.txt; pass a camera preset "
                 f"({', '.join(sorted(PRESETS))}) or write a camera.txt"
             )
-        try:
-            return read_camera_file(cam_file)
-        except ValueError as exc:
-            raise InputError(str(exc)) from None
+        return preset(guess), f"preset {guess}, from the folder name"
 
     def __len__(self) -> int:
         return len(self.timestamps)

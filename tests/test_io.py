@@ -15,6 +15,7 @@ from jaxvo.io import (
     associate,
     open_sequence,
     read_trajectory,
+    tum_preset_from_name,
     write_trajectory,
 )
 from jaxvo.transforms import (
@@ -257,6 +258,33 @@ def test_tum_sequence_camera_rules(tmp_path):
     assert seq[0].mask is None
     with pytest.raises(InputError, match="unknown camera preset"):
         TumSequence(tmp_path / "seq", camera="kinect9")
+
+
+@pytest.mark.parametrize(
+    "name, expected",
+    [
+        ("rgbd_dataset_freiburg1_xyz", "tum_fr1"),
+        ("rgbd_dataset_freiburg3_walking_xyz", "tum_fr3"),
+        ("fr2_desk", "tum_fr2"),
+        ("TUM-FR3-sitting", "tum_fr3"),
+        ("office_fr12", None),
+        ("frame3", None),
+        ("7scenes_static_0000_0299", None),
+    ],
+)
+def test_tum_download_takes_the_camera_its_folder_names(tmp_path, name, expected):
+    """A TUM download unpacks without camera.txt; its folder name names the camera."""
+    assert tum_preset_from_name(name) == expected
+    make_sequence(tmp_path / name, camera=False, mask=False, gt=False)
+    if expected is None:
+        with pytest.raises(InputError, match="pass a camera preset"):
+            TumSequence(tmp_path / name)
+        return
+    seq = TumSequence(tmp_path / name)
+    assert seq.intrinsics == PRESETS[expected]
+    assert seq.camera_source == f"preset {expected}, from the folder name"
+    # an explicit preset still wins
+    assert TumSequence(tmp_path / name, camera="ros_default").intrinsics == PRESETS["ros_default"]
 
 
 def test_tum_sequence_lazy_and_missing_image(tmp_path):

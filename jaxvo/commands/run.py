@@ -149,6 +149,7 @@ def run(args: argparse.Namespace) -> int:
     summary = {
         "sequence": str(args.sequence),
         "frames": n,
+        "camera": getattr(seq, "camera_source", "given"),
         "poses_written": written,
         "trajectory": str(args.out),
         "frames_per_second": round(fps, 2),
@@ -179,6 +180,7 @@ def run(args: argparse.Namespace) -> int:
         print(f"  speed      {fps:.1f} frames/s steady state, reading and writing included "
               f"(first pair {summary['first_frame_pair_seconds']} s, compile included)")
         total_skip = sum(skipped.values())
+        print(f"  camera     {summary['camera']}")
         print(f"  skipped    {total_skip} of {n - 1} frame pairs")
         print(f"  memory     {summary['peak_rss_mib']:.0f} MiB peak resident")
         for reason, count in skipped.most_common():
