@@ -18,6 +18,10 @@ Design decisions where the thesis leaves room (each also noted where it is imple
   Algorithm 3; cells without a measurement carry the grid's retained temporal label, so a
   region that is temporarily unmeasured keeps its identifier for the matching ("how long grid
   retains its identifier", section 4.1).
+* ``N_j`` of eq. (4.1) counts identifier ``j``'s cells among those measured now (see
+  ``label_correlation``), and every segment that follows the predicted camera motion joins
+  the background when the background segment does too (``_consistent_segments_join_background``):
+  fast motion splits the static background into several segments.
 * The score of eq. (4.2) divides by the size of *all* current segments, so an unmatched
   segment counts as correlation 0 and a window frame that matches more of the image wins.
 * An unmatched segment lying mostly (half or more) inside the cells that retain a moving
@@ -114,7 +118,13 @@ def label_correlation(seg_labels, id_map, *, num_segments: int, num_ids: int):
     """Correlation coefficients between current segments and the identifiers of one frame.
 
     thesis eq. (4.1): ``C_ij = N_ij / sqrt(N_i N_j)``; 0 where a segment or an identifier is
-    absent (no division by zero).
+    absent (no division by zero). ``N_j`` counts identifier ``j``'s cells among the cells
+    measured now (``seg_labels > 0``): the window's maps also carry the retained labels of
+    unmeasured cells, and counting those made the correlation fall with the share of
+    cells measured. With a third of the cells measured (fast motion: 7-Scenes at every
+    fourth frame) the background segment correlated under 0.3 with identifier 1 and no
+    segment was matched for 9 frames in a row (RPE 12.2 mm per frame; 8.0 mm counting
+    measured cells only, OpenCV's RGB-D odometry 7.9 mm).
 
     Args:
       seg_labels: (n,) int32 current segment per grid cell, 0 = none, 1..num_segments.
@@ -127,6 +137,8 @@ def label_correlation(seg_labels, id_map, *, num_segments: int, num_ids: int):
     """
     seg_1h = jax.nn.one_hot(seg_labels - 1, num_segments, dtype=jnp.float32)
     id_1h = jax.nn.one_hot(id_map - 1, num_ids, dtype=jnp.float32)
+    # N_j counts the identifier's cells among those measured now (a segment label > 0)
+    id_1h = id_1h * (seg_labels > 0)[:, None].astype(jnp.float32)
     n_ij = seg_1h.T @ id_1h
     n_seg = seg_1h.sum(axis=0)
     n_id = id_1h.sum(axis=0)
@@ -280,6 +292,24 @@ def _prefer_consistent_background(segment_ids, n_seg, consistent):
     others = jnp.where(has_bg & (idx == cur), segment_ids[best], segment_ids)
     swapped = jnp.where(idx == best, STATIC_ID, others)
     return jnp.where(swap, swapped, segment_ids).astype(jnp.int32)
+
+
+def _consistent_segments_join_background(segment_ids, n_seg, consistent):
+    """Every segment that moves as the camera was predicted to, while the background
+    segment does too, is background: identifier 1.
+
+    Under fast motion or noisy depth the spatial stage splits the static background into
+    several segments (7-Scenes at every fourth frame: 3-5 segments a frame, the largest
+    one's motion explaining the others within twice the inlier distance); only one of them
+    can match identifier 1, and the others took new, moving identifiers. Without a trusted
+    background (the identifier-1 segment does not follow the prediction) nothing changes.
+
+    Args:
+      segment_ids: (S,) int32; n_seg: (S,) float32 sizes; consistent: (S,) bool.
+    """
+    bg_follows = jnp.any((segment_ids == STATIC_ID) & consistent)
+    join = bg_follows & consistent & (n_seg > 0)
+    return jnp.where(join, STATIC_ID, segment_ids).astype(jnp.int32)
 
 
 # --------------------------------------------------------------------------------------
@@ -505,6 +535,7 @@ def update_temporal(
     segment_ids, n_seg, reclaimed = _assign_identifiers(state, labels, params, cfg=cfg)
     if consistent is not None:
         segment_ids = _prefer_consistent_background(segment_ids, n_seg, consistent)
+        segment_ids = _consistent_segments_join_background(segment_ids, n_seg, consistent)
     matched = jnp.where(measured, segment_ids[jnp.clip(labels - 1, 0, s - 1)], 0)
     seen = jnp.any(jax.nn.one_hot(segment_ids - 1, cfg.max_ids, dtype=bool), axis=0)
     obs_count = state.obs_count + seen.astype(jnp.int32)

@@ -18,6 +18,7 @@ from jaxvo.config import Config, Params, params_as_arrays
 from jaxvo.temporal import (
     TemporalOut,
     TemporalState,
+    _consistent_segments_join_background,
     _prefer_consistent_background,
     compensate_models,
     compensation_weights,
@@ -120,19 +121,20 @@ def test_correlation_and_score_hand_example():
     seg = jnp.array([1, 1, 1, 2, 2, 0, 2, 1], jnp.int32)
     ids = jnp.array([1, 1, 2, 2, 2, 2, 0, 1], jnp.int32)
     corr, n_seg, n_id = _correlation(seg, ids, num_segments=2, num_ids=3)
-    # N_1 = 4, N_2 = 3; N^id = 3, 4, 0; N_11 = 3, N_12 = 1, N_21 = 0, N_22 = 2
-    want = np.array([[3 / np.sqrt(12), 1 / np.sqrt(16), 0.0], [0.0, 2 / np.sqrt(12), 0.0]])
+    # N_1 = 4, N_2 = 3; N^id over the measured cells (seg > 0; cell 5 is not) = 3, 3, 0;
+    # N_11 = 3, N_12 = 1, N_21 = 0, N_22 = 2
+    want = np.array([[3 / np.sqrt(12), 1 / np.sqrt(12), 0.0], [0.0, 2 / np.sqrt(9), 0.0]])
     np.testing.assert_allclose(np.asarray(corr), want, atol=1e-6)
     np.testing.assert_array_equal(np.asarray(n_seg), [4, 3])
-    np.testing.assert_array_equal(np.asarray(n_id), [3, 4, 0])
+    np.testing.assert_array_equal(np.asarray(n_id), [3, 3, 0])
 
     assign, score = _match(corr, n_seg, 0.3)
     np.testing.assert_array_equal(np.asarray(assign), [1, 2])
-    want_score = (3 / np.sqrt(12) * 4 + 2 / np.sqrt(12) * 3) / 7  # eq. (4.2)
+    want_score = (3 / np.sqrt(12) * 4 + 2 / np.sqrt(9) * 3) / 7  # eq. (4.2)
     np.testing.assert_allclose(float(score), want_score, atol=1e-6)
 
     # below min_match_corr the pair is not a match and counts 0 in the score
-    assign, score = _match(corr, n_seg, 0.6)
+    assign, score = _match(corr, n_seg, 0.7)
     np.testing.assert_array_equal(np.asarray(assign), [1, 0])
     np.testing.assert_allclose(float(score), 3 / np.sqrt(12) * 4 / 7, atol=1e-6)
 
@@ -155,7 +157,41 @@ def test_empty_segments_and_ids_give_zero_not_nan():
     assert np.all(np.asarray(assign) == 0) and float(score) == 0.0
 
 
+def test_correlation_does_not_fall_with_the_share_of_cells_measured():
+    """A background segment measured on a tenth of the background's cells still matches
+    it (counting every retained cell gave 0.32 for a fifth, 0.22 for a tenth)."""
+    n = 1000
+    ids = jnp.ones((n,), jnp.int32)
+    for share in (1.0, 0.2, 0.1):
+        seg = jnp.where(jnp.arange(n) < int(share * n), 1, 0).astype(jnp.int32)
+        corr, n_seg, n_id = _correlation(seg, ids, num_segments=2, num_ids=2)
+        assert float(n_id[0]) == share * n
+        np.testing.assert_allclose(float(corr[0, 0]), 1.0, atol=1e-6)
+        assign, _ = _match(corr, n_seg, 0.3)
+        assert int(assign[0]) == 1
+
+
 # ---------------------------------------------------------------- identifiers (4.1)
+
+
+@pytest.mark.parametrize(
+    "ids, sizes, consistent, expected",
+    [
+        # the background follows the prediction: so do two more segments, which join it
+        ([1, 3, 4, 2], [400, 60, 30, 50], [True, True, True, False], [1, 1, 1, 2]),
+        # the background does not follow it: no segment joins (a sudden camera move)
+        ([1, 3, 4, 0], [400, 60, 30, 0], [False, True, True, False], [1, 3, 4, 0]),
+        # no segment has the background's identifier: nothing to join
+        ([2, 3, 0, 0], [400, 60, 0, 0], [True, True, False, False], [2, 3, 0, 0]),
+        # empty segment slots stay empty
+        ([1, 0, 0, 0], [400, 0, 0, 0], [True, True, False, False], [1, 0, 0, 0]),
+    ],
+)
+def test_segments_that_move_as_predicted_join_the_background(ids, sizes, consistent, expected):
+    got = _consistent_segments_join_background(
+        jnp.asarray(ids, jnp.int32), jnp.asarray(sizes, jnp.float32), jnp.asarray(consistent)
+    )
+    np.testing.assert_array_equal(np.asarray(got), expected)
 
 
 @pytest.mark.parametrize(
@@ -369,8 +405,8 @@ def test_tracked_object_that_moves_unlike_the_camera_enters_cells_at_once(
     step_predicted, object_consistent
 ):
     """A tracked object whose segment does not follow the predicted camera motion takes the
-    background cells it covers at once; one that does (no evidence it moves) waits for the
-    candidate model to outgrow the background's, as in the thesis."""
+    background cells it covers at once; one that does, as the background does, is
+    background: it joins identifier 1 (see _consistent_segments_join_background)."""
     a, grown = (3, 8, 4, 9), (3, 8, 4, 12)
     consistent = jnp.asarray(np.r_[True, object_consistent, np.ones(CFG.max_segments - 2, bool)])
     state = init_temporal(cfg=CFG, grid=GRID)
@@ -379,7 +415,7 @@ def test_tracked_object_that_moves_unlike_the_camera_enters_cells_at_once(
     for lab in [scene([a])] * 4 + [scene([grown])]:
         state, out = step_predicted(state, make_seg(lab), disp, valid, prm, consistent)
     new_cells = box(3, 8, 9, 12)
-    assert region_ids(out.matched, new_cells) == {2}
+    assert region_ids(out.matched, new_cells) == ({1} if object_consistent else {2})
     assert region_ids(out.ids, new_cells) == ({1} if object_consistent else {2})
 
 
