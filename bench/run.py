@@ -2,7 +2,8 @@
 
 Runs jaxvo and every available peer odometry (OpenCV ``cv2.Odometry`` RGB, DEPTH, RGB_DEPTH;
 Open3D colour / hybrid when ``open3d`` imports) on every synthetic scenario, the real
-sequences of the data root and a 7-Scenes composite with moving boxes; then each peer again
+sequences of the data root (7-Scenes also at every 4th frame: fast motion with ground truth)
+and a 7-Scenes composite with moving boxes; then each peer again
 with jaxvo's dynamic pixels masked out (thesis Fig. 5.8, "Proposed x DVO"). Writes
 ``report.md`` (Markdown tables), PNG figures and ``results.json`` under ``--out``.
 
@@ -79,6 +80,15 @@ def build_sequences(frames: int, seed: int, only=None):
         log(f"reading {name}")
         seqs.append((name, kind, CachedSequence(open_sequence(path), frames)))
     path = root / SEVEN_SCENES
+    label = f"{SEVEN_SCENES}_every4"  # the same real frames with four times the motion
+    if not want(label):
+        pass
+    elif path.is_dir():
+        log(f"reading every 4th frame of {SEVEN_SCENES}")
+        seqs.append((label, "real, static scene, every 4th frame (fast motion)",
+                     CachedSequence(open_sequence(path), frames, step=4)))
+    else:
+        skipped[label] = f"{SEVEN_SCENES} not found at {path}"
     label = f"composite_{SEVEN_SCENES}"
     if not want(label):
         pass

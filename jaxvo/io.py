@@ -483,20 +483,26 @@ def check_depth_scale(depth: np.ndarray, K, *, where: str) -> None:
 class InMemorySequence:
     """The first ``frames`` frames of a sequence, read (or rendered) once and kept in memory.
 
+    With ``step`` k, every k-th frame (0, k, 2k, ...): the same images with k times the
+    motion between frames, a fast-motion test with the sequence's own ground truth.
+
     jaxvo and every peer then read the same frames, and rendering a synthetic frame (about
     0.1 s) is paid once instead of once per method.
     """
 
-    def __init__(self, seq, frames: int | None = None):
-        n = len(seq) if frames is None else min(len(seq), int(frames))
-        self.name = seq.name
+    def __init__(self, seq, frames: int | None = None, *, step: int = 1):
+        if int(step) < 1:
+            raise InputError(f"frame step must be at least 1, got {step}")
+        idx = np.arange(0, len(seq), int(step))
+        idx = idx if frames is None else idx[: max(int(frames), 0)]
+        self.name = seq.name if step == 1 else f"{seq.name}_every{int(step)}"
         self.intrinsics = seq.intrinsics
         self.height, self.width = seq.height, seq.width
-        self.timestamps = np.asarray(seq.timestamps[:n], np.float64)
-        self._frames = [seq[i] for i in range(n)]
+        self.timestamps = np.asarray(seq.timestamps, np.float64)[idx]
+        self._frames = [seq[int(i)] for i in idx]
         gt = getattr(seq, "groundtruth", None)
         if gt is not None and len(gt) == len(seq):  # one pose per frame: keep the same ones
-            gt = Trajectory(np.asarray(gt.timestamps[:n]), np.asarray(gt.poses[:n]))
+            gt = Trajectory(np.asarray(gt.timestamps)[idx], np.asarray(gt.poses)[idx])
         self.groundtruth = gt  # otherwise associated by timestamp, as the metrics do
         self.has_masks = self._frames[0].mask is not None
 

@@ -10,6 +10,7 @@ from jaxvo.camera import PRESETS, write_camera_file
 from jaxvo.errors import InputError
 from jaxvo.io import (
     Frame,
+    InMemorySequence,
     Trajectory,
     TumSequence,
     associate,
@@ -285,6 +286,19 @@ def test_tum_download_takes_the_camera_its_folder_names(tmp_path, name, expected
     assert seq.camera_source == f"preset {expected}, from the folder name"
     # an explicit preset still wins
     assert TumSequence(tmp_path / name, camera="ros_default").intrinsics == PRESETS["ros_default"]
+
+
+def test_in_memory_every_kth_frame_keeps_its_ground_truth(tmp_path):
+    make_sequence(tmp_path / "seq", n=5)
+    seq = open_sequence(tmp_path / "seq")
+    sub = InMemorySequence(seq, step=2)
+    assert len(sub) == 3 and sub.name == "seq_every2"
+    np.testing.assert_array_equal(sub.timestamps, seq.timestamps[[0, 2, 4]])
+    np.testing.assert_array_equal(sub.groundtruth.timestamps, seq.groundtruth.timestamps[[0, 2, 4]])
+    np.testing.assert_array_equal(sub[1].depth, seq[2].depth)
+    assert len(InMemorySequence(seq, 2, step=2)) == 2
+    with pytest.raises(InputError, match="frame step"):
+        InMemorySequence(seq, step=0)
 
 
 def test_tum_sequence_lazy_and_missing_image(tmp_path):

@@ -124,31 +124,15 @@ def test_streaming_survives_bad_frames_and_carries_the_pose(seq):
     assert len(odo.trajectory) == 3
 
 
-class _EveryKth:
-    """Every ``k``-th frame of a recorded sequence: its real images with k times the motion."""
-
-    def __init__(self, seq, k: int, frames: int):
-        self.idx = np.arange(0, min(len(seq), k * frames), k)
-        self.seq, self.name = seq, f"{seq.name}_every{k}"
-        self.intrinsics, self.height, self.width = seq.intrinsics, seq.height, seq.width
-        self.timestamps = seq.timestamps[self.idx]
-        self.groundtruth = None
-
-    def __len__(self):
-        return len(self.idx)
-
-    def __getitem__(self, i):
-        return self.seq[int(self.idx[i])]
-
 
 def test_fast_real_motion_keeps_the_background_identified(require_data):
     """7-Scenes at every fourth frame (about 28 mm and 1.6 deg a frame, a third of the grid
     measured): the static scene's background stays matched to identifier 1 in every frame,
     and few cells are called moving. Counting unmeasured retained cells in eq. (4.1) lost
     the match for 9 frames in a row here (frames 24-32) and called most cells moving."""
-    from jaxvo.io import open_sequence
+    from jaxvo.io import InMemorySequence, open_sequence
 
-    seq = _EveryKth(open_sequence(require_data("7scenes_static_0000_0299")), 4, 36)
+    seq = InMemorySequence(open_sequence(require_data("7scenes_static_0000_0299")), 36, step=4)
     out = run_sequence(seq, cfg=CFG, seed=0).outputs
     measured = out.labels > 0
     background_seen = np.any(out.matched == 1, axis=1)
