@@ -12,6 +12,11 @@ to the current image with pyramidal Lucas-Kanade. A track is kept only if
 Kept tracks are back-projected into previous and current 3D points (metres). Shapes are
 fixed: ``n = rows * cols`` points whatever passes, invalid ones zeroed.
 
+The pyramid follows the motion: when the last pair's median track is longer than
+``cfg.lk_fast_px``, the next pair's LK uses one level more (``cfg.lk_levels + 1``), as the
+thesis's LK did always; a third level on every pair cost the synthetic fixed-camera scene
+some of its slow object (see ``Config.lk_fast_px``).
+
 Speed (LK, 1-2 us per point and direction here, is most of the time per pair):
 
 * the checks run cheapest first, each on the points that passed the ones before: no depth
@@ -416,6 +421,7 @@ class GridFlowTracker:
         self._win = (cfg.lk_window, cfg.lk_window)
         self._criteria = (cv2.TERM_CRITERIA_COUNT | cv2.TERM_CRITERIA_EPS, cfg.lk_iters, cfg.lk_eps)
         self._prev: _Frame | None = None
+        self._levels = cfg.lk_levels  # pyramid levels of the next pair's LK
 
     @property
     def has_previous(self) -> bool:
@@ -424,6 +430,7 @@ class GridFlowTracker:
     def reset(self) -> None:
         """Forget the previous frame (the next frame starts a new pair chain)."""
         self._prev = None
+        self._levels = self.cfg.lk_levels
 
     def push(self, bgr, depth) -> GridFlow | None:
         """Add the next frame; the flow from the previous frame to it.
@@ -460,7 +467,7 @@ class GridFlowTracker:
         # less time, the same positions and status.
         found, st, _ = cv2.calcOpticalFlowPyrLK(
             src, dst, pts, None,
-            winSize=self._win, maxLevel=self.cfg.lk_levels, criteria=self._criteria,
+            winSize=self._win, maxLevel=self._levels, criteria=self._criteria,
             flags=cv2.OPTFLOW_LK_GET_MIN_EIGENVALS,
         )  # fmt: skip
         return found, st[:, 0] == 1
@@ -498,6 +505,9 @@ class GridFlowTracker:
 
         valid = np.zeros(self.n, bool)
         valid[idx] = True
+        # fast motion: the next pair's LK gets one pyramid level more
+        fast = len(idx) > 0 and np.median(np.hypot(*(uv1 - uv0[idx]).T)) > cfg.lk_fast_px
+        self._levels = cfg.lk_levels + int(fast)
         pts_prev = np.zeros((self.n, 3), np.float32)
         pts_cur = np.zeros((self.n, 3), np.float32)
         pts_prev[idx] = backproject(uv0[idx], prev.z_grid[idx], self.K)

@@ -396,6 +396,26 @@ def test_streaming_matches_function_form(tex0):
         np.testing.assert_array_equal(x, y)
 
 
+@pytest.mark.parametrize("shift, gain", [(2.0, 1.0), (20.0, 2.0)])
+def test_fast_motion_takes_one_pyramid_level_more(shift, gain):
+    """A pan of 20 px a frame is beyond two pyramid levels with a 9 px window: a third of
+    the grid tracked in the first pair; once that pair's median track (20 px) exceeds
+    lk_fast_px, the next pairs use a third level and track nearly all. A slow pan keeps
+    the configured levels."""
+    big = texture(5, H, W + 80)
+    tracker = GridFlowTracker(K, CFG, height=H, width=W)
+    valid = []
+    for i in range(3):
+        x = int(60 - i * shift)
+        flow = tracker.push(bgr(big[:, x : x + W]), plane(2.0))
+        if flow is not None:
+            valid.append(int(flow.valid.sum()))
+            np.testing.assert_allclose(np.median((flow.uv_cur - flow.uv_prev)[flow.valid, 0]),
+                                       shift, atol=0.05)  # tol px: LK eps 0.03
+    assert valid[1] >= gain * valid[0], valid
+    assert valid[1] > 0.9 * tracker.n
+
+
 def reference_flow(b0, d0, b1, d1, cam, cfg) -> GridFlow:
     """The checks of thesis 2.2 applied to every grid point, each on the whole image:
     LK both ways on all points, whole-image depth refinement, all patches."""
