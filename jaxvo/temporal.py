@@ -24,9 +24,6 @@ Design decisions where the thesis leaves room (each also noted where it is imple
   fast motion splits the static background into several segments.
 * The score of eq. (4.2) divides by the size of *all* current segments, so an unmatched
   segment counts as correlation 0 and a window frame that matches more of the image wins.
-* An unmatched segment lying mostly (half or more) inside the cells that retain a moving
-  object's identifier takes that identifier back (see ``_reclaim_retained``): eq. (4.1)
-  correlates a part of an object seen again too weakly with its whole retained region.
 * A new identifier is the least observed (frames with a segment carrying it) among the free
   ones; the background identifier ``1`` is preferred whenever it is free (first frame, or
   background lost for ``id_retention`` frames), so the largest unmatched segment takes it.
@@ -186,8 +183,7 @@ def match_segments(corr, n_seg, min_corr):
 def _assign_identifiers(state: TemporalState, seg_labels, params: Params, *, cfg: Config):
     """Algorithm 3 and the identifier management of section 4.1.
 
-    Returns ``(segment_ids (S,) int32, n_seg (S,) float32, reclaimed (S,) bool)``: the
-    last marks identifiers given by :func:`_reclaim_retained` rather than by the matching.
+    Returns ``(segment_ids (S,) int32, n_seg (S,) float32)``.
     """
     s, m = cfg.max_segments, cfg.max_ids
 
@@ -202,8 +198,6 @@ def _assign_identifiers(state: TemporalState, seg_labels, params: Params, *, cfg
     assign = jnp.where(score_w[best_w] > 0, assign_w[best_w], 0)
 
     n_seg = jax.nn.one_hot(seg_labels - 1, s, dtype=jnp.float32).sum(axis=0)
-    matched_ids = assign
-    assign = _reclaim_retained(assign, n_seg, seg_labels, state.ids, cfg=cfg)
     used = jnp.any(jax.nn.one_hot(assign - 1, m, dtype=bool), axis=0)
     unseen_for = (state.frame - state.last_seen).astype(jnp.float32)
     # an identifier unobserved for id_retention frames may be given to a new object
@@ -225,41 +219,7 @@ def _assign_identifiers(state: TemporalState, seg_labels, params: Params, *, cfg
         0,
     )
     segment_ids = jnp.where(assign > 0, assign, new_id).astype(jnp.int32)
-    return segment_ids, n_seg, assign != matched_ids
-
-
-_RECLAIM_MIN = 0.5  # least share of an unmatched segment inside an object's retained cells
-
-
-def _reclaim_retained(assign, n_seg, seg_labels, ids, *, cfg: Config):
-    """An unmatched segment lying mostly inside the cells that still retain a moving
-    object's identifier takes that identifier back (section 4.1: "even though the grid
-    loses the object temporarily, the corresponding identifier is not assigned to a newly
-    observed object").
-
-    Eq. (4.1) divides by the identifier's whole area, so an object seen again in part
-    (only its rim in depth range, or after a gap) correlates weakly with its own retained
-    region and received a new identifier; its old cells then waited ``max_age`` frames to
-    turn static, since the vacated rule only acts on identifiers seen this frame.
-    Only moving identifiers (not the background) not already matched this frame are
-    reclaimed; several segments in one region: the one with the larger share wins.
-    """
-    s, m = cfg.max_segments, cfg.max_ids
-    seg_1h = jax.nn.one_hot(seg_labels - 1, s, dtype=jnp.float32)
-    id_1h = jax.nn.one_hot(ids - 1, m, dtype=jnp.float32)
-    share = (seg_1h.T @ id_1h) / jnp.maximum(n_seg, 1.0)[:, None]  # (S, M)
-    used = jnp.any(jax.nn.one_hot(assign - 1, m, dtype=bool), axis=0)
-    share = jnp.where(used[None, :] | (jnp.arange(m) == STATIC_ID - 1)[None, :], 0.0, share)
-    share = jnp.where(((n_seg > 0) & (assign == 0))[:, None], share, 0.0)
-    best = jnp.argmax(share, axis=1)
-    top = jnp.max(share, axis=1)
-    # one segment per identifier: the larger share wins (ties: the lower segment number)
-    rivals = (best[None, :] == best[:, None]) & (
-        (top[None, :] > top[:, None])
-        | ((top[None, :] == top[:, None]) & (jnp.arange(s)[None, :] < jnp.arange(s)[:, None]))
-    )
-    win = (top >= _RECLAIM_MIN) & ~jnp.any(rivals & (top[None, :] >= _RECLAIM_MIN), axis=1)
-    return jnp.where(win, best + 1, assign).astype(jnp.int32)
+    return segment_ids, n_seg
 
 
 def _prefer_consistent_background(segment_ids, n_seg, consistent):
@@ -532,7 +492,7 @@ def update_temporal(
     labels = jnp.where(measured, labels, 0)
 
     # 4.1: identifiers for the segments
-    segment_ids, n_seg, reclaimed = _assign_identifiers(state, labels, params, cfg=cfg)
+    segment_ids, n_seg = _assign_identifiers(state, labels, params, cfg=cfg)
     if consistent is not None:
         segment_ids = _prefer_consistent_background(segment_ids, n_seg, consistent)
         segment_ids = _consistent_segments_join_background(segment_ids, n_seg, consistent)
@@ -546,12 +506,8 @@ def update_temporal(
         moving = jnp.zeros_like(measured)
     else:
         moving = measured & ~consistent[jnp.clip(labels - 1, 0, s - 1)]
-    # a reclaimed identifier shows a part of its object again, not where the object went
-    seen_whole = jnp.any(
-        jax.nn.one_hot(jnp.where(reclaimed, 0, segment_ids) - 1, cfg.max_ids, dtype=bool), axis=0
-    )
     app_p, app_a, cand_p, cand_a, ids = _update_models(
-        state, matched, seen_whole, moving, params.max_age, cfg=cfg
+        state, matched, seen, moving, params.max_age, cfg=cfg
     )
 
     # the window keeps this frame's identifier map; unmeasured cells keep the grid's label

@@ -290,29 +290,6 @@ def test_object_absent_briefly_gets_its_identifier_back(step):
     assert region_ids(outs[-1].matched, box(*b)) == {3}
 
 
-def test_object_seen_again_in_part_reclaims_its_identifier(step):
-    """An object whose rim reappears inside the cells that retain its identifier gets the
-    identifier back although eq. (4.1) correlates the rim too weakly with the whole region
-    (6 of 80 cells: 0.27 < 0.3); the rest of its region, measured as background in that
-    frame, keeps the object's label (a part seen again says nothing of where the rest went)."""
-    a = (2, 10, 2, 12)  # 80 cells
-    rim = box(2, 4, 2, 5)  # 6 cells
-    hidden = scene([a])
-    hidden[box(*a)] = 0
-    again = scene([])
-    again[rim] = 2
-    frames = [scene([a])] * 4 + [hidden] * 7 + [again]
-    _, outs = run(step, frames, params(id_retention=5.0, max_age=15.0))
-    assert region_ids(outs[-1].matched, rim) == {2}
-    assert region_ids(outs[-1].ids, box(*a) & ~rim) == {2}
-
-    # a segment outside the retained cells is a new object: a fresh identifier
-    elsewhere = hidden.copy()
-    elsewhere[box(6, 10, 13, 16)] = 2
-    _, outs = run(step, frames[:-1] + [elsewhere], params(id_retention=5.0))
-    assert region_ids(outs[-1].matched, box(6, 10, 13, 16)) == {3}
-
-
 def _eight_objects():
     # background + 7 objects of 2 x 3 cells fill all 8 identifiers (max_ids = 8)
     spots = [
