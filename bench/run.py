@@ -68,37 +68,28 @@ def build_sequences(frames: int, seed: int, only=None):
         log(f"rendering {name} ({frames} frames)")
         seqs.append((name, "synthetic", CachedSequence(make_sequence(name, frames=frames,
                                                                      seed=seed))))
-    root = data_root()
-    for name, kind in ((SEVEN_SCENES, "real, static scene"),
-                       (TUM_WALKING, "real, two people walking")):
-        path = root / name
-        if not want(name):
+    # sequences made from the real data: (label, source folder, kind, how to build it)
+    real = [
+        (SEVEN_SCENES, SEVEN_SCENES, "real, static scene",
+         lambda path: CachedSequence(open_sequence(path), frames)),
+        (TUM_WALKING, TUM_WALKING, "real, two people walking",
+         lambda path: CachedSequence(open_sequence(path), frames)),
+        # the same real frames with four times the motion
+        (f"{SEVEN_SCENES}_every4", SEVEN_SCENES, "real, static scene, every 4th frame (fast motion)",
+         lambda path: CachedSequence(open_sequence(path), frames, step=4)),
+        (f"composite_{SEVEN_SCENES}", SEVEN_SCENES, "real + synthetic moving boxes",
+         lambda path: CachedSequence(composite_sequence(path, "handheld_slow", frames=frames,
+                                                        seed=seed))),
+    ]
+    for label, source, kind, build in real:
+        if not want(label):
             continue
+        path = data_root() / source
         if not path.is_dir():
-            skipped[name] = f"not found at {path} (set JAXVO_DATA to the shared data folder)"
+            skipped[label] = f"{source} not found at {path} (set JAXVO_DATA to the shared data folder)"
             continue
-        log(f"reading {name}")
-        seqs.append((name, kind, CachedSequence(open_sequence(path), frames)))
-    path = root / SEVEN_SCENES
-    label = f"{SEVEN_SCENES}_every4"  # the same real frames with four times the motion
-    if not want(label):
-        pass
-    elif path.is_dir():
-        log(f"reading every 4th frame of {SEVEN_SCENES}")
-        seqs.append((label, "real, static scene, every 4th frame (fast motion)",
-                     CachedSequence(open_sequence(path), frames, step=4)))
-    else:
-        skipped[label] = f"{SEVEN_SCENES} not found at {path}"
-    label = f"composite_{SEVEN_SCENES}"
-    if not want(label):
-        pass
-    elif path.is_dir():
-        log(f"compositing boxes into {SEVEN_SCENES}")
-        seqs.append((label, "real + synthetic moving boxes",
-                     CachedSequence(composite_sequence(path, "handheld_slow", frames=frames,
-                                                       seed=seed))))
-    else:
-        skipped[label] = f"{SEVEN_SCENES} not found at {path}"
+        log(f"reading {label}")
+        seqs.append((label, kind, build(path)))
     return seqs, skipped
 
 
