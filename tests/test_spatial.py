@@ -380,7 +380,7 @@ def test_a_near_object_motion_does_not_swallow_the_far_wall():
 
     class Pairs:
         intrinsics, height, width = seq.intrinsics, seq.height, seq.width
-        frames = [seq[k] for k in (45, 46, 47)]
+        frames = tuple(seq[k] for k in (45, 46, 47))
 
         def __len__(self):
             return len(self.frames)
