@@ -69,9 +69,11 @@ def _from_order_key(i):
     return lax.bitcast_convert_type(i ^ ((i >> 31) & 0x7FFFFFFF), jnp.float32)
 
 
-def _kth_key(keys, mask, k):
-    """The ``k``-th smallest (0-based) of ``keys[mask]``: 32 halvings of the int32 range,
-    each one counting the keys at or below the midpoint."""
+def _kth_key(keys, mask, k, lo=-(2**31), halvings=32):
+    """The ``k``-th smallest (0-based) of ``keys[mask]``, all at least ``lo``: halvings of
+    the int32 range from ``lo``, each one counting the keys at or below the midpoint. 32
+    halvings from the whole range (31 from 0) give it exactly; fewer give a lower bound
+    within ``2**(32 - halvings)`` (from 0: ``2**(31 - halvings)``)."""
 
     def halve(_, bounds):
         lo, hi = bounds
@@ -79,7 +81,7 @@ def _kth_key(keys, mask, k):
         enough = jnp.sum(mask & (keys <= mid)) >= k + 1
         return jnp.where(enough, lo, mid + 1), jnp.where(enough, mid, hi)
 
-    lo, _ = lax.fori_loop(0, 32, halve, (jnp.int32(-(2**31)), jnp.int32(2**31 - 1)))
+    lo, _ = lax.fori_loop(0, halvings, halve, (jnp.int32(lo), jnp.int32(2**31 - 1)))
     return lo
 
 
@@ -95,3 +97,18 @@ def masked_median(x, mask):
     middle = jnp.stack([jnp.maximum((k - 1) // 2, 0), k // 2])
     lo_hi = _from_order_key(jax.vmap(lambda j: _kth_key(keys, mask, j))(middle))
     return jnp.where(k > 0, 0.5 * (lo_hi[0] + lo_hi[1]), 0.0).astype(x.dtype)
+
+
+def masked_scale(x, mask, precision_bits: int = 12):
+    """Median of the non-negative values ``x[mask]`` to a relative ``2**-precision_bits``
+    (at most that much below the lower middle value), 0 when the mask is empty.
+
+    What a robust scale (a Huber threshold) needs, for a third of the work of
+    :func:`masked_median`: one order statistic instead of two, and ``8 + precision_bits``
+    halvings instead of 32, since a non-negative float's bit pattern orders as an int32
+    from 0 and the last 23 - precision_bits mantissa bits are left open.
+    """
+    k = jnp.sum(mask)
+    keys = lax.bitcast_convert_type(jnp.maximum(x.astype(jnp.float32), 0.0), jnp.int32)
+    key = _kth_key(keys, mask, jnp.maximum((k - 1) // 2, 0), lo=0, halvings=8 + precision_bits)
+    return jnp.where(k > 0, lax.bitcast_convert_type(key, jnp.float32), 0.0).astype(x.dtype)

@@ -3,7 +3,7 @@
 import jax.numpy as jnp
 import numpy as np
 
-from jaxvo.geometry import invert_pose, make_pose, masked_median, transform_points
+from jaxvo.geometry import invert_pose, make_pose, masked_median, masked_scale, transform_points
 
 
 def _random_pose(rng):
@@ -38,6 +38,21 @@ def test_masked_median_matches_numpy_and_is_zero_when_empty():
     for sel in ([0, 1], [2, 3, 6], [4, 5], [4, 6, 7, 2], list(range(8))):
         mask = np.isin(np.arange(8), sel)
         assert float(masked_median(x, mask)) == np.median(x[mask])
+
+
+def test_masked_scale_is_the_lower_middle_value_to_one_part_in_4096():
+    rng = np.random.default_rng(2)
+    for n_sel in (1, 2, 7, 40, 1200):
+        x = np.abs(rng.lognormal(-5.0, 2.0, size=1200)).astype(np.float32)
+        mask = np.zeros(1200, bool)
+        mask[rng.choice(1200, n_sel, replace=False)] = True
+        lower = np.sort(x[mask])[(n_sel - 1) // 2]
+        got = float(masked_scale(x, mask))
+        assert lower * (1 - 2.0**-12) <= got <= lower, (n_sel, got, lower)
+    assert float(masked_scale(jnp.ones(5), jnp.zeros(5, bool))) == 0.0
+    x = np.array([0.0, 0.0, 3.0, 1e30], np.float32)  # zeros and huge values
+    assert float(masked_scale(x, np.array([True, True, True, False]))) == 0.0
+    assert 3.0 * (1 - 2.0**-12) <= float(masked_scale(x, x > 1.0)) <= 3.0  # of 3 and 1e30
 
 
 def test_so3_exp_is_the_rotation_about_the_axis_and_exact_near_zero():
