@@ -18,7 +18,7 @@ import jax
 import jax.numpy as jnp
 
 from jaxvo.config import Config, Params
-from jaxvo.geometry import make_pose, masked_scale, so3_exp
+from jaxvo.geometry import make_pose, masked_median, so3_exp
 from jaxvo.procrustes import fit_rigid_cols, residuals_cols
 from jaxvo.status import Status
 
@@ -31,9 +31,8 @@ def noise_scale(z):
 def _huber_threshold(x, mask):
     """Twice the robust standard deviation of ``x[mask]`` (``x >= 0``): 1.4826 * median |x|
     estimates the standard deviation of Gaussian residuals, and a fifth of outliers cannot
-    inflate it. The median to 1/4096 (:func:`jaxvo.geometry.masked_scale`): 13 of them a
-    frame."""
-    return 2.0 * 1.4826 * masked_scale(x, mask)
+    inflate it. The median to 1/4096 (13 of them a frame)."""
+    return 2.0 * 1.4826 * masked_median(x, mask, precision_bits=12)
 
 
 def _huber_weights(r, c, w):

@@ -376,7 +376,7 @@ def compensation_weights(disp, flow_valid, *, cfg: Config, grid: tuple[int, int]
     n = rows * cols
     ok = flow_valid & jnp.all(jnp.isfinite(disp), axis=1)
     d_safe = jnp.where(ok[:, None], disp, 0.0)
-    med = jnp.stack([masked_median(d_safe[:, 0], ok), masked_median(d_safe[:, 1], ok)])
+    med = jnp.stack([masked_median(d_safe[:, i], ok, precision_bits=12) for i in (0, 1)])
     fill = jnp.broadcast_to(med, d_safe.shape)
     if ids is not None:
         id_1h = jax.nn.one_hot(ids - 1, cfg.max_ids, dtype=jnp.float32) * ok[:, None]

@@ -3,7 +3,7 @@
 import jax.numpy as jnp
 import numpy as np
 
-from jaxvo.geometry import invert_pose, make_pose, masked_median, masked_scale, transform_points
+from jaxvo.geometry import invert_pose, make_pose, masked_median, transform_points
 
 
 def _random_pose(rng):
@@ -40,19 +40,24 @@ def test_masked_median_matches_numpy_and_is_zero_when_empty():
         assert float(masked_median(x, mask)) == np.median(x[mask])
 
 
-def test_masked_scale_is_the_lower_middle_value_to_one_part_in_4096():
+def test_masked_median_to_12_bits_is_the_lower_middle_value_to_one_part_in_4096():
     rng = np.random.default_rng(2)
-    for n_sel in (1, 2, 7, 40, 1200):
-        x = np.abs(rng.lognormal(-5.0, 2.0, size=1200)).astype(np.float32)
-        mask = np.zeros(1200, bool)
-        mask[rng.choice(1200, n_sel, replace=False)] = True
-        lower = np.sort(x[mask])[(n_sel - 1) // 2]
-        got = float(masked_scale(x, mask))
-        assert lower * (1 - 2.0**-12) <= got <= lower, (n_sel, got, lower)
-    assert float(masked_scale(jnp.ones(5), jnp.zeros(5, bool))) == 0.0
-    x = np.array([0.0, 0.0, 3.0, 1e30], np.float32)  # zeros and huge values
-    assert float(masked_scale(x, np.array([True, True, True, False]))) == 0.0
-    assert 3.0 * (1 - 2.0**-12) <= float(masked_scale(x, x > 1.0)) <= 3.0  # of 3 and 1e30
+    for sign in (1.0, -1.0):
+        for n_sel in (1, 2, 7, 40, 1200):
+            x = (sign * rng.lognormal(-5.0, 2.0, size=1200)).astype(np.float32)
+            mask = np.zeros(1200, bool)
+            mask[rng.choice(1200, n_sel, replace=False)] = True
+            lower = float(np.sort(x[mask])[(n_sel - 1) // 2])
+            got = float(masked_median(x, mask, precision_bits=12))
+            # at most 2^-12 of its size below the lower middle value, never above it
+            assert lower - abs(lower) * 2.0**-12 <= got <= lower, (sign, n_sel, got, lower)
+    assert float(masked_median(jnp.ones(5), jnp.zeros(5, bool), precision_bits=12)) == 0.0
+    x = np.array([-2.0, 0.0, 0.0, 3.0, 1e30], np.float32)  # zeros, signs, huge values
+    assert float(masked_median(x, np.array([False, True, True, True, False]), precision_bits=12)) == 0.0
+    got = float(masked_median(x, x > 1.0, precision_bits=12))  # of 3 and 1e30
+    assert 3.0 * (1 - 2.0**-12) <= got <= 3.0
+    got = float(masked_median(x, x != 0.0, precision_bits=12))  # of -2, 3, 1e30
+    assert 3.0 * (1 - 2.0**-12) <= got <= 3.0
 
 
 def test_so3_exp_is_the_rotation_about_the_axis_and_exact_near_zero():
