@@ -98,11 +98,10 @@ def masked_median(x, mask, precision_bits: int | None = None):
     """
     k = jnp.sum(mask)
     keys = _order_key(x)
+    lower = jnp.maximum((k - 1) // 2, 0)  # index of the lower middle value
     if precision_bits is None:
-        middle = jnp.stack([jnp.maximum((k - 1) // 2, 0), k // 2])
-        lo_hi = _from_order_key(jax.vmap(lambda j: _kth_key(keys, mask, j))(middle))
-        value = 0.5 * (lo_hi[0] + lo_hi[1])
+        both = jax.vmap(lambda j: _kth_key(keys, mask, j))(jnp.stack([lower, k // 2]))
+        value = 0.5 * (_from_order_key(both[0]) + _from_order_key(both[1]))
     else:
-        halvings = 9 + int(precision_bits)
-        value = _from_order_key(_kth_key(keys, mask, jnp.maximum((k - 1) // 2, 0), halvings=halvings))
+        value = _from_order_key(_kth_key(keys, mask, lower, halvings=9 + int(precision_bits)))
     return jnp.where(k > 0, value, 0.0).astype(x.dtype)
