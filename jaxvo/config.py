@@ -60,11 +60,11 @@ class Config:
     # synthetic scenes; 1 trip let fixed_camera_2 lose its background in one run
     cluster_refine_iters: int = 2
     max_segments: int = 8  # most distinct motions kept per frame
-    # frames a recorded sequence segments per vmapped call (run_scan, run_study): XLA's CPU
-    # runtime then shares its per-operation cost; 8 measured 1.5x faster than 1, 16 no faster.
-    # On a GPU a whole sequence per call (scan_batch >= frames) ran 1.4x faster than 8
-    # (docs/report/pipeline_h100.md)
-    scan_batch: int = 8
+    # most frames a recorded sequence segments per vmapped call (run_scan, run_study);
+    # None picks by backend (scan_batch_for). On the CPU, XLA's runtime then shares its
+    # per-operation cost: 8 measured 1.5x faster than 1, 16 no faster. On an H100, 100
+    # frames a call ran 2.0x faster than 8 and 32 1.7x (docs/report/pipeline_h100.md)
+    scan_batch: int | None = None
 
     # --- temporal segmentation (thesis chapter 4, Algorithm 3) ---
     max_ids: int = 8  # identifiers (m of section 4.1); identifier 1 is the static background
@@ -127,6 +127,21 @@ def params_as_arrays(params: Params) -> Params:
     import jax.numpy as jnp  # here, so that host-only commands (jaxvo eval) never load JAX
 
     return Params(*(jnp.asarray(v, jnp.float32) for v in params))
+
+
+def scan_batch_for(cfg: Config, frames: int, backend: str) -> int:
+    """Frames per vmapped spatial call for a sequence of ``frames`` pairs on ``backend``.
+
+    At most ``cfg.scan_batch`` (by default 8 on the CPU, 128 on an accelerator), split into
+    calls of equal size so that padding the last call wastes at most one frame per call:
+    299 pairs at most 128 a call run as 3 calls of 100, not 3 of 128.
+    """
+    most = cfg.scan_batch if cfg.scan_batch is not None else (8 if backend == "cpu" else 128)
+    if most < 1:
+        raise ValueError(f"scan_batch must be at least 1, got {most}")
+    frames = max(frames, 1)
+    calls = -(-frames // most)
+    return -(-frames // calls)
 
 
 def grid_shape(height: int, width: int, cell: int) -> tuple[int, int]:

@@ -9,7 +9,7 @@ import jax.numpy as jnp
 import numpy as np
 import pytest
 
-from jaxvo.config import Config, Params, grid_shape, params_as_arrays
+from jaxvo.config import Config, Params, grid_shape, params_as_arrays, scan_batch_for
 from jaxvo.errors import InputError
 from jaxvo.flow import flows_for_sequence
 from jaxvo.odometry import Odometry, run_sequence
@@ -104,6 +104,18 @@ def test_batch_params_rejects_unknown_and_ragged():
         batch_params(Params(), lamda=[1.0])
     with pytest.raises(ValueError, match="same length"):
         batch_params(Params(), lam=[1.0, 2.0], delta=[0.1])
+
+
+def test_scan_batch_splits_a_sequence_into_equal_calls():
+    # the default: 8 frames a call on the CPU, at most 128 on an accelerator, balanced
+    assert scan_batch_for(Config(), 299, "cpu") == 8
+    assert scan_batch_for(Config(), 299, "gpu") == 100  # 3 calls of 100, not 3 of 128
+    assert scan_batch_for(Config(), 89, "gpu") == 89
+    assert scan_batch_for(Config(), 20, "cpu") == 7  # 3 calls, one padded frame
+    assert scan_batch_for(Config(scan_batch=1), 5, "gpu") == 1
+    assert scan_batch_for(Config(scan_batch=16), 1, "cpu") == 1
+    with pytest.raises(ValueError, match="scan_batch"):
+        scan_batch_for(Config(scan_batch=0), 10, "cpu")
 
 
 def test_one_frame_sequence_is_a_clear_error():
