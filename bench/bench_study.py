@@ -144,7 +144,7 @@ def main(argv=None) -> int:
          f"difference between the two for the same configuration: {pose_diff:.2e} m."), ""]
     if scaling:
         L += [("Vmapped call against B (where the time goes: a per-configuration cost that "
-              "stays flat as B grows means vmap batches no work away on this CPU):"), "",
+              "stays flat as B grows means vmap batches no work away on this machine):"), "",
               "| B | seconds | config x frames / s | s per configuration |", "|---|---|---|---|"]
         L += [f"| {s['B']} | {s['seconds']:.2f} | {s['config_frames_per_s']:.1f} | "
               f"{s['seconds'] / s['B']:.3f} |" for s in scaling]
