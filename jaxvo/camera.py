@@ -24,11 +24,13 @@ class Intrinsics(NamedTuple):
         )
 
 
-# Published calibrations: TUM RGB-D (vision.in.tum.de, "file formats"), depth 5000 per metre.
+# Published calibrations, depth 5000 per metre: TUM RGB-D (vision.in.tum.de, "file formats")
+# and the Bonn RGB-D Dynamic Dataset (Palazzolo et al., IROS 2019; TUM layout, one camera).
 PRESETS: dict[str, Intrinsics] = {
     "tum_fr1": Intrinsics(517.3, 516.5, 318.6, 255.3, 5000.0),
     "tum_fr2": Intrinsics(520.9, 521.0, 325.1, 249.7, 5000.0),
     "tum_fr3": Intrinsics(535.4, 539.2, 320.1, 247.6, 5000.0),
+    "bonn": Intrinsics(542.822841, 542.576870, 315.593520, 237.756098, 5000.0),
     "ros_default": Intrinsics(525.0, 525.0, 319.5, 239.5, 5000.0),
 }
 

@@ -247,11 +247,14 @@ def _read_image(path: Path, flags: int) -> np.ndarray:
     return img
 
 
-def tum_preset_from_name(name: str) -> str | None:
-    """The TUM RGB-D calibration a folder's name points to, as the benchmark names its
-    downloads (``rgbd_dataset_freiburg3_walking_xyz``, or short ``fr3_walking_xyz``);
-    ``None`` if the name names no Freiburg camera."""
-    m = re.search(r"freiburg([123])|(?:^|[^a-z0-9])fr([123])(?:[^0-9]|$)", name.lower())
+def preset_from_name(name: str) -> str | None:
+    """The calibration a folder's name points to, as the benchmarks name their downloads:
+    TUM RGB-D (``rgbd_dataset_freiburg3_walking_xyz``, or short ``fr3_walking_xyz``) and
+    Bonn RGB-D Dynamic (``rgbd_bonn_balloon``); ``None`` if the name names neither."""
+    low = name.lower()
+    if re.search(r"(?:^|[^a-z0-9])bonn(?:[^a-z0-9]|$)", low):
+        return "bonn"
+    m = re.search(r"freiburg([123])|(?:^|[^a-z0-9])fr([123])(?:[^0-9]|$)", low)
     return None if m is None else f"tum_fr{m.group(1) or m.group(2)}"
 
 
@@ -268,9 +271,9 @@ class TumSequence:
     Args:
       path: the folder.
       camera: a preset name of :data:`jaxvo.camera.PRESETS` or an :class:`Intrinsics`;
-        overrides ``camera.txt``. Without either, a folder named as the TUM benchmark
-        names its downloads (``..._freiburg3_...``) takes that camera's preset; otherwise
-        one of the two is required.
+        overrides ``camera.txt``. Without either, a folder named as the TUM and Bonn
+        benchmarks name their downloads (``..._freiburg3_...``, ``rgbd_bonn_...``) takes
+        that camera's preset; otherwise one of the two is required.
       max_diff: largest colour-depth time difference when pairing them, seconds.
     """
 
@@ -342,8 +345,8 @@ class TumSequence:
                 return read_camera_file(cam_file), str(cam_file)
             except ValueError as exc:
                 raise InputError(str(exc)) from None
-        # a TUM download as it unpacks: no camera.txt, the camera in the folder's name
-        guess = tum_preset_from_name(root.resolve().name)
+        # a TUM or Bonn download as it unpacks: no camera.txt, the camera in the folder's name
+        guess = preset_from_name(root.resolve().name)
         if guess is None:
             raise InputError(
                 f"{root}: no camera.txt; pass a camera preset "

@@ -15,8 +15,8 @@ from jaxvo.io import (
     TumSequence,
     associate,
     open_sequence,
+    preset_from_name,
     read_trajectory,
-    tum_preset_from_name,
     write_trajectory,
 )
 from jaxvo.transforms import (
@@ -271,11 +271,14 @@ def test_tum_sequence_camera_rules(tmp_path):
         ("office_fr12", None),
         ("frame3", None),
         ("7scenes_static_0000_0299", None),
+        ("rgbd_bonn_balloon", "bonn"),
+        ("rgbd_bonn_moving_obstructing_box2", "bonn"),
+        ("bonnet_scan", None),
     ],
 )
-def test_tum_download_takes_the_camera_its_folder_names(tmp_path, name, expected):
-    """A TUM download unpacks without camera.txt; its folder name names the camera."""
-    assert tum_preset_from_name(name) == expected
+def test_download_takes_the_camera_its_folder_names(tmp_path, name, expected):
+    """A TUM or Bonn download unpacks without camera.txt; its folder name names the camera."""
+    assert preset_from_name(name) == expected
     make_sequence(tmp_path / name, camera=False, mask=False, gt=False)
     if expected is None:
         with pytest.raises(InputError, match="pass a camera preset"):

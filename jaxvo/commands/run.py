@@ -14,12 +14,14 @@ from pathlib import Path
 
 
 def add_arguments(p: argparse.ArgumentParser) -> None:
+    from jaxvo.camera import PRESETS
+
     p.add_argument("sequence", metavar="SEQ_DIR", help="folder in the TUM RGB-D layout")
     p.add_argument("--out", "-o", required=True, metavar="FILE",
                    help="trajectory to write (TUM format, camera-to-world; evo reads it)")
     p.add_argument("--camera", metavar="PRESET",
                    help="intrinsics preset when the folder has no camera.txt "
-                   "(tum_fr1, tum_fr2, tum_fr3, ros_default)")
+                   "(" + ", ".join(sorted(PRESETS)) + ")")
     p.add_argument("--max-diff", type=float, default=0.02, metavar="S",
                    help="largest rgb/depth timestamp difference when associating (default 0.02 s)")
     p.add_argument("--frames", type=int, metavar="N", help="process only the first N frames")
