@@ -43,6 +43,9 @@ class FrameResult(NamedTuple):
 class Odometry:
     """Frame-by-frame odometry for a live RGB-D stream.
 
+    The per-frame step runs on ``device``, by default the CPU (also where an accelerator
+    is present: see ``__init__``).
+
     Example::
 
         odo = Odometry(jaxvo.preset("tum_fr3"))
@@ -59,11 +62,19 @@ class Odometry:
         params: Params | None = None,
         seed: int = 0,
         T_w_c0: np.ndarray | None = None,
+        device: jax.Device | None = None,
     ):
         self.intrinsics = intrinsics
         self.cfg = cfg
-        self.params = params_as_arrays(params if params is not None else Params())
-        self.key = jax.random.key(seed)
+        # One frame's step is a long chain of small dependent operations, bound by launch
+        # latency on an accelerator: on an H100 it took 19-25 ms a frame against 9 ms on 2
+        # CPU cores (docs/report/pipeline_h100.md). So the step runs on the CPU unless told
+        # otherwise; the state, parameters and key live there, and the step follows them.
+        self.device = jax.devices("cpu")[0] if device is None else device
+        self.params = jax.device_put(
+            params_as_arrays(params if params is not None else Params()), self.device
+        )
+        self.key = jax.device_put(jax.random.key(seed), self.device)
         self._T_w_c0 = np.eye(4) if T_w_c0 is None else np.asarray(T_w_c0, np.float64)
         self._tracker: GridFlowTracker | None = None
         self._state = None
@@ -118,7 +129,9 @@ class Odometry:
             h, w = np.shape(depth)
             self._tracker = GridFlowTracker(self.intrinsics, self.cfg, height=h, width=w)
             self._grid = self._tracker.grid
-            self._state = init_pipeline(cfg=self.cfg, grid=self._grid, T_w_c0=self._T_w_c0)
+            self._state = jax.device_put(
+                init_pipeline(cfg=self.cfg, grid=self._grid, T_w_c0=self._T_w_c0), self.device
+            )
         flow = self._tracker.push(bgr, depth)
         index = self._index
         self._index += 1

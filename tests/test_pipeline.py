@@ -63,6 +63,9 @@ def test_streaming_matches_scan_and_compiles_once(scan_result, seq):
     # same per-frame keys and code: same labels, poses equal to float32 rounding (1e-4 m)
     np.testing.assert_allclose(odo.trajectory.poses, scan_result.trajectory.poses, atol=1e-4)
     assert r.status in tuple(Status)
+    # the step stays on the CPU (the default, also where an accelerator is present)
+    assert odo.device.platform == "cpu"
+    assert odo._state.T_w_c.devices() == {odo.device}
 
 
 def test_pipelined_submit_gives_the_results_of_process_one_frame_late(seq):
