@@ -100,11 +100,12 @@ def init_pipeline(*, cfg: Config, grid: tuple[int, int], T_w_c0=None) -> Pipelin
     return PipelineState(init_temporal(cfg=cfg, grid=grid), T0, jnp.int32(0), eye, jnp.bool_(False))
 
 
-def spatial_step(flow, key, params: Params, *, cfg: Config, grid):
+def spatial_step(flow, key, params: Params, *, cfg: Config, grid, batch_axis=None):
     """The spatial stage of one frame pair (Algorithms 1, 2); it needs no carried state, so
     a recorded sequence segments many frames at once (see :func:`run_scan`)."""
     valid = flow.valid & (flow.status == Status.OK)
-    return segment(key, flow.pts_prev, flow.pts_cur, valid, params, cfg=cfg, grid=grid)
+    return segment(key, flow.pts_prev, flow.pts_cur, valid, params, cfg=cfg, grid=grid,
+                   batch_axis=batch_axis)
 
 
 def step(state: PipelineState, flow, key, params: Params, *, cfg: Config, grid, seg=None):
@@ -175,19 +176,23 @@ def jit_step(state, flow, key, params, *, cfg: Config, grid):
 def _scan(flows, key, params, T_w_c0, cfg, grid):
     # The spatial stage carries no state: segment several frames per vmapped call, which
     # shares XLA's per-operation cost on the CPU (8 a call: 1.5x faster than one by one)
-    # and fills an accelerator, then run the stateful stages frame by frame. The frames are
-    # padded to a whole number of calls (the padding's results are dropped) so that only
-    # one batched body compiles.
+    # and fills an accelerator, then run the stateful stages frame by frame. The vmapped
+    # axis is named so that the hypothesis search skips its trips once every frame of the
+    # call is done (spatial._search_step). The frames are padded to a whole number of calls
+    # (the padding's results are dropped) so that only one batched body compiles.
     n = flows.valid.shape[0]
     b = scan_batch_for(cfg, n, jax.default_backend())
     keys = jax.vmap(lambda i: frame_key(key, i))(jnp.arange(n + (-n) % b))
     padded = jax.tree.map(lambda a: jnp.concatenate([a, a[: (-n) % b]]), flows)
-    segs = jax.lax.map(
-        lambda fk: spatial_step(fk[0], fk[1], params, cfg=cfg, grid=grid),
-        (padded, keys),
-        batch_size=b,
+    batched = jax.vmap(
+        lambda f, k: spatial_step(f, k, params, cfg=cfg, grid=grid, batch_axis="frames"),
+        axis_name="frames",
     )
-    segs = jax.tree.map(lambda a: a[:n], segs)
+    segs = jax.lax.map(
+        lambda fk: batched(*fk),
+        jax.tree.map(lambda a: a.reshape(-1, b, *a.shape[1:]), (padded, keys)),
+    )
+    segs = jax.tree.map(lambda a: a.reshape(-1, *a.shape[2:])[:n], segs)
 
     def body(state, flow_seg):
         flow, seg = flow_seg

@@ -178,12 +178,16 @@ def _draw_samples(key, entropy, valid, *, cfg, grid):
     return jnp.concatenate([seed[:, None], chosen], axis=1)
 
 
-def _search_step(state, key, pts_prev, pts_cur, valid, tau2, tau_s2, params, *, cfg, grid):
+def _search_step(state, key, pts_prev, pts_cur, valid, tau2, tau_s2, params, *, cfg, grid,
+                 batch_axis=None):
     """One trip of Algorithm 1 (lines 4-20), a no-op once ``state.done``.
 
     The work sits under ``lax.cond`` on ``done``: a fixed trip count still, but a frame that
-    is explained early skips the remaining trips' work (under ``vmap`` both branches run and
-    the result is the same).
+    is explained early skips the remaining trips' work. Under ``vmap`` a per-frame
+    predicate turns the cond into a select (both branches run); with ``batch_axis`` naming
+    the vmapped frame axis, the predicate is "every frame of the batch is done", which
+    stays a real cond, and the work of a trip runs for the whole batch or not at all (it
+    is a no-op for the frames already done).
     """
     n = valid.shape[0]
 
@@ -199,7 +203,11 @@ def _search_step(state, key, pts_prev, pts_cur, valid, tau2, tau_s2, params, *, 
             state, key, pts_prev, pts_cur, valid, tau2, tau_s2, params, cfg=cfg, grid=grid
         )
 
-    return lax.cond(state.done, skip, work, state, key)
+    if batch_axis is None:
+        all_done = state.done
+    else:
+        all_done = lax.psum((~state.done).astype(jnp.int32), batch_axis) == 0
+    return lax.cond(all_done, skip, work, state, key)
 
 
 def _search_work(state, key, pts_prev, pts_cur, valid, tau2, tau_s2, params, *, cfg, grid):
@@ -369,7 +377,7 @@ def _counts(best, has, c):
     return jnp.sum((best[None, :] == jnp.arange(c)[:, None]) & has[None, :], axis=1)
 
 
-def segment(key, pts_prev, pts_cur, valid, params, *, cfg, grid):
+def segment(key, pts_prev, pts_cur, valid, params, *, cfg, grid, batch_axis=None):
     """Segment one frame pair's grid flow into rigid motions (Algorithms 1 and 2).
 
     Args:
@@ -380,6 +388,9 @@ def segment(key, pts_prev, pts_cur, valid, params, *, cfg, grid):
       params: :class:`jaxvo.config.Params`; numeric fields may be traced arrays.
       cfg: :class:`jaxvo.config.Config` (static).
       grid: (rows, cols) static.
+      batch_axis: the name of a ``vmap`` axis over frames, when called under one: the
+        search then skips a trip only once every frame of the batch is done (see
+        :func:`_search_step`); the results are the same.
 
     Returns:
       :class:`Segmentation`. A frame that fails (too few valid points, no verified sample,
@@ -416,7 +427,8 @@ def segment(key, pts_prev, pts_cur, valid, params, *, cfg, grid):
 
     def step(state, k):
         return _search_step(
-            state, k, pts_prev, pts_cur, valid, tau2, tau_s2, params, cfg=cfg, grid=grid
+            state, k, pts_prev, pts_cur, valid, tau2, tau_s2, params, cfg=cfg, grid=grid,
+            batch_axis=batch_axis,
         )
 
     state, hyps = lax.scan(step, state0, jax.random.split(key, big_h))

@@ -197,6 +197,29 @@ def test_search_stops_once_every_point_is_explained(seg, params):
     assert 2 <= int(out.num_hypotheses) < CFG.num_hypotheses
 
 
+def test_a_batch_stops_its_search_together_with_the_same_results(seg, params):
+    """Under vmap with ``batch_axis`` a trip runs for the whole batch until every frame is
+    done; for a frame already done it must change nothing. One frame is explained after
+    one hypothesis, the others need more: each must match its own per-frame call."""
+    scenes = [make_scene(6, [], noise=0.0015), make_scene(6, TWO, noise=0.0015),
+              make_scene(1, THREE)]
+    keys = jnp.stack([jax.random.key(k) for k in range(3)])
+    prev, cur, valid = (jnp.stack([sc[i] for sc in scenes]) for i in range(3))
+    batched = jax.jit(jax.vmap(
+        lambda k, a, b, v: segment(k, a, b, v, params, cfg=CFG, grid=GRID, batch_axis="f"),
+        axis_name="f",
+    ))(keys, prev, cur, valid)
+    trips = []
+    for i in range(3):
+        one = seg(keys[i], prev[i], cur[i], valid[i], params, cfg=CFG, grid=GRID)
+        trips.append(int(one.num_hypotheses))
+        np.testing.assert_array_equal(np.asarray(batched.labels[i]), np.asarray(one.labels))
+        assert int(batched.num_hypotheses[i]) == trips[-1]
+        np.testing.assert_allclose(np.asarray(batched.motions[i]), np.asarray(one.motions),
+                                   atol=1e-5)
+    assert trips[0] == 1 and max(trips) > 1  # the frames do finish at different trips
+
+
 def test_three_motions(seg, params):
     scene = make_scene(1, THREE)
     check_scene(run(seg, 1, scene, params), scene, 3)
