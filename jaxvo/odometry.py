@@ -62,7 +62,7 @@ class Odometry:
         params: Params | None = None,
         seed: int = 0,
         T_w_c0: np.ndarray | None = None,
-        device: jax.Device | None = None,
+        device: jax.Device | str | None = None,
     ):
         self.intrinsics = intrinsics
         self.cfg = cfg
@@ -70,7 +70,7 @@ class Odometry:
         # latency on an accelerator: on an H100 it took 19-25 ms a frame against 9 ms on 2
         # CPU cores (docs/report/pipeline_h100.md). So the step runs on the CPU unless told
         # otherwise; the state, parameters and key live there, and the step follows them.
-        self.device = jax.devices("cpu")[0] if device is None else device
+        self.device = _device(device)
         self.params = jax.device_put(
             params_as_arrays(params if params is not None else Params()), self.device
         )
@@ -154,6 +154,22 @@ class Odometry:
                                None)
         out = jax.tree.map(np.asarray, out)
         return FrameResult(index, t, T, Status(int(out.status)), out.ids, out.static, out)
+
+
+def _device(device) -> jax.Device:
+    """The device the streaming step runs on: the CPU for None, the first device of a
+    platform named by a string ("cpu", "gpu"), or the device given."""
+    if device is None:
+        device = "cpu"
+    if isinstance(device, str):
+        try:
+            return jax.devices(device)[0]
+        except RuntimeError:
+            raise ValueError(
+                f"no {device!r} device here; available: "
+                f"{', '.join(sorted({d.platform for d in jax.devices()} | {'cpu'}))}"
+            ) from None
+    return device
 
 
 class SequenceResult(NamedTuple):

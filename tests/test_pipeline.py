@@ -68,6 +68,12 @@ def test_streaming_matches_scan_and_compiles_once(scan_result, seq):
     assert odo._state.T_w_c.devices() == {odo.device}
 
 
+def test_streaming_device_by_name_and_a_clear_error_for_a_missing_one(seq):
+    assert Odometry(seq.intrinsics, device="cpu").device.platform == "cpu"
+    with pytest.raises(ValueError, match="no 'nosuchplatform' device here; available: .*cpu"):
+        Odometry(seq.intrinsics, device="nosuchplatform")
+
+
 def test_pipelined_submit_gives_the_results_of_process_one_frame_late(seq):
     frames = list(seq)[:6]
     sync = Odometry(seq.intrinsics, cfg=CFG, seed=3)
