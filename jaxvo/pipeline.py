@@ -173,19 +173,21 @@ def jit_step(state, flow, key, params, *, cfg: Config, grid):
     return step(state, flow, frame_key(key, state.frame), params, cfg=cfg, grid=grid)
 
 
-def _scan(flows, key, params, T_w_c0, cfg, grid):
+def _scan(flows, key, params, T_w_c0, cfg, grid, outer_axes=()):
     # The spatial stage carries no state: segment several frames per vmapped call, which
     # shares XLA's per-operation cost on the CPU (8 a call: 1.5x faster than one by one)
     # and fills an accelerator, then run the stateful stages frame by frame. The vmapped
     # axis is named so that the hypothesis search skips its trips once every frame of the
-    # call is done (spatial._search_step). The frames are padded to a whole number of calls
+    # call is done (spatial._search_step), of every configuration too in a study (whose
+    # vmapped axes are ``outer_axes``). The frames are padded to a whole number of calls
     # (the padding's results are dropped) so that only one batched body compiles.
     n = flows.valid.shape[0]
     b = scan_batch_for(cfg, n, jax.default_backend())
     keys = jax.vmap(lambda i: frame_key(key, i))(jnp.arange(n + (-n) % b))
     padded = jax.tree.map(lambda a: jnp.concatenate([a, a[: (-n) % b]]), flows)
     batched = jax.vmap(
-        lambda f, k: spatial_step(f, k, params, cfg=cfg, grid=grid, batch_axis="frames"),
+        lambda f, k: spatial_step(f, k, params, cfg=cfg, grid=grid,
+                                  batch_axis=("frames", *outer_axes)),
         axis_name="frames",
     )
     segs = jax.lax.map(
@@ -232,9 +234,9 @@ def run_study(flows, keys, params, T_w_c0, *, cfg: Config, grid):
     """
 
     def one(k, p):
-        return _scan(flows, k, p, T_w_c0, cfg, grid)[1]
+        return _scan(flows, k, p, T_w_c0, cfg, grid, outer_axes=("configs",))[1]
 
-    return jax.vmap(one)(keys, params)
+    return jax.vmap(one, axis_name="configs")(keys, params)
 
 
 def batch_params(base: Params, size: int | None = None, **sweeps) -> Params:

@@ -388,9 +388,9 @@ def segment(key, pts_prev, pts_cur, valid, params, *, cfg, grid, batch_axis=None
       params: :class:`jaxvo.config.Params`; numeric fields may be traced arrays.
       cfg: :class:`jaxvo.config.Config` (static).
       grid: (rows, cols) static.
-      batch_axis: the name of a ``vmap`` axis over frames, when called under one: the
-        search then skips a trip only once every frame of the batch is done (see
-        :func:`_search_step`); the results are the same.
+      batch_axis: the name of a ``vmap`` axis over frames (or a tuple of names), when
+        called under one: the search then skips a trip only once every frame of the batch
+        is done (see :func:`_search_step`); the results are the same.
 
     Returns:
       :class:`Segmentation`. A frame that fails (too few valid points, no verified sample,
