@@ -173,18 +173,25 @@ def jit_step(state, flow, key, params, *, cfg: Config, grid):
     return step(state, flow, frame_key(key, state.frame), params, cfg=cfg, grid=grid)
 
 
-def _scan(flows, key, params, T_w_c0, cfg, grid, outer_axes=()):
-    # The spatial stage carries no state: segment several frames per vmapped call, which
-    # shares XLA's per-operation cost on the CPU (8 a call: 1.5x faster than one by one)
-    # and fills an accelerator, then run the stateful stages frame by frame. The vmapped
-    # axis is named so that the hypothesis search skips its trips once every frame of the
-    # call is done (spatial._search_step), of every configuration too in a study (whose
-    # vmapped axes are ``outer_axes``). The frames are padded to a whole number of calls
-    # (the padding's results are dropped) so that only one batched body compiles.
+def segment_frames(flows, keys, params, *, cfg: Config, grid, outer_axes=()):
+    """The spatial stage of many frame pairs: ``spatial_step`` on several frames per vmapped
+    call, the calls one after another (``Segmentation`` fields stacked over the frames).
+
+    The spatial stage carries no state, so a recorded sequence segments several frames at
+    once, which shares XLA's per-operation cost on the CPU (8 a call: 1.5x faster than one
+    by one) and fills an accelerator (see :func:`jaxvo.config.scan_batch_for`). The vmapped
+    axis is named so that the hypothesis search skips its trips once every frame of the
+    call is done (``spatial._search_step``), of every configuration too in a study (whose
+    vmapped axes are ``outer_axes``). The frames are padded to a whole number of calls (the
+    padding's results are dropped) so that only one batched body compiles.
+
+    Args:
+      flows: ``GridFlow`` stacked over T frame pairs; keys: (T,) PRNG keys, one per pair.
+    """
     n = flows.valid.shape[0]
     b = scan_batch_for(cfg, n, jax.default_backend())
-    keys = jax.vmap(lambda i: frame_key(key, i))(jnp.arange(n + (-n) % b))
-    padded = jax.tree.map(lambda a: jnp.concatenate([a, a[: (-n) % b]]), flows)
+    pad = (-n) % b
+    padded = jax.tree.map(lambda a: jnp.concatenate([a, a[:pad]]), (flows, keys))
     batched = jax.vmap(
         lambda f, k: spatial_step(f, k, params, cfg=cfg, grid=grid,
                                   batch_axis=("frames", *outer_axes)),
@@ -192,9 +199,16 @@ def _scan(flows, key, params, T_w_c0, cfg, grid, outer_axes=()):
     )
     segs = jax.lax.map(
         lambda fk: batched(*fk),
-        jax.tree.map(lambda a: a.reshape(-1, b, *a.shape[1:]), (padded, keys)),
+        jax.tree.map(lambda a: a.reshape(-1, b, *a.shape[1:]), padded),
     )
-    segs = jax.tree.map(lambda a: a.reshape(-1, *a.shape[2:])[:n], segs)
+    return jax.tree.map(lambda a: a.reshape(-1, *a.shape[2:])[:n], segs)
+
+
+def _scan(flows, key, params, T_w_c0, cfg, grid, outer_axes=()):
+    # the stateless spatial stage for every frame first, then the stateful stages frame by
+    # frame
+    keys = jax.vmap(lambda i: frame_key(key, i))(jnp.arange(flows.valid.shape[0]))
+    segs = segment_frames(flows, keys, params, cfg=cfg, grid=grid, outer_axes=outer_axes)
 
     def body(state, flow_seg):
         flow, seg = flow_seg
