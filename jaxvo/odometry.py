@@ -157,17 +157,21 @@ class Odometry:
 
 
 def _device(device) -> jax.Device:
-    """The device the streaming step runs on: the CPU for None, the first device of a
-    platform named by a string ("cpu", "gpu"), or the device given."""
+    """The device the streaming step runs on: the CPU for None (JAX's default device if
+    the CPU backend is switched off), the first device of a platform named by a string
+    ("cpu", "gpu"), or the device given."""
     if device is None:
-        device = "cpu"
+        try:
+            return jax.devices("cpu")[0]
+        except RuntimeError:
+            return jax.devices()[0]
     if isinstance(device, str):
         try:
             return jax.devices(device)[0]
         except RuntimeError:
+            available = sorted({d.platform for d in jax.devices()})
             raise ValueError(
-                f"no {device!r} device here; available: "
-                f"{', '.join(sorted({d.platform for d in jax.devices()} | {'cpu'}))}"
+                f"no {device!r} device here; available: {', '.join(available)}"
             ) from None
     return device
 

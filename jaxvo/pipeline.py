@@ -102,7 +102,8 @@ def init_pipeline(*, cfg: Config, grid: tuple[int, int], T_w_c0=None) -> Pipelin
 
 def spatial_step(flow, key, params: Params, *, cfg: Config, grid, batch_axis=None):
     """The spatial stage of one frame pair (Algorithms 1, 2); it needs no carried state, so
-    a recorded sequence segments many frames at once (see :func:`run_scan`)."""
+    a recorded sequence segments many frames at once (see :func:`segment_frames`, which
+    names its vmapped axes in ``batch_axis``)."""
     valid = flow.valid & (flow.status == Status.OK)
     return segment(key, flow.pts_prev, flow.pts_cur, valid, params, cfg=cfg, grid=grid,
                    batch_axis=batch_axis)
