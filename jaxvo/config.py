@@ -134,7 +134,9 @@ def scan_batch_for(cfg: Config, frames: int, backend: str) -> int:
 
     At most ``cfg.scan_batch`` (by default 8 on the CPU, 128 on an accelerator), split into
     calls of equal size so that padding the last call wastes at most one frame per call:
-    299 pairs at most 128 a call run as 3 calls of 100, not 3 of 128.
+    299 pairs at most 128 a call run as 3 calls of 100, not 3 of 128. A study vmaps this
+    over its B configurations, so a call holds B times as many frames: on a GPU with
+    little memory, a large study may need a smaller ``scan_batch``.
     """
     most = cfg.scan_batch if cfg.scan_batch is not None else (8 if backend == "cpu" else 128)
     if most < 1:
