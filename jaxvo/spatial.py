@@ -222,6 +222,8 @@ def _search_work(state, key, pts_prev, pts_cur, valid, tau2, tau_s2, params, *, 
     # Algorithm 1 lines 7-8: the m points must all be valid, distinct and fit the motion.
     verified = ok & jnp.all(w & (err <= tau_s2[idx]), axis=1)
     first = jnp.argmax(verified)
+    # a frame already done finds nothing: in a batched trip (batch_axis) the work runs for
+    # every frame of the call, and must leave the finished ones as they are
     found = jnp.any(verified) & ~state.done
 
     motion, err_all, inl = _refine(
