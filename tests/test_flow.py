@@ -396,6 +396,28 @@ def test_streaming_matches_function_form(tex0):
         np.testing.assert_array_equal(x, y)
 
 
+def test_helper_thread_gives_the_same_flow_frame_after_frame(tex0):
+    """Each frame's grid depth is refined on the helper thread while the pair before it is
+    tracked; over a sequence every pair must pair the right frames' depths."""
+    frames = []
+    for i in range(5):
+        A = np.array([[1, 0, 0.7 * i], [0, 1, -0.3 * i]])
+        frames.append((bgr(warp(tex0, A)), rough_depth(10 + i, holes=60)))
+    flows = {}
+    before = cv2.getNumThreads()
+    try:
+        for threads in (2, 1):
+            cv2.setNumThreads(threads)
+            tracker = GridFlowTracker(K, CFG, height=H, width=W)
+            flows[threads] = [tracker.push(b, d) for b, d in frames][1:]
+    finally:
+        cv2.setNumThreads(before)
+    for a, b in zip(flows[2], flows[1]):
+        assert a.valid.mean() > 0.3
+        for name, x, y in zip(GridFlow._fields, a, b):
+            np.testing.assert_array_equal(x, y, err_msg=name)
+
+
 @pytest.mark.parametrize("shift, gain", [(2.0, 1.0), (20.0, 2.0)])
 def test_fast_motion_takes_one_pyramid_level_more(shift, gain):
     """A pan of 20 px a frame is beyond two pyramid levels with a 9 px window: a third of
@@ -449,9 +471,20 @@ def reference_flow(b0, d0, b1, d1, cam, cfg) -> GridFlow:
     )
 
 
-def test_tracker_equals_checking_every_point(tex0):
+@pytest.fixture(params=["helper thread", "one thread"])
+def opencv_threads(request):
+    """The tracker's depth work beside LK (OpenCV on several threads), or all of it on the
+    calling thread (``cv2.setNumThreads(1)``)."""
+    before = cv2.getNumThreads()
+    cv2.setNumThreads(max(before, 2) if request.param == "helper thread" else 1)
+    yield request.param
+    cv2.setNumThreads(before)
+
+
+def test_tracker_equals_checking_every_point(tex0, opencv_threads):
     # The tracker follows only the points that can still pass (LK tracks each point on
-    # its own) and refines depth only where it reads it: the same flow bit for bit.
+    # its own) and refines depth only where it reads it: the same flow bit for bit, with
+    # its depth lookups on the helper thread or inline.
     A = cv2.getRotationMatrix2D((W / 2, H / 2), 0.8, 1.01)
     A[:, 2] += (2.1, -1.3)
     cur = warp(tex0, A)
