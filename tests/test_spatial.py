@@ -312,6 +312,28 @@ def test_samples_take_valid_neighbours_on_a_sparse_grid():
     assert usable.mean() > 0.3, usable.mean()
 
 
+def test_seed_cells_follow_the_weights():
+    """The two-level inverse CDF picks the cell a flat cumulative sum would, never a cell of
+    weight 0, and with frequencies proportional to the weights."""
+    from jaxvo.spatial import _inverse_cdf
+
+    rows, cols = GRID
+    rng = np.random.default_rng(3)
+    w = rng.uniform(size=(rows, cols)).astype(np.float32) ** 4
+    w[rng.uniform(size=w.shape) < 0.5] = 0  # half the cells never drawn
+    w[7] = 0  # and a whole row
+    u = rng.uniform(size=20000).astype(np.float32)
+    drawn = np.asarray(jax.jit(_inverse_cdf)(jnp.asarray(w), jnp.asarray(u)))
+    flat = np.cumsum(w.ravel(), dtype=np.float64)
+    ref = np.minimum(np.searchsorted(flat, u * flat[-1], side="right"), w.size - 1)
+    assert np.mean(drawn == ref) > 0.999  # only rounding at a cell's edge may differ
+    assert (w.ravel()[drawn] > 0).all()
+    freq = np.bincount(drawn, minlength=w.size) / len(u)
+    p = w.ravel() / w.sum()
+    # binomial standard error per cell, 5 sigma plus 1e-4 for the rarest cells
+    assert np.all(np.abs(freq - p) <= 5 * np.sqrt(p * (1 - p) / len(u)) + 1e-4)
+
+
 def test_sparse_valid_grid_still_finds_the_motions(seg, params):
     scene = make_scene(3, TWO, invalid=0.8)
     check_scene(run(seg, 0, scene, params), scene, 2)
