@@ -421,6 +421,26 @@ def test_stopped_object_becomes_static_within_max_age(step, moving_frames):
         assert region_ids(out.ids, box(*a)) == {1}
 
 
+@pytest.mark.parametrize("unmeasured", [5, 1])
+def test_cells_of_a_forgotten_object_follow_the_measurement_at_once(step, unmeasured):
+    """An object long tracked (its cells' model at max_age) goes unmeasured, as in a depth
+    blind zone or out of view. Once its identifier is unobserved for id_retention frames,
+    as long as it takes to free an identifier, a measurement of its cells takes them at
+    once; before that, the thesis's wait of up to max_age measured frames holds."""
+    a = (3, 8, 4, 9)
+    blind = np.ones(GRID, np.int32)
+    blind[box(*a)] = 0  # no measurement where the object was
+    frames = [scene([a])] * 10 + [blind] * unmeasured + [np.ones(GRID, np.int32)] * 2
+    _, outs = run(step, frames, params(max_age=15.0, id_retention=3.0))
+    for out in outs[10 : 10 + unmeasured]:
+        assert region_ids(out.ids, box(*a)) == {2}  # unmeasured cells keep the identifier
+    first = outs[10 + unmeasured]
+    assert region_ids(first.matched, box(*a)) == {1}
+    # last seen at frame 9: unobserved for 6 frames (>= 3 + 1) at the first measurement after
+    # 5 unmeasured frames, for 2 after 1
+    assert region_ids(first.ids, box(*a)) == ({1} if unmeasured == 5 else {2})
+
+
 # ---------------------------------------------------------------- compensation (4.2.2)
 
 
