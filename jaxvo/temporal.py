@@ -180,6 +180,12 @@ def match_segments(corr, n_seg, min_corr):
     return assign, score
 
 
+def _forgotten(state: TemporalState, retention):
+    """(max_ids,) bool: identifiers unobserved for ``retention`` frames before this one; such
+    an identifier may be given to a new object (section 4.1)."""
+    return (state.frame - state.last_seen).astype(jnp.float32) - 1.0 >= retention
+
+
 def _assign_identifiers(state: TemporalState, seg_labels, params: Params, *, cfg: Config):
     """Algorithm 3 and the identifier management of section 4.1.
 
@@ -199,9 +205,7 @@ def _assign_identifiers(state: TemporalState, seg_labels, params: Params, *, cfg
 
     n_seg = jax.nn.one_hot(seg_labels - 1, s, dtype=jnp.float32).sum(axis=0)
     used = jnp.any(jax.nn.one_hot(assign - 1, m, dtype=bool), axis=0)
-    unseen_for = (state.frame - state.last_seen).astype(jnp.float32)
-    # an identifier unobserved for id_retention frames may be given to a new object
-    free = ~used & (unseen_for - 1.0 >= params.id_retention)
+    free = ~used & _forgotten(state, params.id_retention)
     unmatched = (n_seg > 0) & (assign == 0)
 
     # unmatched segments, largest first ...
@@ -338,8 +342,7 @@ def _update_models(state: TemporalState, meas, seen, moving, max_age, retention,
     # measurement is decisive (see above); the demoted model is cleared (as in [20]) so a
     # lone erroneous label cannot swap it straight back
     vacated = seen[jnp.clip(app_label - 1, 0, m - 1)] & ~app_empty & (app_label != STATIC_ID)
-    unseen_for = (state.frame - state.last_seen).astype(jnp.float32)
-    forgotten = (unseen_for - 1.0 >= retention) & ~seen  # as identifiers are freed
+    forgotten = _forgotten(state, retention) & ~seen
     gone = forgotten[jnp.clip(app_label - 1, 0, m - 1)] & ~app_empty & (app_label != STATIC_ID)
     recent = state.frame - state.last_seen <= cfg.match_window
     entered = moving & (meas != STATIC_ID) & recent[jnp.clip(meas - 1, 0, m - 1)]
