@@ -132,8 +132,15 @@ def step(state: PipelineState, flow, key, params: Params, *, cfg: Config, grid, 
     consistent = follows_prediction(
         seg, flow.pts_prev, flow.pts_cur, valid, state.T_last, params, cfg=cfg
     ) & state.have_last
+    # every point's residual under each segment's motion: the temporal stage keeps an
+    # object in cells its motion still explains best
+    z = jnp.maximum(flow.pts_prev[:, 2], flow.pts_cur[:, 2])
+    tau2 = inlier_threshold(z, params.inlier_dist, params) ** 2
+    err = jax.vmap(lambda T: residuals(T, flow.pts_prev, flow.pts_cur))(seg.motions)
+    err = jnp.where((seg.sizes > 0)[:, None], err, 1e6)
     temporal, tout = update_temporal(
-        state.temporal, seg, disp, valid, params, cfg=cfg, grid=grid, consistent=consistent
+        state.temporal, seg, disp, valid, params, cfg=cfg, grid=grid, consistent=consistent,
+        seg_err=(err, tau2),
     )
 
     static_w = static_weights(tout, valid)

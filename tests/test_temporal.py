@@ -358,6 +358,30 @@ def test_single_frame_erroneous_label(step):
         assert region_ids(out.ids, box(3, 5, 4, 6)) == ({1} if k in (5, 6) else {2}), k
 
 
+@pytest.mark.parametrize("object_fits_better", [True, False])
+def test_a_merged_part_stays_with_an_object_whose_motion_fits_it_better(object_fits_better):
+    """Part of a tracked object labelled background while the object is seen elsewhere: with
+    residuals where the object's motion explains that part better, it keeps the object's
+    identifier; where the background's does, it is vacated at once, as without them."""
+    upd = jax.jit(lambda st, seg, d, v, prm, e: update_temporal(
+        st, seg, d, v, prm, cfg=CFG, grid=GRID, seg_err=e))
+    a = (3, 8, 4, 9)
+    good = scene([a])
+    bad = good.copy()
+    bad[3:5, 4:6] = 1
+    part = box(3, 5, 4, 6).ravel()
+    err = np.full((CFG.max_segments, N), 1e6, np.float32)
+    err[0] = np.where(part, 2e-5 if object_fits_better else 1e-6, 1e-6)  # background segment
+    err[1] = np.where(part, 1e-6 if object_fits_better else 2e-5, 1e-6)  # object segment
+    seg_err = (jnp.asarray(err), jnp.full((N,), 1e-4, jnp.float32))
+    state, prm = init_temporal(cfg=CFG, grid=GRID), params(max_age=30.0)
+    disp, valid = zero_disp()
+    for lab in [good] * 5 + [bad]:
+        state, out = upd(state, make_seg(lab), disp, valid, prm, seg_err)
+    assert region_ids(out.matched, box(3, 5, 4, 6)) == {1}
+    assert region_ids(out.ids, box(3, 5, 4, 6)) == ({2} if object_fits_better else {1})
+
+
 def test_cells_an_object_leaves_turn_static_at_once(step):
     """The thesis's model keeps an object's label in the cells it has left for up to max_age
     frames (a trail); when the object is measured elsewhere, they follow the measurement."""
