@@ -81,13 +81,11 @@ def static_weights(tout, valid):
     return jnp.where(use_agreed, agreed, model).astype(jnp.float32)
 
 
-def follows_prediction(seg, pts_prev, pts_cur, valid, T_pred, params: Params, *, cfg: Config):
-    """(max_segments,) bool: whether most of each segment's points move as ``T_pred`` (the
-    camera motion predicted from the previous frame) says static points do, within the
-    spatial stage's inlier threshold."""
-    z = jnp.maximum(pts_prev[:, 2], pts_cur[:, 2])
-    tau = inlier_threshold(z, params.inlier_dist, params)
-    follows = valid & (residuals(T_pred, pts_prev, pts_cur) <= tau * tau)
+def follows_prediction(seg, err_pred, tau2, valid, *, cfg: Config):
+    """(max_segments,) bool: whether most of each segment's points move as the camera motion
+    predicted from the previous frame says static points do: their squared residuals under
+    it, ``err_pred`` (n,), within the spatial stage's squared inlier thresholds ``tau2``."""
+    follows = valid & (err_pred <= tau2)
     member = seg.labels[None, :] == jnp.arange(1, cfg.max_segments + 1)[:, None]
     n = jnp.sum(member, axis=1)
     return 2 * jnp.sum(member & follows[None, :], axis=1) > n
@@ -129,18 +127,19 @@ def step(state: PipelineState, flow, key, params: Params, *, cfg: Config, grid, 
 
     disp = flow.uv_cur - flow.uv_prev
     # after the first accepted ego-motion, the previous one predicts the background's
-    consistent = follows_prediction(
-        seg, flow.pts_prev, flow.pts_cur, valid, state.T_last, params, cfg=cfg
-    ) & state.have_last
-    # every point's residual under each segment's motion: the temporal stage keeps an
-    # object in cells its motion still explains best
+    # every point's residual under the predicted camera motion and under each segment's
+    # motion: the first says which segments move as the background should, the others let
+    # the temporal stage keep an object in cells its motion still explains best
     z = jnp.maximum(flow.pts_prev[:, 2], flow.pts_cur[:, 2])
     tau2 = inlier_threshold(z, params.inlier_dist, params) ** 2
-    err = jax.vmap(lambda T: residuals(T, flow.pts_prev, flow.pts_cur))(seg.motions)
-    err = jnp.where((seg.sizes > 0)[:, None], err, 1e6)
+    err = jax.vmap(lambda T: residuals(T, flow.pts_prev, flow.pts_cur))(
+        jnp.concatenate([state.T_last[None], seg.motions])
+    )
+    consistent = follows_prediction(seg, err[0], tau2, valid, cfg=cfg) & state.have_last
+    seg_err = jnp.where((seg.sizes > 0)[:, None], err[1:], 1e6)
     temporal, tout = update_temporal(
         state.temporal, seg, disp, valid, params, cfg=cfg, grid=grid, consistent=consistent,
-        seg_err=(err, tau2),
+        seg_err=(seg_err, tau2),
     )
 
     static_w = static_weights(tout, valid)
