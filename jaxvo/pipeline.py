@@ -81,11 +81,10 @@ def static_weights(tout, valid):
     return jnp.where(use_agreed, agreed, model).astype(jnp.float32)
 
 
-def follows_prediction(seg, err_pred, tau2, valid, *, cfg: Config):
+def follows_prediction(seg, follows, *, cfg: Config):
     """(max_segments,) bool: whether most of each segment's points move as the camera motion
-    predicted from the previous frame says static points do: their squared residuals under
-    it, ``err_pred`` (n,), within the spatial stage's squared inlier thresholds ``tau2``."""
-    follows = valid & (err_pred <= tau2)
+    predicted from the previous frame says static points do; ``follows`` (n,) bool says it
+    of each valid point (its residual under that motion within the inlier threshold)."""
     member = seg.labels[None, :] == jnp.arange(1, cfg.max_segments + 1)[:, None]
     n = jnp.sum(member, axis=1)
     return 2 * jnp.sum(member & follows[None, :], axis=1) > n
@@ -135,11 +134,12 @@ def step(state: PipelineState, flow, key, params: Params, *, cfg: Config, grid, 
     err = jax.vmap(lambda T: residuals(T, flow.pts_prev, flow.pts_cur))(
         jnp.concatenate([state.T_last[None], seg.motions])
     )
-    consistent = follows_prediction(seg, err[0], tau2, valid, cfg=cfg) & state.have_last
+    follows = valid & (err[0] <= tau2) & state.have_last
+    consistent = follows_prediction(seg, follows, cfg=cfg) & state.have_last
     seg_err = jnp.where((seg.sizes > 0)[:, None], err[1:], 1e6)
     temporal, tout = update_temporal(
         state.temporal, seg, disp, valid, params, cfg=cfg, grid=grid, consistent=consistent,
-        seg_err=(seg_err, tau2),
+        follows=follows, seg_err=(seg_err, tau2),
     )
 
     static_w = static_weights(tout, valid)

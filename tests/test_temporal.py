@@ -420,6 +420,28 @@ def test_tracked_object_that_moves_unlike_the_camera_enters_cells_at_once(
     assert region_ids(out.ids, new_cells) == ({1} if object_consistent else {2})
 
 
+@pytest.mark.parametrize("per_point", [False, True])
+def test_cells_whose_own_points_follow_the_prediction_are_not_entered_at_once(per_point):
+    """The spatial stage merges background into a tracked object's segment (one motion
+    explains a near object and a far wall within the wall's wide threshold): the segment as
+    a whole moves unlike the predicted camera motion, but the merged cells' own points
+    follow it. Told so per point, those cells keep the background in the model (the
+    measurement still says the object); without it they are entered at once."""
+    upd = jax.jit(lambda st, seg, d, v, prm, c, f: update_temporal(
+        st, seg, d, v, prm, cfg=CFG, grid=GRID, consistent=c, follows=f))
+    a, merged = (2, 10, 2, 12), (2, 10, 2, 16)
+    consistent = jnp.asarray(np.r_[True, False, np.ones(CFG.max_segments - 2, bool)])
+    follows = jnp.asarray(~box(*a).ravel() if per_point else np.zeros(N, bool))
+    state, prm = init_temporal(cfg=CFG, grid=GRID), params(max_age=15.0)
+    disp, valid = zero_disp()
+    for lab in [scene([a])] * 4 + [scene([merged])]:
+        state, out = upd(state, make_seg(lab), disp, valid, prm, consistent, follows)
+    new_cells = box(*merged) & ~box(*a)
+    assert region_ids(out.matched, new_cells) == {2}
+    assert region_ids(out.ids, new_cells) == ({1} if per_point else {2})
+    assert region_ids(out.ids, box(*a)) == {2}
+
+
 @pytest.mark.parametrize("moving_frames", [10, 3])
 def test_stopped_object_becomes_static_within_max_age(step, moving_frames):
     """Bound: the object's apparent age is min(T, max_age) after T moving frames; the candidate
