@@ -135,7 +135,7 @@ def step(state: PipelineState, flow, key, params: Params, *, cfg: Config, grid, 
         jnp.concatenate([state.T_last[None], seg.motions])
     )
     follows = valid & (err[0] <= tau2) & state.have_last
-    consistent = follows_prediction(seg, follows, cfg=cfg) & state.have_last
+    consistent = follows_prediction(seg, follows, cfg=cfg)
     seg_err = jnp.where((seg.sizes > 0)[:, None], err[1:], 1e6)
     temporal, tout = update_temporal(
         state.temporal, seg, disp, valid, params, cfg=cfg, grid=grid, consistent=consistent,
