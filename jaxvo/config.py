@@ -69,6 +69,9 @@ class Config:
     # --- temporal segmentation (thesis chapter 4, Algorithm 3) ---
     max_ids: int = 8  # identifiers (m of section 4.1); identifier 1 is the static background
     match_window: int = 5  # tMinSize: previous frames the label matching looks back over
+    # moving identifiers (those with the most labelled points) checked each frame for a slow
+    # object merged into the background (pipeline.held_objects)
+    held_ids: int = 2
 
     # --- ego-motion ---
     # robust re-weighting iterations: 5 and 10 score the same (ATE within 0.1 mm on four
@@ -111,6 +114,12 @@ class Params(NamedTuple):
     # after about this many frames, a stopped object turns static after as many
     max_age: float = 15.0
     id_retention: float = 15.0  # frames before an unseen identifier may be reused
+    # an object the spatial stage merged into the background keeps its identifier while its
+    # own rigid fit lowers its points' squared residuals by at least this share of tau^2 on
+    # average (tau ~ 3 sigma, so 0.25 ~ 2.25 sigma^2 a point; refitting 6 degrees of
+    # freedom to 12 or more points of one motion gains under 0.06). 0.1 scores the same,
+    # 0.5 keeps too little (see pipeline.held_objects)
+    hold_gain: float = 0.25
 
     # ego-motion
     ego_huber: float = 0.02  # Huber threshold of the robust refinement at 1 m depth, metres

@@ -27,6 +27,10 @@ Design decisions where the thesis leaves room (each also noted where it is imple
 * A new identifier is the least observed (frames with a segment carrying it) among the free
   ones; the background identifier ``1`` is preferred whenever it is free (first frame, or
   background lost for ``id_retention`` frames), so the largest unmatched segment takes it.
+* A slow object that the spatial stage merged into the background keeps its identifier
+  while the points labelled with it still move together as a rigid body of their own
+  (``held``, computed by the pipeline: ``pipeline.held_objects``); the thesis lets the
+  background take its cells over ``max_age`` frames.
 * The candidate also takes over at once where the measurement is decisive: an object
   seen elsewhere has left the cell, an object unobserved for ``id_retention`` frames is
   forgotten, or a tracked segment that moves unlike the predicted camera motion has entered
@@ -494,6 +498,7 @@ def update_temporal(
     consistent=None,
     follows=None,
     seg_err=None,
+    held=None,
 ) -> tuple[TemporalState, TemporalOut]:
     """One frame of motion temporal segmentation (Algorithm 3, eqs. 4.1-4.9).
 
@@ -518,6 +523,10 @@ def update_temporal(
       seg_err: optional ``(err, tau2)``: (max_segments, n) squared residuals of every point
         under each segment's motion (large for unused segments) and (n,) squared inlier
         thresholds; lets a cell keep an object that still fits it (see ``_update_models``).
+      held: optional (n,) int32, a moving identifier per point whose points still move as
+        one rigid body apart from the background (``pipeline.held_objects``; 0 = none):
+        where the matching gives such a point the background, it is measured as the held
+        identifier instead, and the identifier counts as seen.
 
     Returns:
       ``(state, out)``: the state compensated to the current image's grid, and a
@@ -536,6 +545,11 @@ def update_temporal(
         segment_ids = _consistent_segments_join_background(segment_ids, n_seg, consistent)
     matched = jnp.where(measured, segment_ids[jnp.clip(labels - 1, 0, s - 1)], 0)
     seen = jnp.any(jax.nn.one_hot(segment_ids - 1, cfg.max_ids, dtype=bool), axis=0)
+    if held is not None:
+        hold = measured & (held > STATIC_ID) & (matched == STATIC_ID)
+        matched = jnp.where(hold, held, matched)
+        seen = seen | jnp.any(jax.nn.one_hot(jnp.where(hold, held, 0) - 1, cfg.max_ids,
+                                             dtype=bool), axis=0)
     obs_count = state.obs_count + seen.astype(jnp.int32)
     last_seen = jnp.where(seen, state.frame, state.last_seen)
 

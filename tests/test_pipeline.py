@@ -4,6 +4,8 @@ A short synthetic sequence is flowed once (module fixture) and reused; every jit
 point is compiled once for it.
 """
 
+from typing import NamedTuple
+
 import jax
 import jax.numpy as jnp
 import numpy as np
@@ -13,7 +15,8 @@ from jaxvo.config import Config, Params, grid_shape, params_as_arrays, scan_batc
 from jaxvo.errors import InputError
 from jaxvo.flow import flows_for_sequence
 from jaxvo.odometry import Odometry, run_sequence
-from jaxvo.pipeline import batch_params, jit_step, run_scan, run_study
+from jaxvo.pipeline import batch_params, held_objects, jit_step, run_scan, run_study
+from jaxvo.spatial import inlier_threshold
 from jaxvo.status import Status
 from jaxvo.synth import make_sequence
 
@@ -160,3 +163,42 @@ def test_fast_real_motion_keeps_the_background_identified(require_data):
     assert background_seen.all(), np.flatnonzero(~background_seen)
     moving_share = (out.moving & measured).sum() / measured.sum()
     assert moving_share < 0.1, moving_share
+
+
+class _Points(NamedTuple):
+    pts_prev: jax.Array
+    pts_cur: jax.Array
+
+
+@pytest.mark.parametrize("object_moves", [True, False])
+def test_a_slow_object_is_held_by_its_points_together_not_one_by_one(object_moves):
+    """A box at 1.9 m moving 5 mm and half a degree a frame, under its 9 mm inlier threshold, with
+    2 mm of noise: each point is an inlier of the background's motion, but the points
+    labelled with the box's identifier fit a motion of their own far better together, so
+    the identifier is held. A box that does not move is not (its own fit gains only noise)."""
+    rng = np.random.default_rng(0)
+    bg = np.c_[rng.uniform(-2, 2, (300, 2)), np.full(300, 3.0)]
+    box = np.array([0.3, -0.2, 1.9]) + rng.uniform(-0.15, 0.15, (40, 3))
+    cur_box = box
+    if object_moves:
+        c, a = box.mean(axis=0), np.radians(0.5)
+        R = np.array([[np.cos(a), -np.sin(a), 0], [np.sin(a), np.cos(a), 0], [0, 0, 1]])
+        cur_box = (box - c) @ R.T + c + [0.005, 0.0, 0.0]
+    prev = np.r_[bg, box].astype(np.float32)
+    cur = (np.r_[bg, cur_box] + rng.normal(0, 0.002, prev.shape)).astype(np.float32)
+    ids = np.r_[np.ones(300), np.full(40, 2)].astype(np.int32)
+    prm = params_as_arrays(Params())
+    tau2 = inlier_threshold(jnp.asarray(prev[:, 2]), prm.inlier_dist, prm) ** 2
+    own_err = jnp.sum((jnp.asarray(cur) - jnp.asarray(prev)) ** 2, axis=1)  # merged: identity
+    assert float(jnp.mean(own_err[300:] <= tau2[300:])) > 0.9  # no point shows it alone
+    held = np.asarray(held_objects(jnp.asarray(ids), _Points(jnp.asarray(prev), jnp.asarray(cur)),
+                                   jnp.ones(340, bool), own_err, tau2, prm, cfg=CFG))
+    assert not held[:300].any()
+    if object_moves:
+        assert np.mean(held[300:] == 2) > 0.8
+    else:
+        assert not held.any()
+    few = np.where(np.arange(340) < 330, 1, 2).astype(np.int32)  # 10 points: too few
+    held = held_objects(jnp.asarray(few), _Points(jnp.asarray(prev), jnp.asarray(cur)),
+                        jnp.ones(340, bool), own_err, tau2, prm, cfg=CFG)
+    assert not np.asarray(held).any()

@@ -382,6 +382,25 @@ def test_a_merged_part_stays_with_an_object_whose_motion_fits_it_better(object_f
     assert region_ids(out.ids, box(3, 5, 4, 6)) == ({2} if object_fits_better else {1})
 
 
+@pytest.mark.parametrize("held", [True, False])
+def test_a_held_object_merged_into_the_background_keeps_its_identifier(held):
+    """A slow object merged into the background segment for many frames: told that its
+    points still move apart (``held``), it is measured with its identifier and keeps it;
+    without, the background takes its cells within the frames the model allows."""
+    upd = jax.jit(lambda st, seg, d, v, prm, h: update_temporal(
+        st, seg, d, v, prm, cfg=CFG, grid=GRID, held=h))
+    a = (3, 8, 4, 9)
+    obj = box(*a).ravel()
+    hold = jnp.asarray(np.where(obj, 2, 0) if held else np.zeros(N), jnp.int32)
+    state, prm = init_temporal(cfg=CFG, grid=GRID), params(max_age=4.0, id_retention=3.0)
+    disp, valid = zero_disp()
+    for lab in [scene([a])] * 5 + [scene([])] * 8:
+        state, out = upd(state, make_seg(lab), disp, valid, prm, hold)
+    assert region_ids(out.matched, box(*a)) == ({2} if held else {1})
+    assert region_ids(out.ids, box(*a)) == ({2} if held else {1})
+    assert region_ids(out.ids, ~box(*a)) == {1}
+
+
 def test_cells_an_object_leaves_turn_static_at_once(step):
     """The thesis's model keeps an object's label in the cells it has left for up to max_age
     frames (a trail); when the object is measured elsewhere, they follow the measurement."""
