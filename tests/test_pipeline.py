@@ -15,10 +15,18 @@ from jaxvo.config import Config, Params, grid_shape, params_as_arrays, scan_batc
 from jaxvo.errors import InputError
 from jaxvo.flow import flows_for_sequence
 from jaxvo.odometry import Odometry, run_sequence
-from jaxvo.pipeline import batch_params, held_objects, jit_step, run_scan, run_study
+from jaxvo.pipeline import (
+    batch_params,
+    held_objects,
+    jit_step,
+    moving_points,
+    run_scan,
+    run_study,
+)
 from jaxvo.spatial import inlier_threshold
 from jaxvo.status import Status
 from jaxvo.synth import make_sequence
+from jaxvo.temporal import TemporalOut
 
 CFG = Config()
 FRAMES = 12
@@ -202,3 +210,15 @@ def test_a_slow_object_is_held_by_its_points_together_not_one_by_one(object_move
     held = held_objects(jnp.asarray(few), _Points(jnp.asarray(prev), jnp.asarray(cur)),
                         jnp.ones(340, bool), own_err, tau2, prm, cfg=CFG)
     assert not np.asarray(held).any()
+
+
+def test_a_static_point_that_moves_as_predicted_is_not_reported_moving_on_one_measurement():
+    """Reported moving: the model's moving identifiers, and this frame's measurement where it
+    says moving, unless the model says static and the point itself moves as the predicted
+    camera motion does (a far wall that an object's motion also explains)."""
+    ids = jnp.asarray([1, 1, 1, 2, 2, 0], jnp.int32)
+    matched = jnp.asarray([2, 2, 1, 1, 2, 2], jnp.int32)
+    follows = jnp.asarray([True, False, False, True, True, True])
+    tout = TemporalOut(ids, matched, jnp.zeros(CFG.max_segments, jnp.int32))
+    np.testing.assert_array_equal(np.asarray(moving_points(tout, follows)),
+                                  [False, True, False, True, True, True])
