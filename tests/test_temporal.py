@@ -401,6 +401,29 @@ def test_a_held_object_merged_into_the_background_keeps_its_identifier(held):
     assert region_ids(out.ids, ~box(*a)) == {1}
 
 
+@pytest.mark.parametrize("part_follows", [True, False])
+def test_a_merged_part_is_vacated_at_once_only_where_its_points_move_as_predicted(part_follows):
+    """Part of a tracked object labelled background while the object is seen elsewhere: it
+    turns static at once where its own points move as the predicted camera motion says
+    (the object has left), not where they do not (the spatial stage merged a still-moving
+    part into the background, whose far points allow a wide threshold)."""
+    upd = jax.jit(lambda st, seg, d, v, prm, c, f: update_temporal(
+        st, seg, d, v, prm, cfg=CFG, grid=GRID, consistent=c, follows=f))
+    a = (3, 8, 4, 9)
+    good = scene([a])
+    bad = good.copy()
+    bad[3:5, 4:6] = 1
+    part = box(3, 5, 4, 6).ravel()
+    consistent = jnp.asarray(np.r_[True, False, np.ones(CFG.max_segments - 2, bool)])
+    follows = ~box(*a).ravel() | (part & part_follows)
+    state, prm = init_temporal(cfg=CFG, grid=GRID), params(max_age=30.0)
+    disp, valid = zero_disp()
+    for lab in [good] * 5 + [bad]:
+        state, out = upd(state, make_seg(lab), disp, valid, prm, consistent, jnp.asarray(follows))
+    assert region_ids(out.matched, box(3, 5, 4, 6)) == {1}
+    assert region_ids(out.ids, box(3, 5, 4, 6)) == ({1} if part_follows else {2})
+
+
 def test_cells_an_object_leaves_turn_static_at_once(step):
     """The thesis's model keeps an object's label in the cells it has left for up to max_age
     frames (a trail); when the object is measured elsewhere, they follow the measurement."""
