@@ -27,7 +27,13 @@ from jaxvo.geometry import invert_pose
 from jaxvo.procrustes import fit_rigid_cols, residuals, residuals_cols
 from jaxvo.spatial import inlier_threshold, segment
 from jaxvo.status import Status, first_failure
-from jaxvo.temporal import STATIC_ID, TemporalState, init_temporal, update_temporal
+from jaxvo.temporal import (
+    STATIC_ID,
+    TemporalState,
+    init_temporal,
+    own_segment_err,
+    update_temporal,
+)
 
 
 class PipelineState(NamedTuple):
@@ -187,11 +193,8 @@ def step(state: PipelineState, flow, key, params: Params, *, cfg: Config, grid, 
     follows = valid & (err[0] <= tau2) & state.have_last
     consistent = follows_prediction(seg, follows, cfg=cfg)
     seg_err = jnp.where((seg.sizes > 0)[:, None], err[1:], 1e6)
-    own_err = jnp.take_along_axis(
-        seg_err, jnp.clip(seg.labels - 1, 0, cfg.max_segments - 1)[None], axis=0
-    )[0]
-    held = held_objects(state.temporal.ids, flow, valid & (seg.labels > 0), own_err, tau2,
-                        params, cfg=cfg)
+    held = held_objects(state.temporal.ids, flow, valid & (seg.labels > 0),
+                        own_segment_err(seg_err, seg.labels), tau2, params, cfg=cfg)
     temporal, tout = update_temporal(
         state.temporal, seg, disp, valid, params, cfg=cfg, grid=grid, consistent=consistent,
         follows=follows, seg_err=(seg_err, tau2), held=held,

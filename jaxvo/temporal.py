@@ -492,6 +492,14 @@ def _compensate_state(state: TemporalState, disp, flow_valid, *, cfg: Config, gr
 # --------------------------------------------------------------------------------------
 
 
+def own_segment_err(err, labels):
+    """(n,) each point's squared residual under the motion of its own segment, from ``err``
+    (max_segments, n) per segment and ``labels`` (n,) 1..max_segments (0 reads segment 1;
+    callers mask those points)."""
+    return jnp.take_along_axis(err, jnp.clip(labels - 1, 0, err.shape[0] - 1)[None, :], axis=0)[0]
+
+
+
 def update_temporal(
     state: TemporalState,
     seg: Any,
@@ -572,8 +580,8 @@ def update_temporal(
         # per identifier and cell: a segment with that identifier explains the cell's point
         # better than the segment now holding it does
         err, tau2 = seg_err
-        own = jnp.take_along_axis(err, jnp.clip(labels - 1, 0, s - 1)[None, :], axis=0)
-        better = measured[None, :] & (err < own) & (err <= tau2[None, :])  # (S, n)
+        own = own_segment_err(err, labels)
+        better = measured[None, :] & (err < own[None, :]) & (err <= tau2[None, :])  # (S, n)
         of_id = jax.nn.one_hot(segment_ids - 1, cfg.max_ids, dtype=bool)  # (S, max_ids)
         fits = jnp.any(of_id[:, :, None] & better[:, None, :], axis=0)  # (max_ids, n)
     app_p, app_a, cand_p, cand_a, ids = _update_models(
