@@ -188,9 +188,9 @@ def check_config(
 
     checks = (
         ("cell", MIN_CELL, "pixels"),
-        ("num_hypotheses", 1, "hypotheses"),
+        ("num_hypotheses", 1, "hypothesis"),
         ("sample_size", 3, "points (a rigid fit needs 3)"),
-        ("max_segments", 1, "segments"),
+        ("max_segments", 1, "segment"),
     )
     for field, least, unit in checks:
         value = getattr(cfg, field)

@@ -289,7 +289,8 @@ def _read_list(path: Path, columns: int, warnings: list[str]) -> tuple[np.ndarra
             f"follows line {linenos[k]} at {t[k]:.6f} s); sorted by timestamp"
         )
     t = t[order]
-    repeat = np.concatenate([[False], np.diff(t) == 0])
+    repeat = np.zeros(len(t), bool)
+    repeat[1:] = np.diff(t) == 0
     for k in np.flatnonzero(repeat):
         warnings.append(
             f"{path}:{linenos[order[k]]}: timestamp {t[k]:.6f} s repeats an earlier line; "
