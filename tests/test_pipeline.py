@@ -144,17 +144,18 @@ def test_one_frame_sequence_is_a_clear_error():
         run_sequence(one, cfg=CFG)
 
 
-def test_streaming_survives_bad_frames_and_carries_the_pose(seq):
+def test_streaming_drops_a_frame_of_another_size_and_pairs_across_it(seq):
     odo = Odometry(seq.intrinsics, cfg=CFG, seed=0)
     f0, f1, f2 = seq[0], seq[1], seq[2]
     odo.process(f0.bgr, f0.depth, f0.timestamp)
-    bad = odo.process(f1.bgr[:100], f1.depth[:100], f1.timestamp)  # wrong size
-    assert bad.status == Status.BAD_INPUT
-    np.testing.assert_array_equal(bad.T_w_c, np.eye(4))  # pose carried over the bad frame
+    bad = odo.process(f1.bgr[:100], f1.depth[:100], f1.timestamp)  # another size
+    assert bad.status == Status.BAD_INPUT and "differs from the first frame" in bad.dropped
+    np.testing.assert_array_equal(bad.T_w_c, np.eye(4))  # the last kept pose, repeated
     good = odo.process(f2.bgr, f2.depth, f2.timestamp)  # pairs with frame 0, the last good one
-    assert good.status == Status.OK and np.all(np.isfinite(good.T_w_c))
-    assert len(odo.trajectory) == 3
-
+    assert good.status == Status.OK and good.dropped is None
+    assert np.all(np.isfinite(good.T_w_c))
+    # the dropped frame has no pose in the trajectory
+    np.testing.assert_array_equal(odo.trajectory.timestamps, [f0.timestamp, f2.timestamp])
 
 
 def test_fast_real_motion_keeps_the_background_identified(require_data):
