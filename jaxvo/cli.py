@@ -77,15 +77,21 @@ class StopRequest:
 def interrupt_at_safe_points() -> Iterator[StopRequest]:
     """Turn Ctrl-C into a request that the work checks between steps.
 
-    Python raises ``KeyboardInterrupt`` wherever the main thread is; inside JAX's call into
-    XLA's compiler (the first frame's 3-25 s compile) that abandons a compilation whose
-    worker threads go on, and the interpreter then crashed on exit (segmentation fault,
-    12 of 15 tries). Here the first Ctrl-C only sets a flag, said on stderr; the caller
-    calls the yielded :class:`StopRequest` between steps, where stopping is safe, and it
-    raises ``KeyboardInterrupt`` there. A second Ctrl-C ends the process at once with
-    status 130, without the interpreter's clean-up that crashed (every pose written so far
-    is already flushed to disk). Off the main thread, or where SIGINT is ignored,
-    interrupts are left as they are.
+    Python raises ``KeyboardInterrupt`` wherever the main thread is. Inside JAX's
+    ``backend.compile_and_load`` (the first frame's 3-25 s compile) the main thread stops
+    waiting for the compile, which goes on in a worker of XLA's thread pool; the
+    interpreter then exits and tears down the JAX client under it, and the worker crashed
+    on freed state (core dump: ``PjRtLoadedExecutable::Create`` calling a null pointer in
+    ``SingleDeviceSharding::Create`` while the main thread joined the pool in
+    ``~ThreadPool``; exit -11 in 8 of 8 tries interrupting 0.3-3 s into the compile). The
+    grid-flow helper thread plays no part.
+
+    Here the first Ctrl-C only sets a flag, said on stderr; the caller calls the yielded
+    :class:`StopRequest` between steps, where stopping is safe, and it raises
+    ``KeyboardInterrupt`` there. A second Ctrl-C ends the process at once with status 130,
+    without the interpreter's clean-up that crashed (every pose written so far is already
+    flushed to disk). Off the main thread, or where SIGINT is ignored, interrupts are left
+    as they are.
     """
     stop = StopRequest()
 
