@@ -314,7 +314,8 @@ def _print_summary(summary: dict, n: int, interrupted: bool) -> None:
     for label, counts, unit in (("dropped", summary["dropped"], "frames"),
                                 ("skipped", summary["skipped"], "frame pairs")):
         total = sum(counts.values())
-        print(f"  {label:<10} {total} {unit}" + (" (no pose)" if label == "dropped" and total
+        what = unit if total != 1 else unit[:-1]  # "1 frame", "2 frame pairs"
+        print(f"  {label:<10} {total} {what}" + (" (no pose)" if label == "dropped" and total
                                                   else " (pose carried)" if total else ""))
         for reason, count in sorted(counts.items(), key=lambda kv: -kv[1]):
             print(f"    {count:5d}  {reason}")
