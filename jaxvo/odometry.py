@@ -6,8 +6,10 @@
 * :func:`run_sequence` computes the grid flow of a whole recorded sequence on the host, then
   runs every frame in one jit-compiled ``lax.scan``.
 
-Both use the same per-frame step and the same per-frame PRNG keys (folded from the seed
-and the frame index), so they give the same trajectory for the same seed.
+Both drop the frames that cannot be used and pair the next frame with the last good one
+(:class:`jaxvo.flow.FrameChain`), and both use the same per-frame step and the same PRNG
+keys (folded from the seed and the index of the frame pair stepped), so they give the same
+trajectory for the same seed.
 """
 
 from __future__ import annotations
