@@ -175,6 +175,35 @@ def test_streaming_drops_a_frame_of_another_size_and_pairs_across_it(seq):
     np.testing.assert_array_equal(odo.trajectory.timestamps, [f0.timestamp, f2.timestamp])
 
 
+def test_streaming_and_scan_drop_the_same_frame_and_agree(seq):
+    """A black frame: both modes drop it (no pose), pair the next frame with the last good
+    one and give the same poses (float32 rounding, 1e-4 m)."""
+    from jaxvo.io import InMemorySequence
+
+    frames = list(InMemorySequence(seq, 8))
+    frames[3] = frames[3]._replace(bgr=np.zeros_like(frames[3].bgr))
+
+    class Blacked:  # the first 8 frames with frame 3 black
+        name, intrinsics, height, width = seq.name, seq.intrinsics, seq.height, seq.width
+        timestamps = seq.timestamps[:8]
+        groundtruth = None
+
+        def __len__(self):
+            return len(frames)
+
+        def __getitem__(self, i):
+            return frames[i]
+
+    res = run_sequence(Blacked(), cfg=CFG, seed=7)
+    assert list(res.dropped) == [3] and list(res.frames) == [0, 1, 2, 4, 5, 6, 7]
+    assert res.start_pose == "identity (no ground truth of the first frame)"
+    odo = Odometry(seq.intrinsics, cfg=CFG, seed=7)
+    for f in frames:
+        odo.process(f.bgr, f.depth, f.timestamp)
+    np.testing.assert_array_equal(odo.trajectory.timestamps, res.trajectory.timestamps)
+    np.testing.assert_allclose(odo.trajectory.poses, res.trajectory.poses, atol=1e-4)
+
+
 def test_fast_real_motion_keeps_the_background_identified(require_data):
     """7-Scenes at every fourth frame (about 28 mm and 1.6 deg a frame, a third of the grid
     measured): the static scene's background stays matched to identifier 1 in every frame,
