@@ -377,6 +377,9 @@ class TumSequence:
         else:
             t_rgb, rgb = _read_list(root / "rgb.txt", 2, self.warnings)
             t_depth, depth = _read_list(root / "depth.txt", 2, self.warnings)
+            for name, rows in (("rgb.txt", rgb), ("depth.txt", depth)):
+                if not rows:
+                    raise InputError(f"{root / name}: no images listed")
             ia, ib = associate(
                 t_rgb, t_depth, max_diff, names=(str(root / "rgb.txt"), str(root / "depth.txt"))
             )

@@ -299,7 +299,7 @@ def test_no_frame_listed(base, tmp_path, capsys):
     (seq / "associations.txt").unlink()
     (seq / "rgb.txt").write_text("# nothing here\n")
     assert_one_line_error(cli(capsys, "run", seq, "--out", tmp_path / "t.txt"),
-                          "rgb.txt spans nothing")
+                          "rgb.txt: no images listed")
 
 
 def test_no_frame_readable(base, tmp_path, capsys):
