@@ -619,7 +619,7 @@ _READ_ERRORS = (OSError, ValueError)
 MAX_DROPPED = 5
 
 
-def min_valid_flow(cfg: Config = DEFAULT_CONFIG, params: Params | None = None) -> int:
+def min_valid_flow(cfg: Config = DEFAULT_CONFIG, *, params: Params | None = None) -> int:
     """Fewest valid flow vectors a pair needs: below this the spatial stage reports
     ``TOO_FEW_FLOW`` (``spatial.segment``: a minimal sample of ``cfg.sample_size`` points,
     and more than ``params.min_segment_points`` for a segment)."""
@@ -744,7 +744,7 @@ def sequence_flows(
         first = seq[0]
         height, width = first.bgr.shape[:2]
     tracker = GridFlowTracker(seq.intrinsics, cfg, height=height, width=width)
-    chain = FrameChain(tracker, min_valid=min_valid_flow(cfg, params), max_dropped=max_dropped)
+    chain = FrameChain(tracker, min_valid=min_valid_flow(cfg, params=params), max_dropped=max_dropped)
     flows: list[GridFlow] = []
     frames: list[int] = []
     dropped: dict[int, str] = {}

@@ -105,7 +105,7 @@ class Odometry:
         # otherwise; the state, parameters and key live there, and the step follows them.
         self.device = _device(device)
         params = params if params is not None else Params()
-        self._min_valid = min_valid_flow(cfg, params)
+        self._min_valid = min_valid_flow(cfg, params=params)
         self._max_dropped = max_dropped
         self.params = jax.device_put(params_as_arrays(params), self.device)
         self.key = jax.device_put(jax.random.key(seed), self.device)
