@@ -17,8 +17,16 @@ class InputError(ValueError):
 
 
 def check_seed(seed: int, *, name: str = "seed") -> int:
-    """``seed`` if it is a whole number from 0 to :data:`MAX_SEED`, else an
-    :class:`InputError` naming ``name`` (e.g. ``--seed``)."""
+    """A seed checked to be a whole number from 0 to :data:`MAX_SEED`.
+
+    Args:
+      seed: a Python or NumPy integer.
+      name: what to call it in the message (e.g. ``--seed``).
+    Returns:
+      the seed, a Python int.
+    Raises:
+      InputError: another type or value.
+    """
     try:
         value = operator.index(seed)  # Python and NumPy integers, not floats
     except TypeError:

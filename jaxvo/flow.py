@@ -622,7 +622,14 @@ MAX_DROPPED = 5
 def min_valid_flow(cfg: Config = DEFAULT_CONFIG, *, params: Params | None = None) -> int:
     """Fewest valid flow vectors a pair needs: below this the spatial stage reports
     ``TOO_FEW_FLOW`` (``spatial.segment``: a minimal sample of ``cfg.sample_size`` points,
-    and more than ``params.min_segment_points`` for a segment)."""
+    and more than ``params.min_segment_points`` for a segment).
+
+    Args:
+      cfg: static settings.
+      params: numeric settings (default :class:`Params`); batched fields take their largest.
+    Returns:
+      the count, grid points.
+    """
     p = params if params is not None else Params()
     most = float(np.max(np.asarray(p.min_segment_points)))
     return max(cfg.sample_size, 3, int(np.floor(most)) + 1)
@@ -744,7 +751,8 @@ def sequence_flows(
         first = seq[0]
         height, width = first.bgr.shape[:2]
     tracker = GridFlowTracker(seq.intrinsics, cfg, height=height, width=width)
-    chain = FrameChain(tracker, min_valid=min_valid_flow(cfg, params=params), max_dropped=max_dropped)
+    chain = FrameChain(tracker, min_valid=min_valid_flow(cfg, params=params),
+                       max_dropped=max_dropped)
     flows: list[GridFlow] = []
     frames: list[int] = []
     dropped: dict[int, str] = {}

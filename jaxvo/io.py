@@ -586,7 +586,12 @@ def output_folder(path: str | Path, *, what: str) -> Path:
 
 def write_image(path: str | Path, image: np.ndarray) -> None:
     """``cv2.imwrite`` that raises ``OSError`` when nothing was written (OpenCV only returns
-    False, and a run would go on writing nothing)."""
+    False, and a run would go on writing nothing).
+
+    Args:
+      path: the file; its extension picks the format (``.png``).
+      image: (H, W) or (H, W, 3) array as OpenCV writes it.
+    """
     import cv2
 
     if not cv2.imwrite(str(path), image):

@@ -234,9 +234,17 @@ def _frame_arrays(bgr, depth, K: Intrinsics) -> tuple[np.ndarray, np.ndarray]:
 
 
 def check_pose(T, *, name: str) -> np.ndarray:
-    """``T`` as a (4, 4) float64 rigid transform, or a ValueError naming ``name``: finite,
-    last row ``0 0 0 1``, rotation orthonormal with determinant 1 within 1e-4 (float32
-    poses written to 6 decimals pass)."""
+    """A pose checked to be a rigid transform: finite, last row ``0 0 0 1``, rotation
+    orthonormal with determinant 1 within 1e-4 (float32 poses written to 6 decimals pass).
+
+    Args:
+      T: (4, 4) array-like.
+      name: what to call it in the message (e.g. ``T_w_c0``).
+    Returns:
+      (4, 4) float64.
+    Raises:
+      ValueError: it is not.
+    """
     T = np.asarray(T, np.float64)
     if T.shape != (4, 4) or not np.all(np.isfinite(T)):
         raise ValueError(f"{name} must be a finite (4, 4) pose, got shape {T.shape}")
