@@ -8,12 +8,27 @@ model, device) -> ``egomotion`` -> ``pipeline`` (per-frame step, scan, streaming
 ``metrics`` (ATE, RPE, segmentation scores).
 """
 
-from jaxvo.camera import PRESETS, Intrinsics, preset, read_camera_file
-from jaxvo.config import Config, Params, default_params, grid_shape, params_as_arrays
+from jaxvo.camera import PRESETS, Intrinsics, check_intrinsics, preset, read_camera_file
+from jaxvo.config import (
+    Config,
+    Params,
+    check_config,
+    default_params,
+    grid_shape,
+    params_as_arrays,
+)
 from jaxvo.egomotion import estimate_egomotion
 from jaxvo.errors import InputError
 from jaxvo.evaluation import segmentation_scores, trajectory_scores
-from jaxvo.flow import GridFlow, GridFlowTracker, flows_for_sequence, grid_flow
+from jaxvo.flow import (
+    FrameChain,
+    GridFlow,
+    GridFlowTracker,
+    SequenceFlows,
+    flows_for_sequence,
+    grid_flow,
+    sequence_flows,
+)
 from jaxvo.io import (
     Frame,
     Trajectory,
@@ -59,6 +74,7 @@ __all__ = [
     "Config",
     # io, metrics
     "Frame",
+    "FrameChain",
     "FrameResult",
     # flow
     "GridFlow",
@@ -74,6 +90,7 @@ __all__ = [
     "Segmentation",
     "SegmentationScores",
     "SensorOptions",
+    "SequenceFlows",
     "SequenceResult",
     "Status",
     "StepOutput",
@@ -87,6 +104,8 @@ __all__ = [
     "associate",
     "ate",
     "batch_params",
+    "check_config",
+    "check_intrinsics",
     "composite_sequence",
     "default_params",
     # plug-in masks
@@ -113,6 +132,7 @@ __all__ = [
     "run_study",
     "segment",
     "segmentation_scores",
+    "sequence_flows",
     "step",
     "trajectory_scores",
     "update_temporal",

@@ -2,10 +2,13 @@
 
 from __future__ import annotations
 
+import re
 from pathlib import Path
 from typing import NamedTuple
 
 import numpy as np
+
+from jaxvo.errors import InputError
 
 
 class Intrinsics(NamedTuple):
@@ -45,30 +48,101 @@ def preset(name: str) -> Intrinsics:
         ) from None
 
 
+# The keys of a camera.txt; depth_scale is optional (TUM's 5000 raw units per metre).
+CAMERA_KEYS = ("fx", "fy", "cx", "cy", "depth_scale")
+# "fx 585", "fx: 585", "fx = 585": people write all three (and YAML-minded tools the second).
+_CAMERA_LINE = re.compile(r"([A-Za-z_][A-Za-z0-9_.-]*)\s*[:=]?\s*(\S+)")
+# A focal length giving a field of view outside 10-170 degrees is no RGB-D camera's: such a
+# value is a typo or a file of another camera model (the widest RGB-D sensors see ~120).
+_MIN_FOV_DEG, _MAX_FOV_DEG = 10.0, 170.0
+
+
 def read_camera_file(path: str | Path) -> Intrinsics:
-    """Read a ``camera.txt`` of ``key value`` lines (fx, fy, cx, cy, depth_scale; # comments)."""
+    """Read a ``camera.txt``: one ``key value`` a line (``key: value`` and ``key = value``
+    too), keys ``fx fy cx cy`` in pixels and optionally ``depth_scale`` (raw depth units
+    per metre, default 5000); ``#`` starts a comment.
+
+    Args:
+      path: the file.
+    Returns:
+      the :class:`Intrinsics`.
+    Raises:
+      InputError: naming the file (and line) for a file that cannot be read, a line that is
+        not ``key value``, an unknown or repeated key, a value that is not a number, a
+        missing key, or values no camera has (see :func:`check_intrinsics`).
+    """
     path = Path(path)
+    if not path.exists():
+        raise InputError(f"camera file not found: {path}")
     if not path.is_file():
-        raise FileNotFoundError(f"camera file not found: {path}")
+        raise InputError(f"{path}: not a file")
+    try:
+        text = path.read_text()
+    except (OSError, UnicodeDecodeError) as exc:
+        why = getattr(exc, "strerror", None) or "not a text file"
+        raise InputError(f"{path}: cannot read ({why})") from None
     values: dict[str, float] = {}
-    for lineno, raw in enumerate(path.read_text().splitlines(), start=1):
+    for lineno, raw in enumerate(text.splitlines(), start=1):
         line = raw.split("#", 1)[0].strip()
         if not line:
             continue
-        parts = line.split()
-        if len(parts) != 2:
-            raise ValueError(f"{path}:{lineno}: expected 'key value', got {raw.strip()!r}")
+        m = _CAMERA_LINE.fullmatch(line)
+        if m is None:
+            raise InputError(f"{path}:{lineno}: expected 'key value', got {raw.strip()!r}")
+        key, value = m.groups()
+        if key not in CAMERA_KEYS:
+            raise InputError(
+                f"{path}:{lineno}: unknown key {key!r}; the keys are {', '.join(CAMERA_KEYS)}"
+            )
+        if key in values:
+            raise InputError(f"{path}:{lineno}: {key} given twice")
         try:
-            values[parts[0]] = float(parts[1])
+            values[key] = float(value)
         except ValueError:
-            raise ValueError(f"{path}:{lineno}: {parts[1]!r} is not a number") from None
-    missing = [k for k in ("fx", "fy", "cx", "cy") if k not in values]
+            raise InputError(f"{path}:{lineno}: {value!r} is not a number") from None
+    missing = [k for k in CAMERA_KEYS[:4] if k not in values]
     if missing:
-        raise ValueError(f"{path}: missing {', '.join(missing)}")
-    scale = values.get("depth_scale", 5000.0)
-    if values["fx"] <= 0 or values["fy"] <= 0 or scale <= 0:
-        raise ValueError(f"{path}: focal lengths and depth_scale must be positive")
-    return Intrinsics(values["fx"], values["fy"], values["cx"], values["cy"], scale)
+        raise InputError(f"{path}: missing {', '.join(missing)}")
+    K = Intrinsics(values["fx"], values["fy"], values["cx"], values["cy"],
+                   values.get("depth_scale", 5000.0))
+    check_intrinsics(K, where=str(path))
+    return K
+
+
+def check_intrinsics(
+    K: Intrinsics, *, where: str, width: int | None = None, height: int | None = None
+) -> None:
+    """Raise :class:`~jaxvo.errors.InputError` for intrinsics no camera has.
+
+    Every value must be finite, the focal lengths and the depth scale positive; with the
+    image size, the principal point must lie in the image and the focal lengths give a
+    field of view of 10 to 170 degrees.
+
+    Args:
+      K: the intrinsics, pixels (depth_scale raw units per metre).
+      where: what to name in the message (the file, or the preset).
+      width, height: the image size, pixels, when known.
+    """
+    for name, value in zip(Intrinsics._fields, K):
+        if not np.isfinite(value):
+            raise InputError(f"{where}: {name} is {value}, not a finite number")
+    for name in ("fx", "fy", "depth_scale"):
+        if getattr(K, name) <= 0:
+            raise InputError(f"{where}: {name} must be positive, got {getattr(K, name):g}")
+    if width is None or height is None:
+        return
+    if not (0 <= K.cx <= width and 0 <= K.cy <= height):
+        raise InputError(
+            f"{where}: principal point ({K.cx:g}, {K.cy:g}) lies outside the "
+            f"{width}x{height} image"
+        )
+    for name, f, side in (("fx", K.fx, width), ("fy", K.fy, height)):
+        fov = float(np.degrees(2 * np.arctan2(side / 2, f)))
+        if not _MIN_FOV_DEG <= fov <= _MAX_FOV_DEG:
+            raise InputError(
+                f"{where}: {name} {f:g} gives a {fov:.1f} degree field of view over "
+                f"{side} pixels; RGB-D cameras see {_MIN_FOV_DEG:g} to {_MAX_FOV_DEG:g}"
+            )
 
 
 def write_camera_file(path: str | Path, K: Intrinsics, *, comment: str = "") -> None:
@@ -76,6 +150,35 @@ def write_camera_file(path: str | Path, K: Intrinsics, *, comment: str = "") -> 
     lines += [f"fx {K.fx:.6g}", f"fy {K.fy:.6g}", f"cx {K.cx:.6g}", f"cy {K.cy:.6g}"]
     lines.append(f"depth_scale {K.depth_scale:.6g}")
     Path(path).write_text("\n".join(lines) + "\n")
+
+
+def depth_metres(depth: np.ndarray, K: Intrinsics) -> np.ndarray:
+    """A depth image in metres, float32, 0 (or NaN) = no reading.
+
+    ``uint16`` images are raw sensor units, divided by ``K.depth_scale`` (what
+    ``cv2.imread(path, cv2.IMREAD_UNCHANGED)`` gives for TUM, Bonn or RealSense PNGs, and
+    what Open3D scales by its ``depth_scale``); float images are metres already.
+
+    Args:
+      depth: (H, W) uint16 raw units or float metres.
+      K: intrinsics, for ``depth_scale`` (raw units per metre).
+    Returns:
+      (H, W) float32 metres.
+    Raises:
+      ValueError: not a 2-D array, or of another dtype.
+    """
+    if not isinstance(depth, np.ndarray) or depth.ndim != 2:
+        shape = getattr(depth, "shape", type(depth).__name__)
+        raise ValueError(f"depth must be an (H, W) image, got {shape}")
+    if depth.dtype == np.uint16:
+        # 0 stays 0 (no reading) under the division
+        return depth.astype(np.float32) / np.float32(K.depth_scale)
+    if np.issubdtype(depth.dtype, np.floating):
+        return depth.astype(np.float32, copy=False)
+    raise ValueError(
+        f"depth must be uint16 raw units (divided by depth_scale {K.depth_scale:g}) or "
+        f"float metres, got {depth.dtype}"
+    )
 
 
 def backproject(uv: np.ndarray, z: np.ndarray, K: Intrinsics) -> np.ndarray:

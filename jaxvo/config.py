@@ -15,6 +15,7 @@ Units: metres, pixels, frames.
 from __future__ import annotations
 
 import dataclasses
+import operator
 from typing import NamedTuple
 
 
@@ -153,6 +154,59 @@ def scan_batch_for(cfg: Config, frames: int, backend: str) -> int:
     frames = max(frames, 1)
     calls = -(-frames // most)
     return -(-frames // calls)
+
+
+# Smallest grid cell checked by check_config, pixels: a 4-pixel grid already tracks 16
+# times the points of the thesis's 16-pixel one (19200 on a 640x480 image) and costs about
+# as much more per frame; below it the points crowd inside one LK window and patch.
+MIN_CELL = 4
+
+
+def check_config(
+    cfg: Config,
+    *,
+    height: int | None = None,
+    width: int | None = None,
+    names: dict[str, str] | None = None,
+) -> None:
+    """Raise :class:`~jaxvo.errors.InputError` for settings no run can use.
+
+    The grid cell must be at least :data:`MIN_CELL` pixels (and leave 2 x 2 cells on the
+    image, when its size is given); there must be at least one hypothesis, minimal samples
+    of at least 3 points, and room for at least one segment.
+
+    Args:
+      cfg: the settings.
+      height, width: the image size, pixels, when known.
+      names: what to call a field in the message (e.g. ``{"cell": "--cell"}`` on the command
+        line); others are named ``Config.<field>``.
+    """
+    from jaxvo.errors import InputError
+
+    def name(field: str) -> str:
+        return (names or {}).get(field, f"Config.{field}")
+
+    checks = (
+        ("cell", MIN_CELL, "pixels"),
+        ("num_hypotheses", 1, "hypothesis"),
+        ("sample_size", 3, "points (a rigid fit needs 3)"),
+        ("max_segments", 1, "segment"),
+    )
+    for field, least, unit in checks:
+        value = getattr(cfg, field)
+        try:
+            whole = operator.index(value)  # Python and NumPy integers, not floats
+        except TypeError:
+            raise InputError(f"{name(field)} must be a whole number, got {value!r}") from None
+        if whole < least:
+            raise InputError(f"{name(field)} must be at least {least} {unit}, got {value}")
+    if cfg.scan_batch is not None and cfg.scan_batch < 1:
+        raise InputError(f"{name('scan_batch')} must be at least 1, got {cfg.scan_batch}")
+    if height is not None and width is not None and min(height, width) // cfg.cell < 2:
+        raise InputError(
+            f"{name('cell')} {cfg.cell} leaves fewer than 2 x 2 grid cells on the "
+            f"{width}x{height} image: at most {min(height, width) // 2} pixels"
+        )
 
 
 def grid_shape(height: int, width: int, cell: int) -> tuple[int, int]:

@@ -53,7 +53,7 @@ import cv2
 import numpy as np
 
 from jaxvo.camera import Intrinsics, backproject, grid_pixels
-from jaxvo.config import Config, grid_shape
+from jaxvo.config import Config, Params, grid_shape
 from jaxvo.errors import InputError
 from jaxvo.status import Status
 
@@ -453,6 +453,7 @@ class GridFlowTracker:
         self._criteria = (cv2.TERM_CRITERIA_COUNT | cv2.TERM_CRITERIA_EPS, cfg.lk_iters, cfg.lk_eps)
         self._prev: _Frame | None = None
         self._levels = cfg.lk_levels  # pyramid levels of the next pair's LK
+        self._before: tuple[_Frame | None, int] = (None, cfg.lk_levels)  # see drop_last
 
     @property
     def has_previous(self) -> bool:
@@ -462,6 +463,11 @@ class GridFlowTracker:
         """Forget the previous frame (the next frame starts a new pair chain)."""
         self._prev = None
         self._levels = self.cfg.lk_levels
+
+    def drop_last(self) -> None:
+        """Forget the frame last pushed: the next frame pairs with the one before it, as
+        if the dropped frame had never come (see :class:`FrameChain`)."""
+        self._prev, self._levels = self._before
 
     def push(self, bgr, depth) -> GridFlow | None:
         """Add the next frame; the flow from the previous frame to it.
@@ -482,6 +488,7 @@ class GridFlowTracker:
         # this frame's depth at the grid is read by the next pair only: refined beside LK
         grid_depth = _beside(_depth_at, d, self._grid_lookup, self.cfg)
         prev = self._prev
+        self._before = (prev, self._levels)
         held = prev.grey_f if prev is not None else None
         grey_f = self._grey_f[1] if held is self._grey_f[0] else self._grey_f[0]
         np.copyto(grey_f, grey)
@@ -606,24 +613,137 @@ def grid_flow(
 
 _READ_ERRORS = (OSError, ValueError)
 
+# Frames dropped in a row before the chain starts again from the current frame: after that
+# many the camera has likely moved too far from the last good frame for LK to find it
+# again (at 30 Hz, 1/6 s), and the device's skip is the better answer.
+MAX_DROPPED = 5
 
-def flows_for_sequence(
-    seq, cfg: Config = DEFAULT_CONFIG, *, progress: Callable[[int, int], None] | None = None
-) -> GridFlow:
-    """Grid flow of every consecutive pair of a sequence, stacked for the whole-sequence scan.
 
-    A frame that cannot be read (``OSError`` / ``ValueError`` from ``seq[i]``) or has the
-    wrong size gives its pair ``BAD_INPUT``; the next pair then starts from the last good
-    frame (see :class:`GridFlowTracker`).
+def min_valid_flow(cfg: Config = DEFAULT_CONFIG, *, params: Params | None = None) -> int:
+    """Fewest valid flow vectors a pair needs: below this the spatial stage reports
+    ``TOO_FEW_FLOW`` (``spatial.segment``: a minimal sample of ``cfg.sample_size`` points,
+    and more than ``params.min_segment_points`` for a segment).
+
+    Args:
+      cfg: static settings.
+      params: numeric settings (default :class:`Params`); batched fields take their largest.
+    Returns:
+      the count, grid points.
+    """
+    p = params if params is not None else Params()
+    most = float(np.max(np.asarray(p.min_segment_points)))
+    return max(cfg.sample_size, 3, int(np.floor(most)) + 1)
+
+
+class FrameChain:
+    """Pairs each frame with the last good one, and drops the frames that cannot be used.
+
+    A frame is dropped when it cannot be read, its size differs from the first frame's, or
+    its flow with the last good frame has fewer than ``min_valid`` valid vectors (a black,
+    saturated, noise or badly blurred image). Its pair never reaches the device and the next
+    frame pairs with the last good frame, so a useless frame costs its own pose only, not
+    the motion of the two pairs it belongs to.
+
+    Two cases keep such a frame, and its pair goes to the device, which skips it: the last
+    good frame has not yet been part of a good pair (it may be the useless one itself, e.g.
+    a black first frame), or ``max_dropped`` frames in a row were dropped (the camera may
+    have moved beyond what LK can track from the last good frame): the chain goes on from
+    the current frame.
+
+    Args:
+      tracker: the :class:`GridFlowTracker` of the stream (its image size is the stream's).
+      min_valid: fewest valid vectors of a usable pair (:func:`min_valid_flow`).
+      max_dropped: most frames dropped in a row.
+    """
+
+    def __init__(self, tracker: GridFlowTracker, *, min_valid: int, max_dropped: int = MAX_DROPPED):
+        self.tracker = tracker
+        self.min_valid = int(min_valid)
+        self.max_dropped = int(max_dropped)
+        self._confirmed = False  # the last good frame has been part of a good pair
+        self._in_a_row = 0  # frames dropped since the last kept one
+
+    def push(
+        self, bgr, depth, *, unreadable: str | None = None
+    ) -> tuple[GridFlow | None, str | None]:
+        """Add the next frame.
+
+        Args:
+          bgr: (H, W, 3) uint8 BGR (or (H, W) grey); ignored when ``unreadable``.
+          depth: (H, W) float32 metres, 0 = no reading.
+          unreadable: why the frame could not be read, if it could not: it is dropped.
+        Returns:
+          ``(flow, dropped)``: the pair's :class:`GridFlow` for the device (None for the
+          first frame of the chain or a dropped frame), and why the frame was dropped
+          (None when it is kept).
+        """
+        t = self.tracker
+        if unreadable is not None:
+            return self._drop(f"unreadable frame ({unreadable})")
+        sizes = [np.shape(a)[:2] for a in (bgr, depth)]
+        if any(size != (t.height, t.width) for size in sizes):
+            got = ", ".join(f"{what} {'x'.join(map(str, size[::-1])) or 'none'}"
+                            for what, size in zip(("colour", "depth"), sizes))
+            return self._drop(f"image size ({got}) differs from the first frame's "
+                              f"{t.width}x{t.height}")
+        flow = t.push(bgr, depth)
+        if flow is None:  # the chain's first frame
+            self._confirmed, self._in_a_row = False, 0
+            return None, None
+        if flow.status != Status.OK:
+            return self._drop("frame unreadable (not a uint8 colour image with float depth)")
+        n_valid = int(np.count_nonzero(flow.valid))
+        if n_valid >= self.min_valid:
+            self._confirmed, self._in_a_row = True, 0
+            return flow, None
+        if self._confirmed and self._in_a_row < self.max_dropped:
+            t.drop_last()
+            return self._drop(
+                f"too few valid flow vectors with the last good frame (fewer than "
+                f"{self.min_valid}: black, saturated, noise or blurred image)"
+            )
+        self._confirmed, self._in_a_row = False, 0  # the chain goes on from this frame
+        return flow, None
+
+    def _drop(self, reason: str) -> tuple[None, str]:
+        self._in_a_row += 1
+        return None, reason
+
+
+class SequenceFlows(NamedTuple):
+    """The grid flow of a recorded sequence, over the frames kept (see :class:`FrameChain`)."""
+
+    flows: GridFlow  # stacked over the T pairs the device steps
+    # (T + 1,) int, indices of the frames kept: pair k is frames[k] -> frames[k + 1]
+    frames: np.ndarray
+    dropped: dict[int, str]  # index of each dropped frame -> why
+
+
+def sequence_flows(
+    seq,
+    cfg: Config = DEFAULT_CONFIG,
+    *,
+    params: Params | None = None,
+    progress: Callable[[int, int], None] | None = None,
+    max_dropped: int = MAX_DROPPED,
+) -> SequenceFlows:
+    """Grid flow of every pair of consecutive kept frames of a sequence, for the scan.
+
+    A frame that cannot be read (``OSError`` / ``ValueError`` from ``seq[i]``), has the
+    wrong size, or whose flow with the last good frame is unusable is dropped, and the next
+    frame pairs with the last good one (:class:`FrameChain`).
 
     Args:
         seq: a sequence per docs/architecture.md (``len``, ``seq[i] -> Frame``,
             ``intrinsics``, ``height``, ``width``).
         cfg: settings.
-        progress: called as ``progress(pairs_done, pairs_total)`` after each pair.
+        params: the run's numeric settings (they set :func:`min_valid_flow`).
+        progress: called as ``progress(frames_done, frames_total)`` after each frame after
+            the first (``frames_total = len(seq) - 1``).
+        max_dropped: most frames dropped in a row (:class:`FrameChain`).
 
     Returns:
-        :class:`GridFlow` whose fields have a leading axis of ``len(seq) - 1`` pairs.
+        :class:`SequenceFlows`.
     """
     n_frames = len(seq)
     height, width = getattr(seq, "height", None), getattr(seq, "width", None)
@@ -631,24 +751,37 @@ def flows_for_sequence(
         first = seq[0]
         height, width = first.bgr.shape[:2]
     tracker = GridFlowTracker(seq.intrinsics, cfg, height=height, width=width)
-    total = max(n_frames - 1, 0)
+    chain = FrameChain(tracker, min_valid=min_valid_flow(cfg, params=params),
+                       max_dropped=max_dropped)
     flows: list[GridFlow] = []
+    frames: list[int] = []
+    dropped: dict[int, str] = {}
     for i in range(n_frames):
         try:
             frame = seq[i]
-            bgr, depth = frame.bgr, frame.depth
-        except _READ_ERRORS:
-            bgr = depth = None
-        flow = tracker.push(bgr, depth)
-        if i == 0:
-            continue  # the first frame only starts the chain (a bad one leaves it empty)
-        if flow is None:
-            # no good frame before this one: the pair has nothing to track from
-            flow = invalid_flow(tracker.uv_grid, Status.BAD_INPUT)
-        flows.append(flow)
-        if progress is not None:
-            progress(len(flows), total)
+        except _READ_ERRORS as exc:
+            flow, why = chain.push(None, None, unreadable=str(exc))
+        else:
+            flow, why = chain.push(frame.bgr, frame.depth)
+        if why is not None:
+            dropped[i] = why
+        else:
+            frames.append(i)
+            if flow is not None:
+                flows.append(flow)
+        if i and progress is not None:
+            progress(i, n_frames - 1)
     if not flows:
         empty = invalid_flow(tracker.uv_grid)
-        return GridFlow(*(np.zeros((0, *np.shape(f)), np.asarray(f).dtype) for f in empty))
-    return stack_flows(flows)
+        stacked = GridFlow(*(np.zeros((0, *np.shape(f)), np.asarray(f).dtype) for f in empty))
+    else:
+        stacked = stack_flows(flows)
+    return SequenceFlows(stacked, np.asarray(frames, np.int64), dropped)
+
+
+def flows_for_sequence(
+    seq, cfg: Config = DEFAULT_CONFIG, *, progress: Callable[[int, int], None] | None = None
+) -> GridFlow:
+    """:func:`sequence_flows`'s stacked flow alone: one pair per pair of consecutive kept
+    frames (``len(seq) - 1`` pairs when no frame is dropped)."""
+    return sequence_flows(seq, cfg, progress=progress).flows

@@ -9,7 +9,14 @@ from typing import NamedTuple
 
 import numpy as np
 
-from jaxvo.camera import PRESETS, Intrinsics, preset, read_camera_file
+from jaxvo.camera import (
+    PRESETS,
+    Intrinsics,
+    check_intrinsics,
+    depth_metres,
+    preset,
+    read_camera_file,
+)
 from jaxvo.errors import InputError
 
 
@@ -218,6 +225,25 @@ def associate(
     return out[:, 0], out[:, 1]
 
 
+def pose_at(traj: Trajectory, t: float, *, max_diff: float = 0.02) -> np.ndarray | None:
+    """The pose of ``traj`` nearest in time to ``t``, or None when none lies within ``max_diff``.
+
+    Args:
+      traj: timestamps (N,) seconds, poses (N, 4, 4).
+      t: seconds.
+      max_diff: largest time difference, seconds.
+    Returns:
+      (4, 4) float64, or None.
+    """
+    stamps = np.asarray(traj.timestamps, np.float64)
+    if len(stamps) == 0:
+        return None
+    k = int(np.argmin(np.abs(stamps - t)))
+    if abs(stamps[k] - t) > max_diff:
+        return None
+    return np.asarray(traj.poses[k], np.float64)
+
+
 def _time_range(t: np.ndarray) -> str:
     if len(t) == 0:
         return "nothing (0 stamps)"
@@ -227,13 +253,51 @@ def _time_range(t: np.ndarray) -> str:
 # --- RGB-D sequences in the TUM layout -------------------------------------------------
 
 
-def _read_list(path: Path, columns: int) -> list[tuple[int, list[str]]]:
-    rows = _data_lines(path)
-    for lineno, parts in rows:
+def _read_list(path: Path, columns: int, warnings: list[str]) -> tuple[np.ndarray, list[list[str]]]:
+    """A TUM list file (``timestamp filename`` or ``t_rgb rgb t_depth depth``) in time order.
+
+    Lines out of time order are sorted, and a line repeating an earlier line's timestamp
+    is dropped (the first one stays); each is reported in ``warnings``, as recorders and
+    hand edits produce both, and processing them as written sends the trajectory's time
+    backwards or repeats a pose.
+
+    Args:
+      path: the file.
+      columns: 2 or 4.
+      warnings: list the warnings are appended to.
+    Returns:
+      ``(timestamps (N,) float64 seconds, rows)``, rows the split lines, both sorted.
+    Raises:
+      InputError: a line without the columns, or a timestamp that is not a finite number.
+    """
+    want = "timestamp filename" if columns == 2 else "timestamp rgb timestamp depth"
+    stamps, rows, linenos = [], [], []
+    for lineno, parts in _data_lines(path):
         if len(parts) < columns or not all(_is_float(parts[c]) for c in range(0, columns, 2)):
-            want = "timestamp filename" if columns == 2 else "timestamp rgb timestamp depth"
             raise InputError(f"{path}:{lineno}: expected '{want}', got {' '.join(parts)!r}")
-    return rows
+        if not all(np.isfinite(float(parts[c])) for c in range(0, columns, 2)):
+            raise InputError(f"{path}:{lineno}: timestamp is not a finite number")
+        stamps.append(float(parts[0]))
+        rows.append(parts)
+        linenos.append(lineno)
+    t = np.asarray(stamps, np.float64)
+    order = np.argsort(t, kind="stable")
+    if np.any(np.diff(t) < 0):
+        k = int(np.flatnonzero(np.diff(t) < 0)[0])
+        warnings.append(
+            f"{path}: lines not in time order (line {linenos[k + 1]} at {t[k + 1]:.6f} s "
+            f"follows line {linenos[k]} at {t[k]:.6f} s); sorted by timestamp"
+        )
+    t = t[order]
+    repeat = np.zeros(len(t), bool)
+    repeat[1:] = np.diff(t) == 0
+    for k in np.flatnonzero(repeat):
+        warnings.append(
+            f"{path}:{linenos[order[k]]}: timestamp {t[k]:.6f} s repeats an earlier line; "
+            "line dropped"
+        )
+    keep = order[~repeat]
+    return t[~repeat], [rows[i] for i in keep]
 
 
 def _read_image(path: Path, flags: int) -> np.ndarray:
@@ -268,13 +332,23 @@ class TumSequence:
     synthetic data, ``mask.txt`` (``timestamp filename`` of uint8 object-id images, the
     same timestamps as ``rgb.txt``).
 
+    Lines out of time order are sorted and repeated timestamps dropped; frames that find
+    no partner within ``max_diff`` are left out. Each is said in :attr:`warnings`
+    (``jaxvo run`` prints them), with the counts in :attr:`frames_listed`.
+
     Args:
       path: the folder.
       camera: a preset name of :data:`jaxvo.camera.PRESETS` or an :class:`Intrinsics`;
-        overrides ``camera.txt``. Without either, a folder named as the TUM and Bonn
-        benchmarks name their downloads (``..._freiburg3_...``, ``rgbd_bonn_...``) takes
-        that camera's preset; otherwise one of the two is required.
+        overrides ``camera.txt`` (a warning says so where the two differ). Without either, a
+        folder named as the TUM and Bonn benchmarks name their downloads
+        (``..._freiburg3_...``, ``rgbd_bonn_...``) takes that camera's preset; otherwise
+        one of the two is required.
       max_diff: largest colour-depth time difference when pairing them, seconds.
+
+    Attributes:
+      warnings: list of one-line warnings about the folder's files (empty when clean).
+      frames_listed: colour frames listed (after dropping repeats), associated or not.
+      camera_source: where the intrinsics came from, in words.
     """
 
     def __init__(
@@ -287,72 +361,94 @@ class TumSequence:
         root = Path(path)
         if not root.is_dir():
             raise InputError(f"sequence folder not found: {root}")
+        if not max_diff >= 0:  # also NaN
+            raise InputError(f"max time difference must be >= 0 s, got {max_diff}")
         self.path = root
         self.name = root.resolve().name
+        self.warnings: list[str] = []
         self.intrinsics, self.camera_source = self._intrinsics(root, camera)
 
         assoc = root / "associations.txt"
         if assoc.is_file():
-            rows = _read_list(assoc, 4)
-            self.timestamps = np.array([float(p[0]) for _, p in rows], np.float64)
-            self._rgb = [root / p[1] for _, p in rows]
-            self._depth = [root / p[3] for _, p in rows]
+            self.timestamps, rows = _read_list(assoc, 4, self.warnings)
+            self._rgb = [root / p[1] for p in rows]
+            self._depth = [root / p[3] for p in rows]
+            self.frames_listed = len(rows)
         else:
-            rgb = _read_list(root / "rgb.txt", 2)
-            depth = _read_list(root / "depth.txt", 2)
-            t_rgb = np.array([float(p[0]) for _, p in rgb], np.float64)
-            t_depth = np.array([float(p[0]) for _, p in depth], np.float64)
+            t_rgb, rgb = _read_list(root / "rgb.txt", 2, self.warnings)
+            t_depth, depth = _read_list(root / "depth.txt", 2, self.warnings)
+            for name, rows in (("rgb.txt", rgb), ("depth.txt", depth)):
+                if not rows:
+                    raise InputError(f"{root / name}: no images listed")
             ia, ib = associate(
                 t_rgb, t_depth, max_diff, names=(str(root / "rgb.txt"), str(root / "depth.txt"))
             )
             self.timestamps = t_rgb[ia]
-            self._rgb = [root / rgb[i][1][1] for i in ia]
-            self._depth = [root / depth[j][1][1] for j in ib]
+            self._rgb = [root / rgb[i][1] for i in ia]
+            self._depth = [root / depth[j][1] for j in ib]
+            self.frames_listed = len(rgb)
+            for name, count in (("rgb.txt", len(rgb)), ("depth.txt", len(depth))):
+                if count > len(ia):
+                    self.warnings.append(
+                        f"{root / name}: {count - len(ia)} of {count} images have no "
+                        f"{'depth' if name == 'rgb.txt' else 'colour'} image within "
+                        f"{max_diff:g} s (--max-diff) and are left out"
+                    )
         if len(self.timestamps) == 0:
             raise InputError(f"{root}: no frames listed")
 
         self._mask: list[Path] | None = None
         mask_list = root / "mask.txt"
         if mask_list.is_file():
-            rows = _read_list(mask_list, 2)
-            t_mask = np.array([float(p[0]) for _, p in rows], np.float64)
+            t_mask, rows = _read_list(mask_list, 2, self.warnings)
             # Masks carry the colour image's own stamps: match them to the microsecond.
             ia, ib = associate(self.timestamps, t_mask, 5e-7, names=("frames", str(mask_list)))
             if len(ia) != len(self.timestamps):
                 missing = self.timestamps[np.setdiff1d(np.arange(len(self)), ia)[0]]
                 raise InputError(f"{mask_list}: no mask for the frame at {missing:.6f} s")
-            self._mask = [root / rows[j][1][1] for j in ib]
+            self._mask = [root / rows[j][1] for j in ib]
 
         gt = root / "groundtruth.txt"
         self.groundtruth = read_trajectory(gt) if gt.is_file() else None
 
         first = _read_image(self._rgb[0], _imread_color())
         self.height, self.width = first.shape[:2]
+        check_intrinsics(self.intrinsics, where=self.camera_source, width=self.width,
+                         height=self.height)
 
-    @staticmethod
-    def _intrinsics(root: Path, camera: str | Intrinsics | None) -> tuple[Intrinsics, str]:
-        """The intrinsics and where they came from (said in ``jaxvo run``'s summary)."""
+    def _intrinsics(self, root: Path, camera: str | Intrinsics | None) -> tuple[Intrinsics, str]:
+        """The intrinsics and where they came from (said in ``jaxvo run``'s summary): the
+        ``camera`` given, else ``camera.txt``, else the folder's name."""
+        cam_file = root / "camera.txt"
         if isinstance(camera, Intrinsics):
-            return camera, "given"
-        if camera is not None:
+            K, source = camera, "given"
+        elif camera is not None:
             try:
-                return preset(camera), f"preset {camera}"
+                K, source = preset(camera), f"preset {camera}"
             except ValueError as exc:
                 raise InputError(str(exc)) from None
-        cam_file = root / "camera.txt"
+        elif cam_file.exists():
+            return read_camera_file(cam_file), str(cam_file)
+        else:
+            # a TUM or Bonn download as it unpacks: no camera.txt, the camera in its name
+            guess = preset_from_name(root.resolve().name)
+            if guess is None:
+                raise InputError(
+                    f"{root}: no camera.txt; pass a camera preset "
+                    f"({', '.join(sorted(PRESETS))}) or write a camera.txt"
+                )
+            return preset(guess), f"preset {guess}, from the folder name"
         if cam_file.is_file():
             try:
-                return read_camera_file(cam_file), str(cam_file)
-            except ValueError as exc:
-                raise InputError(str(exc)) from None
-        # a TUM or Bonn download as it unpacks: no camera.txt, the camera in the folder's name
-        guess = preset_from_name(root.resolve().name)
-        if guess is None:
-            raise InputError(
-                f"{root}: no camera.txt; pass a camera preset "
-                f"({', '.join(sorted(PRESETS))}) or write a camera.txt"
-            )
-        return preset(guess), f"preset {guess}, from the folder name"
+                in_folder = read_camera_file(cam_file)
+            except InputError:
+                in_folder = None  # overridden anyway; its faults are not this run's
+            if in_folder != K:
+                self.warnings.append(
+                    f"the camera {source} ({_describe(K)}) overrides {cam_file} "
+                    f"({_describe(in_folder) if in_folder else 'unreadable'})"
+                )
+        return K, source
 
     def __len__(self) -> int:
         return len(self.timestamps)
@@ -376,8 +472,7 @@ class TumSequence:
                     f"{p}: image is {img.shape[1]}x{img.shape[0]}, the sequence is "
                     f"{self.width}x{self.height}"
                 )
-        # 0 stays 0 (no reading) under the division.
-        depth = raw.astype(np.float32) / np.float32(self.intrinsics.depth_scale)
+        depth = depth_metres(raw, self.intrinsics)
         mask = self._read_mask(index) if self._mask is not None else None
         return Frame(index, float(self.timestamps[index]), bgr, depth, mask)
 
@@ -419,6 +514,10 @@ def _imread_unchanged() -> int:
     return cv2.IMREAD_UNCHANGED
 
 
+def _describe(K: Intrinsics) -> str:
+    return f"fx {K.fx:g} fy {K.fy:g} cx {K.cx:g} cy {K.cy:g} depth_scale {K.depth_scale:g}"
+
+
 def open_sequence(path: str | Path, **kwargs) -> TumSequence:
     """Open the RGB-D sequence in folder ``path`` (TUM layout); ``kwargs`` go to the reader."""
     root = Path(path)
@@ -427,6 +526,76 @@ def open_sequence(path: str | Path, **kwargs) -> TumSequence:
     if not (root / "associations.txt").is_file() and not (root / "rgb.txt").is_file():
         raise InputError(f"{root}: not a TUM RGB-D sequence (no rgb.txt or associations.txt)")
     return TumSequence(root, **kwargs)
+
+
+def output_file(path: str | Path, *, what: str, inputs: tuple[Path, ...] = ()) -> Path:
+    """``path`` as a file this run can write, checked before any work is done.
+
+    Args:
+      path: the file (it may exist; it is not changed here).
+      what: how to name it in a message (e.g. ``--out``).
+      inputs: files the run reads, which it must not overwrite.
+    Returns:
+      the path.
+    Raises:
+      InputError: the path is a folder, its folder does not exist, it is one of
+        ``inputs``, or it cannot be written.
+    """
+    p = Path(path)
+    if p.is_dir():
+        raise InputError(f"{what} {p}: is a folder, not a file")
+    if not p.parent.is_dir():
+        raise InputError(f"{what} {p}: folder {p.parent} does not exist")
+    for q in inputs:
+        if p.exists() and q.exists() and os.path.samefile(p, q):
+            raise InputError(f"{what} {p} would overwrite the input {q}")
+    existed = p.exists()
+    try:
+        with open(p, "a"):  # "a": an existing file stays as it is
+            pass
+    except OSError as exc:
+        raise InputError(f"{what} {p}: cannot write ({exc.strerror})") from None
+    if not existed:
+        p.unlink()
+    return p
+
+
+def output_folder(path: str | Path, *, what: str) -> Path:
+    """``path`` as a folder this run can write into, created if missing.
+
+    Args:
+      path: the folder.
+      what: how to name it in a message (e.g. ``--masks``).
+    Returns:
+      the path.
+    Raises:
+      InputError: it exists and is not a folder, or cannot be created or written into.
+    """
+    import tempfile
+
+    p = Path(path)
+    if p.exists() and not p.is_dir():
+        raise InputError(f"{what} {p}: exists and is not a folder")
+    try:
+        p.mkdir(parents=True, exist_ok=True)
+        tempfile.TemporaryFile(dir=p).close()
+    except OSError as exc:
+        raise InputError(f"{what} {p}: cannot write there ({exc.strerror})") from None
+    return p
+
+
+def write_image(path: str | Path, image: np.ndarray) -> None:
+    """``cv2.imwrite`` that raises ``OSError`` when nothing was written (OpenCV only returns
+    False, and a run would go on writing nothing).
+
+    Args:
+      path: the file; its extension picks the format (``.png``).
+      image: (H, W) or (H, W, 3) array as OpenCV writes it.
+    """
+    import cv2
+
+    if not cv2.imwrite(str(path), image):
+        raise OSError(f"{path}: could not write the image")
 
 
 class TrajectoryWriter:
@@ -468,19 +637,38 @@ class TrajectoryWriter:
         self.close()
 
 
-def check_depth_scale(depth: np.ndarray, K, *, where: str) -> None:
-    """Raise :class:`InputError` when a depth image in metres is implausible for an RGB-D
-    sensor (median of the valid readings outside 0.1 to 15 m): the usual cause is a wrong
-    ``depth_scale`` (e.g. 1000 for millimetres vs 5000 for TUM's units)."""
-    valid = depth[depth > 0]
+# Median depth of a frame, metres: outside the hard band no RGB-D sensor reads (the depth
+# scale is wrong, e.g. 1000 for millimetres against TUM's 5000); outside the soft band it
+# is possible but unusual for the structured-light and time-of-flight cameras of these
+# datasets (Kinect, Xtion, RealSense: about 0.3 to 8 m), so it is said but run.
+_DEPTH_HARD_M = (0.1, 15.0)
+_DEPTH_SOFT_M = (0.3, 8.0)
+
+
+def check_depth_scale(depth: np.ndarray, K, *, where: str) -> str | None:
+    """Check the median of a frame's valid depth readings against what RGB-D sensors see.
+
+    Args:
+      depth: (H, W) float metres, 0 = no reading.
+      K: the intrinsics whose ``depth_scale`` made ``depth`` (named in the messages).
+      where: the frame, for the messages.
+    Returns:
+      a one-line warning when the median lies outside 0.3 to 8 m, else None (also for a
+      frame without readings, which the pipeline reports per frame).
+    Raises:
+      InputError: the median lies outside 0.1 to 15 m.
+    """
+    valid = depth[np.isfinite(depth) & (depth > 0)]
     if valid.size == 0:
-        return  # an all-invalid frame is reported per frame by the pipeline, not here
+        return None
     med = float(np.median(valid))
-    if not 0.1 <= med <= 15.0:
-        raise InputError(
-            f"{where}: median depth is {med:.3g} m with depth_scale {K.depth_scale:g}; "
-            "the depth scale looks wrong (TUM uses 5000 per metre, millimetre sensors 1000)"
-        )
+    hint = (f"median depth is {med:.3g} m with depth_scale {K.depth_scale:g}; "
+            "TUM uses 5000 per metre, millimetre sensors 1000")
+    if not _DEPTH_HARD_M[0] <= med <= _DEPTH_HARD_M[1]:
+        raise InputError(f"{where}: {hint}: the depth scale looks wrong")
+    if not _DEPTH_SOFT_M[0] <= med <= _DEPTH_SOFT_M[1]:
+        return f"{where}: {hint}: check the depth scale"
+    return None
 
 
 class InMemorySequence:

@@ -30,6 +30,10 @@ from jaxvo.transforms import relative_pose, rotation_angle
 # Positions that spread less than this (metres, RMS about their centroid) carry no
 # orientation: a rotation fitted to them would be arbitrary.
 _MIN_SPREAD_M = 1e-9
+# Positions further out than this (metres) are refused: no trajectory reaches them, and
+# their squares (1e200) stay far from where float64 overflows (1.8e308, from |x| ~ 1.3e154),
+# which made the alignment's SVD fail to converge on coordinates near 1e200.
+_MAX_COORD_M = 1e100
 
 
 class Stats(NamedTuple):
@@ -186,6 +190,12 @@ def _matched(
     for traj, name in zip((gt, est), names):
         if len(traj) == 0:
             raise InputError(f"{name}: empty trajectory")
+        far = float(np.max(np.abs(np.asarray(traj.poses, np.float64)[:, :3, 3])))
+        if not far <= _MAX_COORD_M:  # also NaN
+            raise InputError(
+                f"{name}: a position lies {far:.3g} m from the origin; beyond "
+                f"{_MAX_COORD_M:g} m no trajectory is plausible (and float64 overflows)"
+            )
     ig, ie = associate(gt.timestamps, est.timestamps, max_diff, names=names)
     return (
         np.asarray(gt.timestamps, np.float64)[ig],

@@ -6,8 +6,10 @@
 * :func:`run_sequence` computes the grid flow of a whole recorded sequence on the host, then
   runs every frame in one jit-compiled ``lax.scan``.
 
-Both use the same per-frame step and the same per-frame PRNG keys (folded from the seed
-and the frame index), so they give the same trajectory for the same seed.
+Both drop the frames that cannot be used and pair the next frame with the last good one
+(:class:`jaxvo.flow.FrameChain`), and both use the same per-frame step and the same PRNG
+keys (folded from the seed and the index of the frame pair stepped), so they give the same
+trajectory for the same seed.
 """
 
 from __future__ import annotations
@@ -20,10 +22,17 @@ import jax
 import jax.numpy as jnp
 import numpy as np
 
-from jaxvo.camera import Intrinsics
-from jaxvo.config import Config, Params, grid_shape, params_as_arrays
-from jaxvo.flow import GridFlowTracker, flows_for_sequence
-from jaxvo.io import Trajectory
+from jaxvo.camera import Intrinsics, check_intrinsics, depth_metres
+from jaxvo.config import Config, Params, check_config, grid_shape, params_as_arrays
+from jaxvo.errors import InputError
+from jaxvo.flow import (
+    MAX_DROPPED,
+    FrameChain,
+    GridFlowTracker,
+    min_valid_flow,
+    sequence_flows,
+)
+from jaxvo.io import Trajectory, pose_at
 from jaxvo.pipeline import StepOutput, init_pipeline, jit_step, run_scan
 from jaxvo.status import Status
 
@@ -31,13 +40,14 @@ from jaxvo.status import Status
 class FrameResult(NamedTuple):
     """What the streaming odometry returns for one frame (host numpy)."""
 
-    index: int
+    index: int  # the frame's place in the stream, 0 for the first frame given
     timestamp: float
-    T_w_c: np.ndarray  # (4, 4) float64 camera-to-world
-    status: Status  # OK, or why this frame's motion was skipped (pose carried)
+    T_w_c: np.ndarray  # (4, 4) float64 camera-to-world (a dropped frame: the last kept pose)
+    status: Status  # OK, or why this frame's motion was skipped (BAD_INPUT: dropped)
     ids: np.ndarray  # (n,) int32 temporal identifiers of the previous image's grid cells
     static: np.ndarray  # (n,) bool grid points used for the ego-motion
-    output: StepOutput | None  # every per-step output (None on the first frame)
+    output: StepOutput | None  # every per-step output (None on the first or a dropped frame)
+    dropped: str | None = None  # why the frame was dropped (it has no pose), None if kept
 
 
 class Odometry:
@@ -46,12 +56,32 @@ class Odometry:
     The per-frame step runs on ``device``, by default the CPU (also where an accelerator
     is present: see ``__init__``).
 
+    A frame that cannot be used (its size differs from the first frame's, or its flow with
+    the last good frame has too few valid vectors: a black, saturated or noise image) is
+    dropped: it gets no pose (``FrameResult.dropped`` says why; ``T_w_c`` repeats the last
+    kept pose) and is left out of :attr:`trajectory`, and the next frame pairs with the last
+    good one (:class:`jaxvo.flow.FrameChain`).
+
     Example::
 
-        odo = Odometry(jaxvo.preset("tum_fr3"))
-        for bgr, depth, t in camera:
+        odo = Odometry(jaxvo.preset("tum_fr3"))          # depth_scale 5000 per metre
+        for bgr, depth, t in camera:   # depth: uint16 raw units or float32 metres
             r = odo.process(bgr, depth, t)
             print(r.T_w_c[:3, 3], r.status.reason)
+
+    Args:
+      intrinsics: the (depth-registered) camera, pixels; its ``depth_scale`` converts
+        ``uint16`` depth to metres.
+      cfg: static settings.
+      params: numeric settings (default :class:`Params`).
+      seed: PRNG seed of the hypothesis sampling.
+      T_w_c0: (4, 4) camera-to-world pose of the first frame; None: the identity (the
+        trajectory then starts at the origin of its own frame).
+      device: where the per-frame step runs (see ``__init__``).
+      max_dropped: most frames dropped in a row (:class:`jaxvo.flow.FrameChain`).
+    Raises:
+      ValueError: intrinsics no camera has, settings no run can use, or a ``T_w_c0`` that
+        is not a finite rigid transform.
     """
 
     def __init__(
@@ -63,7 +93,10 @@ class Odometry:
         seed: int = 0,
         T_w_c0: np.ndarray | None = None,
         device: jax.Device | str | None = None,
+        max_dropped: int = MAX_DROPPED,
     ):
+        check_intrinsics(intrinsics, where="intrinsics")
+        check_config(cfg)
         self.intrinsics = intrinsics
         self.cfg = cfg
         # One frame's step is a long chain of small dependent operations, bound by launch
@@ -71,29 +104,43 @@ class Odometry:
         # CPU cores (docs/report/pipeline_h100.md). So the step runs on the CPU unless told
         # otherwise; the state, parameters and key live there, and the step follows them.
         self.device = _device(device)
-        self.params = jax.device_put(
-            params_as_arrays(params if params is not None else Params()), self.device
-        )
+        params = params if params is not None else Params()
+        self._min_valid = min_valid_flow(cfg, params=params)
+        self._max_dropped = max_dropped
+        self.params = jax.device_put(params_as_arrays(params), self.device)
         self.key = jax.device_put(jax.random.key(seed), self.device)
-        self._T_w_c0 = np.eye(4) if T_w_c0 is None else np.asarray(T_w_c0, np.float64)
-        self._tracker: GridFlowTracker | None = None
+        self._T_w_c0 = np.eye(4) if T_w_c0 is None else check_pose(T_w_c0, name="T_w_c0")
+        self._chain: FrameChain | None = None
         self._state = None
         self._grid = None
         self._index = 0
+        self._last_t: float | None = None
         self._pending = None  # a frame dispatched by submit() whose result is not out yet
         self.timestamps: list[float] = []
         self.poses: list[np.ndarray] = []
 
     @property
     def trajectory(self) -> Trajectory:
-        """Every pose so far (camera-to-world)."""
-        return Trajectory(np.asarray(self.timestamps, np.float64), np.asarray(self.poses))
+        """Every pose so far (camera-to-world), dropped frames left out."""
+        return Trajectory(np.asarray(self.timestamps, np.float64),
+                          np.asarray(self.poses).reshape(-1, 4, 4))
 
     def process(self, bgr: np.ndarray, depth: np.ndarray, timestamp: float | None = None):
-        """Feed one frame: ``bgr`` (H, W, 3) uint8, ``depth`` (H, W) float32 metres (0 = none).
+        """Feed one frame and get its result.
 
-        Returns this frame's :class:`FrameResult` (a result still pending from
-        :meth:`submit` is completed first)."""
+        Args:
+          bgr: (H, W, 3) uint8 colour image in OpenCV's BGR order (or (H, W) uint8 grey).
+          depth: (H, W) depth registered to the colour image: ``uint16`` raw sensor units
+            (divided by ``intrinsics.depth_scale``, as Open3D does; what ``cv2.imread(path,
+            cv2.IMREAD_UNCHANGED)`` gives) or float metres; 0 (or NaN) = no reading.
+          timestamp: seconds, later than the previous frame's; None: the frame's index / 30.
+        Returns:
+          this frame's :class:`FrameResult` (a result still pending from :meth:`submit` is
+          completed first).
+        Raises:
+          ValueError: a colour or depth image of the wrong type or shape, images of
+            different sizes, or a timestamp that is not finite or does not increase.
+        """
         self.flush()
         return self._finish(self._dispatch(bgr, depth, timestamp))
 
@@ -105,7 +152,8 @@ class Odometry:
         larger of the two instead of their sum (``bench/bench_pipeline.py`` on 2 cores: medians
         of 7.4-8.8 against 10.1-14.9 ms per frame over several runs); each result arrives
         one frame later. Call :meth:`flush` after the last
-        frame for its result. Poses, labels and statuses are those of :meth:`process`.
+        frame for its result. Poses, labels and statuses are those of :meth:`process`, and
+        so are the arguments and errors.
 
         Returns:
           The previous frame's :class:`FrameResult`, or None for the first frame.
@@ -121,39 +169,90 @@ class Odometry:
     def _dispatch(self, bgr, depth, timestamp):
         """Host flow of this frame's pair and the (asynchronous) device step."""
         t = float(self._index) / 30.0 if timestamp is None else float(timestamp)
-        if self._tracker is None:  # the first frame sets the image size and the grid
-            if np.ndim(depth) != 2:
-                from jaxvo.errors import InputError
-
-                raise InputError("the first frame has no (H, W) depth image: cannot set the grid")
-            h, w = np.shape(depth)
-            self._tracker = GridFlowTracker(self.intrinsics, self.cfg, height=h, width=w)
-            self._grid = self._tracker.grid
+        if not np.isfinite(t):
+            raise ValueError(f"timestamp must be a finite number of seconds, got {timestamp}")
+        if self._last_t is not None and t <= self._last_t:
+            raise ValueError(
+                f"timestamp {t:.6f} s does not follow the previous frame's {self._last_t:.6f} s"
+            )
+        bgr, depth = _frame_arrays(bgr, depth, self.intrinsics)
+        if self._chain is None:  # the first frame sets the image size and the grid
+            h, w = depth.shape
+            check_intrinsics(self.intrinsics, where="intrinsics", width=w, height=h)
+            check_config(self.cfg, height=h, width=w)
+            tracker = GridFlowTracker(self.intrinsics, self.cfg, height=h, width=w)
+            self._chain = FrameChain(tracker, min_valid=self._min_valid,
+                                     max_dropped=self._max_dropped)
+            self._grid = tracker.grid
             self._state = jax.device_put(
                 init_pipeline(cfg=self.cfg, grid=self._grid, T_w_c0=self._T_w_c0), self.device
             )
-        flow = self._tracker.push(bgr, depth)
+        self._last_t = t
+        flow, dropped = self._chain.push(bgr, depth)
         index = self._index
         self._index += 1
-        if flow is None:  # no earlier good frame to compare with: the pose stays
-            return index, t, self._state.T_w_c, None
+        if flow is None:  # the chain's first frame, or a dropped one: the pose stays
+            return index, t, self._state.T_w_c, None, dropped
         self._state, out = jit_step(
             self._state, flow, self.key, self.params, cfg=self.cfg, grid=self._grid
         )
-        return index, t, out.T_w_c, out
+        return index, t, out.T_w_c, out, None
 
     def _finish(self, pending) -> FrameResult:
         """Wait for a dispatched frame, record its pose and return its result."""
-        index, t, T, out = pending
+        index, t, T, out, dropped = pending
         T = np.asarray(T, np.float64)
-        self.timestamps.append(t)
-        self.poses.append(T)
+        if dropped is None:
+            self.timestamps.append(t)
+            self.poses.append(T)
         if out is None:
             n = self._grid[0] * self._grid[1]
-            return FrameResult(index, t, T, Status.OK, np.zeros(n, np.int32), np.zeros(n, bool),
-                               None)
+            status = Status.OK if dropped is None else Status.BAD_INPUT
+            return FrameResult(index, t, T, status, np.zeros(n, np.int32), np.zeros(n, bool),
+                               None, dropped)
         out = jax.tree.map(np.asarray, out)
         return FrameResult(index, t, T, Status(int(out.status)), out.ids, out.static, out)
+
+
+def _frame_arrays(bgr, depth, K: Intrinsics) -> tuple[np.ndarray, np.ndarray]:
+    """The colour image as given and the depth in float32 metres, or a ValueError that says
+    what is wrong with them (see :meth:`Odometry.process`)."""
+    if not (isinstance(bgr, np.ndarray) and bgr.dtype == np.uint8
+            and (bgr.ndim == 2 or (bgr.ndim == 3 and bgr.shape[2] == 3))):
+        got = (f"{bgr.dtype} {bgr.shape}" if isinstance(bgr, np.ndarray)
+               else type(bgr).__name__)
+        raise ValueError(
+            f"bgr must be an (H, W, 3) uint8 BGR image or (H, W) uint8 grey, got {got}"
+        )
+    depth = depth_metres(depth, K)
+    if depth.shape != bgr.shape[:2]:
+        raise ValueError(
+            f"colour {bgr.shape[1]}x{bgr.shape[0]} and depth {depth.shape[1]}x{depth.shape[0]} "
+            "differ in size: depth must be registered to the colour image"
+        )
+    return bgr, depth
+
+
+def check_pose(T, *, name: str) -> np.ndarray:
+    """A pose checked to be a rigid transform: finite, last row ``0 0 0 1``, rotation
+    orthonormal with determinant 1 within 1e-4 (float32 poses written to 6 decimals pass).
+
+    Args:
+      T: (4, 4) array-like.
+      name: what to call it in the message (e.g. ``T_w_c0``).
+    Returns:
+      (4, 4) float64.
+    Raises:
+      ValueError: it is not.
+    """
+    T = np.asarray(T, np.float64)
+    if T.shape != (4, 4) or not np.all(np.isfinite(T)):
+        raise ValueError(f"{name} must be a finite (4, 4) pose, got shape {T.shape}")
+    R = T[:3, :3]
+    if (not np.allclose(T[3], [0, 0, 0, 1], atol=1e-6)
+            or not np.allclose(R @ R.T, np.eye(3), atol=1e-4) or np.linalg.det(R) < 0):
+        raise ValueError(f"{name} is not a rigid transform (rotation and translation)")
+    return T
 
 
 def _device(device) -> jax.Device:
@@ -179,12 +278,17 @@ def _device(device) -> jax.Device:
 class SequenceResult(NamedTuple):
     """Everything a run over a recorded sequence produces (host numpy)."""
 
-    trajectory: Trajectory  # one pose per frame, camera-to-world
-    outputs: StepOutput  # every field stacked over the N - 1 frame pairs
+    trajectory: Trajectory  # one pose per kept frame, camera-to-world
+    outputs: StepOutput  # every field stacked over the T frame pairs stepped
     flows: object  # the stacked GridFlow the scan consumed
     flow_seconds: float  # host time computing the grid flow
     scan_seconds: float  # device time of the scan, compile included
     grid: tuple[int, int]
+    # (T + 1,) int indices of the frames kept: pair k is frames[k] -> frames[k + 1], and its
+    # labels lie on image frames[k] (0 .. len(seq) - 1 when no frame is dropped)
+    frames: np.ndarray
+    dropped: dict[int, str]  # index of each dropped frame -> why
+    start_pose: str  # where the first pose came from, in words
 
 
 def run_sequence(
@@ -193,32 +297,89 @@ def run_sequence(
     cfg: Config = Config(),
     params: Params | None = None,
     seed: int = 0,
+    start_pose: str | np.ndarray = "gt",
     progress: Callable[[int, int], None] | None = None,
 ) -> SequenceResult:
     """Flow for every frame pair on the host, then one jit-compiled ``lax.scan``.
 
-    The first pose is the sequence's first ground-truth pose when it has one (so estimated
-    and true trajectories share a frame without alignment), else the identity.
+    Frames that cannot be used are dropped and the next frame pairs with the last good one
+    (:func:`jaxvo.flow.sequence_flows`); the trajectory holds the kept frames.
+
+    Args:
+      seq: a sequence per docs/architecture.md.
+      cfg: static settings.
+      params: numeric settings (default :class:`Params`).
+      seed: PRNG seed of the hypothesis sampling.
+      start_pose: the first kept frame's pose: ``"gt"`` its ground-truth pose when the
+        sequence has one within 0.02 s of it (estimated and true trajectories then share a
+        frame without alignment), else the identity; ``"identity"``; or a (4, 4)
+        ``T_w_c0``.
+      progress: called as ``progress(done, total)`` while the flow is computed.
+    Returns:
+      :class:`SequenceResult`.
+    Raises:
+      InputError: fewer than 2 frames, or fewer than 2 that can be used.
     """
     if len(seq) < 2:
-        from jaxvo.errors import InputError
-
         raise InputError(f"sequence {seq.name!r} has {len(seq)} frame(s); odometry needs 2 or more")
+    check_config(cfg, height=seq.height, width=seq.width)
     grid = grid_shape(seq.height, seq.width, cfg.cell)
-    gt = getattr(seq, "groundtruth", None)
-    T0 = gt.poses[0] if gt is not None and len(gt) == len(seq) else np.eye(4)
 
     t0 = time.perf_counter()
-    flows = flows_for_sequence(seq, cfg, progress=progress)
+    chain = sequence_flows(seq, cfg, params=params, progress=progress)
     flow_s = time.perf_counter() - t0
+    if len(chain.frames) < 2:
+        reasons = sorted(set(chain.dropped.values()))
+        raise InputError(f"sequence {seq.name!r}: fewer than 2 frames can be used "
+                         f"({len(chain.dropped)} dropped: {'; '.join(reasons)})")
+    stamps = np.asarray(seq.timestamps, np.float64)[chain.frames]
+    T0, start = choose_start_pose(start_pose, getattr(seq, "groundtruth", None), stamps[0])
 
     t0 = time.perf_counter()
     p = params_as_arrays(params if params is not None else Params())
-    _, outs = run_scan(flows, jax.random.key(seed), p, jnp.asarray(T0, jnp.float32),
+    _, outs = run_scan(chain.flows, jax.random.key(seed), p, jnp.asarray(T0, jnp.float32),
                        cfg=cfg, grid=grid)
     outs = jax.tree.map(np.asarray, jax.block_until_ready(outs))
     scan_s = time.perf_counter() - t0
 
-    poses = np.concatenate([np.asarray(T0, np.float64)[None], outs.T_w_c.astype(np.float64)])
-    traj = Trajectory(np.asarray(seq.timestamps, np.float64), poses)
-    return SequenceResult(traj, outs, flows, flow_s, scan_s, grid)
+    poses = np.concatenate([T0[None], outs.T_w_c.astype(np.float64)])
+    return SequenceResult(Trajectory(stamps, poses), outs, chain.flows, flow_s, scan_s, grid,
+                          chain.frames, chain.dropped, start)
+
+
+def choose_start_pose(
+    choice: str | np.ndarray,
+    gt: Trajectory | None,
+    t0: float,
+    *,
+    max_diff: float = 0.02,
+    required: bool = False,
+) -> tuple[np.ndarray, str]:
+    """The first frame's pose and where it came from, in words.
+
+    Args:
+      choice: ``"gt"``, ``"identity"`` or a (4, 4) pose (see :func:`run_sequence`).
+      gt: the sequence's ground truth, or None.
+      t0: the first frame's timestamp, seconds.
+      max_diff: largest time difference to a ground-truth pose, seconds.
+      required: with ``"gt"``, raise instead of taking the identity when there is no
+        ground-truth pose.
+    Returns:
+      ``(T_w_c0 (4, 4) float64, description)``.
+    Raises:
+      ValueError: an unknown choice, or a pose that is not a rigid transform.
+      InputError: ``required`` and no ground-truth pose of the first frame.
+    """
+    if not isinstance(choice, str):
+        return check_pose(choice, name="start_pose"), "given"
+    if choice == "identity":
+        return np.eye(4), "identity"
+    if choice != "gt":
+        raise ValueError(f"start_pose must be 'gt', 'identity' or a (4, 4) pose, got {choice!r}")
+    T = pose_at(gt, t0, max_diff=max_diff) if gt is not None else None
+    if T is None:
+        why = "no ground truth" if gt is None else f"no ground-truth pose within {max_diff:g} s"
+        if required:
+            raise InputError(f"start pose gt: {why} of the first frame ({t0:.6f} s)")
+        return np.eye(4), f"identity ({why} of the first frame)"
+    return T, f"ground truth at {t0:.6f} s"

@@ -13,6 +13,11 @@ temporal stage has already compensated forward onto image ``T``'s grid
 (``final_state.temporal.ids`` of :func:`jaxvo.pipeline.run_scan`); without it, it takes the
 last available map (step ``T-1``, anchored one frame earlier), which the ``grow`` margin
 covers for small motions.
+
+Dropped frames. A :class:`~jaxvo.odometry.SequenceResult` steps only the frames it kept:
+pair ``k`` is ``frames[k] -> frames[k+1]``, so mask ``k`` belongs to image
+``result.frames[k]`` (the same as image ``k`` when no frame was dropped), and a dropped
+frame has no mask.
 """
 
 from __future__ import annotations
@@ -56,7 +61,8 @@ def iter_dynamic_masks(
         points); 0 keeps exactly the moving cells.
 
     Yields:
-      T + 1 masks, bool, True = dynamic pixel (a moving cell).
+      T + 1 masks, bool, True = dynamic pixel (a moving cell); mask ``k`` is image ``k``,
+      or ``result.frames[k]`` where a ``SequenceResult`` dropped frames.
     """
     ids = _ids_of(result)
     n = (height // cell) * (width // cell)

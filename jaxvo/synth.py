@@ -28,7 +28,7 @@ import cv2
 import numpy as np
 
 from jaxvo.camera import PRESETS, write_camera_file
-from jaxvo.errors import InputError
+from jaxvo.errors import InputError, check_seed
 from jaxvo.io import Frame, Trajectory, TumSequence, associate, write_trajectory
 
 DEPTH_SCALE = 5000.0  # raw 16-bit units per metre in written depth PNGs (as TUM)
@@ -401,7 +401,7 @@ class SyntheticSequence:
                  options: SensorOptions, fps: float,
                  background: _Background | None = None, name: str | None = None) -> None:
         self.scenario = scenario
-        self.seed = int(seed)
+        self.seed = check_seed(seed)
         self.options = options
         self.fps = float(fps)
         self._background = background

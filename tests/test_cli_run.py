@@ -28,8 +28,9 @@ def test_run_writes_every_pose_masks_and_a_summary(seq_dir, tmp_path, capsys):
     est = read_trajectory(traj)
     assert len(est) == 8 and summary["poses_written"] == 8
     assert np.all(np.isfinite(est.poses))
-    # the folder has ground truth: the summary scores the run (metres, not NaN)
-    assert 0.0 <= summary["ate_rmse_m"] < 0.05
+    # the folder has ground truth: the summary scores the run (metres, not NaN); measured
+    # 0.087 mm on this sequence (2-core CPU), bounded at about 3x that
+    assert 0.0 <= summary["ate_rmse_m"] < 0.0003
     pngs = sorted(dyn.glob("*.png"))
     assert pngs and set(np.unique(cv2.imread(str(pngs[0]), cv2.IMREAD_UNCHANGED))) <= {0, 255}
 

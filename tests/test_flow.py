@@ -18,9 +18,11 @@ from jaxvo.flow import (
     depth_at,
     flows_for_sequence,
     grid_flow,
+    min_valid_flow,
     patch_correlation,
     refine_depth,
     sample_patches,
+    sequence_flows,
 )
 from jaxvo.io import data_root
 from jaxvo.status import Status
@@ -348,41 +350,91 @@ class _Frame(NamedTuple):
 
 
 class _Seq:
-    """A tiny in-memory sequence: a texture panning right by 1.5 px per frame."""
+    """A tiny in-memory sequence: a texture panning right by 1.5 px per frame; frames in
+    ``bad`` raise OSError (unreadable), frames in ``black`` are black (readable, useless)."""
 
     name = "pan"
     intrinsics = K
     height, width = H, W
 
-    def __init__(self, tex, n=4, bad=None):
-        self.tex, self.n, self.bad = tex, n, bad
+    def __init__(self, tex, n=4, bad=(), black=()):
+        self.tex, self.n, self.bad, self.black = tex, n, bad, black
 
     def __len__(self):
         return self.n
 
     def __getitem__(self, i):
-        if i == self.bad:
+        if i in self.bad:
             raise OSError(f"frame {i} unreadable")
         img = warp(self.tex, np.array([[1, 0, 1.5 * i], [0, 1, 0]], np.float64))
+        if i in self.black:
+            img = np.zeros_like(img)
         return _Frame(i, i / 30, bgr(img), plane(2.0))
 
 
-def test_flows_for_sequence_stacks_pairs_and_skips_bad_frames(tex0):
+def _median_shift(flows, k):
+    """Median x displacement (px) of pair k's valid interior tracks."""
+    v = flows.valid[k] & interior(flows.uv_prev[k])
+    return np.median((flows.uv_cur - flows.uv_prev)[k][v][:, 0])
+
+
+def test_flows_for_sequence_drops_an_unreadable_frame_and_pairs_across_it(tex0):
     calls = []
-    flows = flows_for_sequence(
-        _Seq(tex0, 5, bad=2), CFG, progress=lambda d, t: calls.append((d, t))
-    )
+    res = sequence_flows(_Seq(tex0, 5, bad=(2,)), CFG, progress=lambda d, t: calls.append((d, t)))
+    flows = res.flows
     n = grid_pixels(H, W, CFG.cell).shape[0]
-    assert flows.valid.shape == (4, n) and flows.pts_cur.shape == (4, n, 3)
-    np.testing.assert_array_equal(flows.status, [0, Status.BAD_INPUT, 0, 0])
+    assert flows.valid.shape == (3, n) and flows.pts_cur.shape == (3, n, 3)
+    np.testing.assert_array_equal(res.frames, [0, 1, 3, 4])
+    assert list(res.dropped) == [2] and "frame 2 unreadable" in res.dropped[2]
+    np.testing.assert_array_equal(flows.status, [0, 0, 0])  # the device sees no bad pair
     assert calls[-1] == (4, 4)
     keep = interior(flows.uv_prev[0])
-    disp = (flows.uv_cur - flows.uv_prev)[:, :, 0]
-    # pair 3 spans the unreadable frame 2 (frames 1 -> 3): 3 px; tolerance 0.1 px (median)
-    for k, shift in ((0, 1.5), (2, 3.0), (3, 1.5)):
-        v = flows.valid[k] & keep
-        assert v.mean() > 0.5 * keep.mean()
-        assert abs(np.median(disp[k][v]) - shift) < 0.1
+    # pair 1 spans the unreadable frame 2 (frames 1 -> 3): 3 px; tolerance 0.1 px (median)
+    for k, shift in ((0, 1.5), (1, 3.0), (2, 1.5)):
+        assert (flows.valid[k] & keep).mean() > 0.5 * keep.mean()
+        assert abs(_median_shift(flows, k) - shift) < 0.1
+    # the stacked flow alone, as before
+    np.testing.assert_array_equal(flows_for_sequence(_Seq(tex0, 5, bad=(2,)), CFG).valid,
+                                  flows.valid)
+
+
+def test_a_black_frame_is_dropped_and_the_next_pairs_with_the_last_good_one(tex0):
+    res = sequence_flows(_Seq(tex0, 5, black=(2,)), CFG)
+    np.testing.assert_array_equal(res.frames, [0, 1, 3, 4])
+    assert "too few valid flow vectors" in res.dropped[2]
+    assert abs(_median_shift(res.flows, 1) - 3.0) < 0.1  # 1 -> 3; tolerance 0.1 px
+
+
+def test_a_black_first_frame_starts_no_hole_in_the_chain(tex0):
+    """Nothing tells whether the first frame or the second is the useless one: the pair
+    goes to the device (which skips it) and the chain goes on from frame 1."""
+    res = sequence_flows(_Seq(tex0, 4, black=(0,)), CFG)
+    np.testing.assert_array_equal(res.frames, [0, 1, 2, 3])
+    assert res.dropped == {}
+    assert res.flows.valid[0].sum() < min_valid_flow(CFG) <= res.flows.valid[1].sum()
+
+
+def test_after_max_dropped_in_a_row_the_chain_goes_on_from_the_current_frame(tex0):
+    # frames 2..5 black: 2 and 3 are dropped (max_dropped 2), 4 restarts the chain (its pair
+    # with frame 1 goes to the device, which skips it), 5 pairs with 4 (both black: kept, as
+    # 4 has not been in a good pair), 6 pairs with 5 (too few vectors: a restart again)
+    res = sequence_flows(_Seq(tex0, 8, black=(2, 3, 4, 5)), CFG, max_dropped=2)
+    np.testing.assert_array_equal(res.frames, [0, 1, 4, 5, 6, 7])
+    assert sorted(res.dropped) == [2, 3]
+    assert abs(_median_shift(res.flows, 4) - 1.5) < 0.1  # 6 -> 7; tolerance 0.1 px
+
+
+def test_tracker_drop_last_pairs_the_next_frame_with_the_one_before(tex0):
+    tracker = GridFlowTracker(K, CFG, height=H, width=W)
+    frames = [bgr(warp(tex0, np.array([[1, 0, 1.5 * i], [0, 1, 0]], np.float64)))
+              for i in range(3)]
+    tracker.push(frames[0], plane(2.0))
+    tracker.push(frames[1], plane(2.0))
+    tracker.drop_last()
+    flow = tracker.push(frames[2], plane(2.0))
+    direct = grid_flow(frames[0], plane(2.0), frames[2], plane(2.0), K, CFG)
+    for x, y in zip(flow, direct):  # the same as tracking frame 0 -> 2 directly
+        np.testing.assert_array_equal(x, y)
 
 
 def test_streaming_matches_function_form(tex0):

@@ -6,7 +6,7 @@ import cv2
 import numpy as np
 import pytest
 
-from jaxvo.camera import PRESETS, write_camera_file
+from jaxvo.camera import PRESETS, Intrinsics, write_camera_file
 from jaxvo.errors import InputError
 from jaxvo.io import (
     Frame,
@@ -191,6 +191,11 @@ def test_associate_no_match_names_both_ranges():
 # --- TUM sequences ------------------------------------------------------------------------
 
 
+# tum_fr3 scaled from its 640x480 images to the 32x24 ones of make_sequence: a camera must
+# fit its images (TumSequence refuses a principal point outside them)
+SMALL_CAMERA = Intrinsics(535.4 / 20, 539.2 / 20, 320.1 / 20, 247.6 / 20, 5000.0)
+
+
 def make_sequence(root, n=4, h=24, w=32, *, camera=True, assoc=False, mask=True, gt=True):
     root.mkdir(parents=True, exist_ok=True)
     (root / "rgb").mkdir()
@@ -222,7 +227,7 @@ def make_sequence(root, n=4, h=24, w=32, *, camera=True, assoc=False, mask=True,
     if mask:
         (root / "mask.txt").write_text("\n".join(mask_lines) + "\n")
     if camera:
-        write_camera_file(root / "camera.txt", PRESETS["tum_fr3"])
+        write_camera_file(root / "camera.txt", SMALL_CAMERA)
     if gt:
         stamps = 100.0 + np.arange(n) / 30
         poses = np.broadcast_to(np.eye(4), (n, 4, 4)).copy()
@@ -235,7 +240,8 @@ def test_tum_sequence_synthetic_folder(tmp_path, assoc):
     depths = make_sequence(tmp_path / "seq", assoc=assoc)
     seq = open_sequence(tmp_path / "seq")
     assert len(seq) == 4 and (seq.height, seq.width) == (24, 32)
-    assert seq.name == "seq" and seq.intrinsics == PRESETS["tum_fr3"]
+    assert seq.name == "seq"
+    np.testing.assert_allclose(seq.intrinsics, SMALL_CAMERA, rtol=1e-6)  # tol: 6 digits written
     np.testing.assert_allclose(seq.timestamps, 100.0 + np.arange(4) / 30, atol=5e-7)  # tol 5e-7 s
     assert seq.groundtruth is not None and len(seq.groundtruth) == 4
     frames = list(seq)
@@ -251,7 +257,8 @@ def test_tum_sequence_synthetic_folder(tmp_path, assoc):
 
 
 def test_tum_sequence_camera_rules(tmp_path):
-    make_sequence(tmp_path / "seq", camera=False, mask=False, gt=False)
+    # the presets' own image size: their principal points must lie in the image
+    make_sequence(tmp_path / "seq", n=2, h=480, w=640, camera=False, mask=False, gt=False)
     with pytest.raises(InputError, match="pass a camera preset"):
         TumSequence(tmp_path / "seq")
     seq = TumSequence(tmp_path / "seq", camera="tum_fr1")
@@ -279,7 +286,7 @@ def test_tum_sequence_camera_rules(tmp_path):
 def test_download_takes_the_camera_its_folder_names(tmp_path, name, expected):
     """A TUM or Bonn download unpacks without camera.txt; its folder name names the camera."""
     assert preset_from_name(name) == expected
-    make_sequence(tmp_path / name, camera=False, mask=False, gt=False)
+    make_sequence(tmp_path / name, n=2, h=480, w=640, camera=False, mask=False, gt=False)
     if expected is None:
         with pytest.raises(InputError, match="pass a camera preset"):
             TumSequence(tmp_path / name)

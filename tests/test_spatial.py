@@ -181,8 +181,17 @@ def test_two_motions(seg, params):
     # the moving block's segment carries motion B
     np.testing.assert_allclose(np.asarray(out.motions[1, :3, :3]), OBJECT_B[0], atol=1e-2)
     assert 2 <= int(out.num_hypotheses) <= CFG.num_hypotheses
+    # hyp_labels name the trip (1..H) of each point's best hypothesis: a trip that found
+    # none has no inliers, so there are at most as many distinct labels as hypotheses found;
+    # each motion has its own best hypothesis; invalid points have none
+    _, _, valid, truth = scene
     hyp = np.asarray(out.hyp_labels)
-    assert hyp.max() <= int(out.num_hypotheses) or hyp.max() <= CFG.num_hypotheses
+    used = np.unique(hyp[hyp > 0])
+    assert 2 <= len(used) <= int(out.num_hypotheses) and used.max() <= CFG.num_hypotheses
+    assert np.all(hyp[~valid] == 0)
+    background = np.bincount(hyp[valid & (truth == 0)]).argmax()
+    block = np.bincount(hyp[valid & (truth == 1)]).argmax()
+    assert background != block and 0 not in (background, block)
 
 
 def test_search_stops_once_every_point_is_explained(seg, params):

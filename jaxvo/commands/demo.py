@@ -14,12 +14,14 @@ def add_arguments(p: argparse.ArgumentParser) -> None:
     p.add_argument("--scenario", default="fixed_camera_2",
                    help="synthetic scenario (see `jaxvo synth --help`; default fixed_camera_2)")
     p.add_argument("--frames", type=int, default=90, help="frames to synthesise (default 90)")
-    p.add_argument("--seed", type=int, default=0, help="seed of the scene and of the sampling")
+    p.add_argument("--seed", type=int, default=0,
+                   help="seed of the scene and of the sampling, 0 .. 2**32-1 (default 0)")
     p.add_argument("--peers", default="opencv_rgb,opencv_rgbd",
                    help="comma-separated peers to compare with, 'all' or 'none' "
                    "(default opencv_rgb,opencv_rgbd)")
     p.add_argument("--out", metavar="DIR",
-                   help="also write the trajectories (TUM format) and overlay images here")
+                   help="also write the trajectories (TUM format) and a few overlay panels "
+                   "(PNG named by timestamp, see `jaxvo run --help`) here (created)")
     p.add_argument("--json", action="store_true", help="print the scores as JSON")
     p.add_argument("--quiet", "-q", action="store_true", help="no progress lines")
 
@@ -40,15 +42,24 @@ def _peer_list(text: str) -> list[str]:
     return chosen
 
 
+class _Anchors:
+    """The images a run's frame pairs label (``SequenceResult.frames[:-1]``), indexed by
+    pair: what :func:`jaxvo.evaluation.segmentation_scores` reads, also when frames were
+    dropped."""
+
+    def __init__(self, seq, frames):
+        self.name, self._seq, self._frames = seq.name, seq, frames
+
+    def __getitem__(self, k: int):
+        return self._seq[int(self._frames[k])]
+
+
 def run(args: argparse.Namespace) -> int:
-    from pathlib import Path
-
-    import cv2
-
+    from jaxvo.cli import interrupt_at_safe_points
     from jaxvo.config import Config
-    from jaxvo.errors import InputError
+    from jaxvo.errors import InputError, check_seed
     from jaxvo.evaluation import segmentation_scores, trajectory_scores
-    from jaxvo.io import InMemorySequence, write_trajectory
+    from jaxvo.io import InMemorySequence, output_folder, write_image, write_trajectory
     from jaxvo.masks import overlay_panel
     from jaxvo.odometry import run_sequence
     from jaxvo.peers import run_peer
@@ -63,54 +74,71 @@ def run(args: argparse.Namespace) -> int:
         raise InputError(f"unknown scenario {args.scenario!r}; choose one of {', '.join(SCENARIOS)}")
     if args.frames < 2:
         raise InputError(f"--frames must be at least 2, got {args.frames}")
-    say(f"jaxvo demo: scenario {args.scenario}, {args.frames} frames 640x480, seed {args.seed}")
-    # rendered once up front, so that every method is timed on the same frames in memory
-    seq = InMemorySequence(make_sequence(args.scenario, frames=args.frames, seed=args.seed))
+    check_seed(args.seed, name="--seed")
+    out = output_folder(args.out, what="--out") if args.out else None
+    quiet = args.quiet or args.json
+    with interrupt_at_safe_points() as stop:
 
-    res = run_sequence(seq, cfg=cfg, seed=args.seed,
-                       progress=Progress("  grid flow", enabled=not (args.quiet or args.json)))
-    n_pairs = len(seq) - 1
-    rows = {"jaxvo": trajectory_scores(seq.groundtruth, res.trajectory)}
-    seg = segmentation_scores(seq, res.outputs.moving, cfg.cell)
-    rows["jaxvo"]["f_measure"] = seg.f_measure
-    # steady state: flow on the host plus a second, already compiled run of the scan
-    import time
+        def progress(label: str):
+            """A progress line whose every update is also a safe point to stop at."""
+            line = Progress(label, enabled=not quiet)
 
-    import jax
-    import jax.numpy as jnp
+            def update(done: int, total: int) -> None:
+                stop()
+                line(done, total)
 
-    from jaxvo.config import Params, params_as_arrays
-    from jaxvo.pipeline import run_scan
+            return update
 
-    t0 = time.perf_counter()
-    jax.block_until_ready(run_scan(res.flows, jax.random.key(args.seed),
-                                   params_as_arrays(Params()),
-                                   jnp.asarray(res.trajectory.poses[0], jnp.float32),
-                                   cfg=cfg, grid=res.grid))
-    scan_steady = time.perf_counter() - t0
-    rows["jaxvo"]["ms_per_frame"] = 1e3 * (res.flow_seconds + scan_steady) / n_pairs
-    skipped = int((res.outputs.status != Status.OK).sum())
+        say(f"jaxvo demo: scenario {args.scenario}, {args.frames} frames 640x480, seed {args.seed}")
+        # rendered once up front, so that every method is timed on the same frames in memory
+        seq = InMemorySequence(make_sequence(args.scenario, frames=args.frames, seed=args.seed))
+        stop()
+        res = run_sequence(seq, cfg=cfg, seed=args.seed, progress=progress("  grid flow"))
+        stop()
+        n_pairs = len(res.frames) - 1
+        rows = {"jaxvo": trajectory_scores(seq.groundtruth, res.trajectory)}
+        seg = segmentation_scores(_Anchors(seq, res.frames), res.outputs.moving, cfg.cell)
+        rows["jaxvo"]["f_measure"] = seg.f_measure
+        # steady state: flow on the host plus a second, already compiled run of the scan
+        import time
 
-    for name in peers:
-        run = run_peer(seq, name, progress=Progress(f"  {name}", enabled=not (args.quiet or args.json)))
-        rows[name] = trajectory_scores(seq.groundtruth, run.trajectory)
-        rows[name]["ms_per_frame"] = run.ms_per_frame
-        if args.out:
-            write_trajectory(Path(args.out) / f"{name}.txt", run.trajectory)
+        import jax
+        import jax.numpy as jnp
 
-    if args.out:
-        out = Path(args.out)
-        out.mkdir(parents=True, exist_ok=True)
+        from jaxvo.config import Params, params_as_arrays
+        from jaxvo.pipeline import run_scan
+
+        t0 = time.perf_counter()
+        jax.block_until_ready(run_scan(res.flows, jax.random.key(args.seed),
+                                       params_as_arrays(Params()),
+                                       jnp.asarray(res.trajectory.poses[0], jnp.float32),
+                                       cfg=cfg, grid=res.grid))
+        scan_steady = time.perf_counter() - t0
+        rows["jaxvo"]["ms_per_frame"] = 1e3 * (res.flow_seconds + scan_steady) / n_pairs
+        skipped = int((res.outputs.status != Status.OK).sum())
+
+        for name in peers:
+            stop()
+            run = run_peer(seq, name, progress=progress(f"  {name}"))
+            rows[name] = trajectory_scores(seq.groundtruth, run.trajectory)
+            rows[name]["ms_per_frame"] = run.ms_per_frame
+            if out:
+                write_trajectory(out / f"{name}.txt", run.trajectory)
+        stop()
+
+    if out:
         write_trajectory(out / "groundtruth.txt", seq.groundtruth)
         write_trajectory(out / "jaxvo.txt", res.trajectory)
         for k in range(0, n_pairs, max(1, n_pairs // 6)):
             step_out = jax.tree.map(lambda a, k=k: a[k], res.outputs)
-            cv2.imwrite(str(out / f"overlay_{k:04d}.jpg"), overlay_panel(seq[k].bgr, step_out, cfg.cell))
+            image = seq[int(res.frames[k])]  # the pair's labels lie on its first image
+            write_image(out / f"overlay_{image.timestamp:.6f}.png",
+                        overlay_panel(image.bgr, step_out, cfg.cell))
 
     if args.json:
         print(json.dumps({"scenario": args.scenario, "frames": len(seq), "seed": args.seed,
-                          "skipped": skipped, "segmentation": seg.as_dict(), "methods": rows},
-                         indent=1))
+                          "skipped": skipped, "dropped": len(res.dropped),
+                          "segmentation": seg.as_dict(), "methods": rows}, indent=1))
         return 0
     print()
     print(f"  {'method':<13}{'ATE rmse':>10}{'RPE trans':>11}{'RPE rot':>10}{'F-measure':>11}{'ms/frame':>10}")
@@ -122,9 +150,10 @@ def run(args: argparse.Namespace) -> int:
     print()
     print(f"  segmentation: recall {seg.recall:.3f}, precision {seg.precision:.3f} "
           f"(moving = positive, {seg.frames} frames, at grid points)")
-    print(f"  jaxvo: {skipped} of {n_pairs} frame pairs skipped; flow {res.flow_seconds:.2f} s on "
-          f"the host, scan {scan_steady:.2f} s ({res.scan_seconds:.1f} s on the first call, "
-          f"compile included); ms/frame are steady state")
-    if args.out:
-        print(f"  trajectories and overlays written to {args.out}")
+    print(f"  jaxvo: {skipped} of {n_pairs} frame pairs skipped, {len(res.dropped)} frames "
+          f"dropped; flow {res.flow_seconds:.2f} s on the host, scan {scan_steady:.2f} s "
+          f"({res.scan_seconds:.1f} s on the first call, compile included); ms/frame are "
+          "steady state")
+    if out:
+        print(f"  trajectories and overlays written to {out}")
     return 0

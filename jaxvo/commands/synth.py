@@ -23,7 +23,7 @@ def add_arguments(parser: argparse.ArgumentParser) -> None:
     parser.add_argument("out_dir", metavar="OUT_DIR", help="folder to write (created)")
     parser.add_argument("--frames", type=int, default=None,
                         help="number of frames (default 90; with --composite all frames)")
-    parser.add_argument("--seed", type=int, default=0, help="seed (default 0)")
+    parser.add_argument("--seed", type=int, default=0, help="seed, 0 .. 2**32-1 (default 0)")
     parser.add_argument("--composite", metavar="SEQ_DIR", default=None,
                         help="real TUM-layout sequence with groundtruth.txt and camera.txt "
                         "to insert the scenario's objects into")
@@ -38,7 +38,12 @@ def run(args: argparse.Namespace) -> int:
     from dataclasses import replace
 
     from jaxvo import synth
+    from jaxvo.cli import interrupt_at_safe_points
+    from jaxvo.errors import check_seed
+    from jaxvo.io import output_folder
 
+    check_seed(args.seed, name="--seed")
+    output_folder(args.out_dir, what="OUT_DIR")  # before any frame is rendered
     opts = synth.SensorOptions.ideal() if args.ideal else synth.SensorOptions()
     opts = replace(opts, motion_blur=args.motion_blur,
                          exposure_change=args.exposure_change)
@@ -51,13 +56,16 @@ def run(args: argparse.Namespace) -> int:
         seq = synth.make_sequence(args.scenario, frames=frames, seed=args.seed, options=opts)
     tty = sys.stderr.isatty()
 
-    def progress(done: int, total: int) -> None:
-        if tty or done == total:
-            end = "\n" if done == total else ""
-            print(f"\rsynth: {seq.name}: frame {done}/{total}", end=end, file=sys.stderr,
-                  flush=True)
+    with interrupt_at_safe_points() as stop:
 
-    out = synth.write_sequence(seq, args.out_dir, progress=progress)
+        def progress(done: int, total: int) -> None:
+            stop()  # between frames: never inside the renderer's compile
+            if tty or done == total:
+                end = "\n" if done == total else ""
+                print(f"\rsynth: {seq.name}: frame {done}/{total}", end=end, file=sys.stderr,
+                      flush=True)
+
+        out = synth.write_sequence(seq, args.out_dir, progress=progress)
     took = time.perf_counter() - start
     k = len(seq.object_trajectories)
     print(f"wrote {len(seq)} frames ({seq.width}x{seq.height}, {k} moving "
