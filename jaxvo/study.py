@@ -887,7 +887,15 @@ def read_runs(path: str | Path) -> dict[str, dict]:
 
 
 def _append_runs(path: Path, rows: list[dict]) -> None:
+    # a line cut short by a kill has no newline: end it, or the next row would join it
+    cut = False
+    if path.is_file() and path.stat().st_size > 0:
+        with path.open("rb") as fh:
+            fh.seek(-1, os.SEEK_END)
+            cut = fh.read(1) != b"\n"
     with path.open("a") as fh:
+        if cut:
+            fh.write("\n")
         for row in rows:
             fh.write(json.dumps(row) + "\n")
         fh.flush()
