@@ -140,10 +140,11 @@ def config_fields() -> dict[str, dataclasses.Field]:
     return {f.name: f for f in dataclasses.fields(Config)}
 
 
-def load_spec(path: str | Path) -> StudySpec:
+def load_spec(path: str | Path, *, check_folders: bool = True) -> StudySpec:
     """Read and validate a study spec, TOML (``.toml``) or JSON (any other name).
 
-    Relative sequence folders are looked up beside the spec, then under the data root.
+    Relative sequence folders are looked up beside the spec, then under the data root
+    (``check_folders``: as in :func:`parse_spec`).
 
     Raises:
       InputError: one line naming the file, the key and what is wrong with it.
@@ -164,16 +165,20 @@ def load_spec(path: str | Path) -> StudySpec:
         first = str(exc).splitlines()[0] if str(exc) else type(exc).__name__
         raise InputError(f"{path}: not valid {'TOML' if path.suffix == '.toml' else 'JSON'}: "
                          f"{first}") from None
-    return parse_spec(data, where=str(path), base_dir=path.resolve().parent)
+    return parse_spec(data, where=str(path), base_dir=path.resolve().parent,
+                      check_folders=check_folders)
 
 
-def parse_spec(data: Any, *, where: str = "spec", base_dir: str | Path | None = None) -> StudySpec:
+def parse_spec(data: Any, *, where: str = "spec", base_dir: str | Path | None = None,
+               check_folders: bool = True) -> StudySpec:
     """Validate a spec given as a dict (what TOML or JSON parse to).
 
     Args:
       data: the spec's top-level table.
       where: how error messages name the spec (its file name).
       base_dir: the folder relative sequence paths start from (default: the working one).
+      check_folders: require every sequence folder to be there; the processes of a
+        multi-process study other than the first take their flow from it and need none.
 
     Raises:
       InputError: ``"<where>: <key>: <what is wrong>"``, one line.
@@ -193,9 +198,11 @@ def parse_spec(data: Any, *, where: str = "spec", base_dir: str | Path | None = 
 
     seeds = data.get("seeds", [0])
     seeds = [seeds] if _is_int(seeds) else seeds
-    if not isinstance(seeds, list) or not seeds or not all(_is_int(s) and s >= 0 for s in seeds):
-        raise bad("seeds", f"must be a non-negative integer or a non-empty list of them, got "
-                           f"{seeds!r}")
+    # below 2^31: a seed is a 32-bit integer on the device (jax.random.key without x64)
+    if not isinstance(seeds, list) or not seeds or not all(
+            _is_int(s) and 0 <= s < 2**31 for s in seeds):
+        raise bad("seeds", f"must be an integer in 0 .. 2^31 - 1 or a non-empty list of them, "
+                           f"got {seeds!r}")
     if len(set(seeds)) != len(seeds):
         raise bad("seeds", f"repeats a seed: {seeds}")
 
@@ -224,7 +231,8 @@ def parse_spec(data: Any, *, where: str = "spec", base_dir: str | Path | None = 
             raise bad(f"distributed.{key}", f"bad value {value!r}" + (
                 " (expected HOST:PORT)" if key == "coordinator" else ""))
 
-    sequences = _parse_sequences(data.get("sequences"), bad, Path(base_dir or "."))
+    sequences = _parse_sequences(data.get("sequences"), bad, Path(base_dir or "."),
+                                 check_folders=check_folders)
     settings, base, configs, swept = _parse_configs(data, bad)
     return StudySpec(name, sequences, settings, base, configs, swept, tuple(seeds),
                      tuple(metrics), batch, dict(distributed))
@@ -234,7 +242,8 @@ def _is_int(x) -> bool:
     return isinstance(x, int) and not isinstance(x, bool)
 
 
-def _parse_sequences(entries, bad, base_dir: Path) -> tuple[SequenceSpec, ...]:
+def _parse_sequences(entries, bad, base_dir: Path, *,
+                     check_folders: bool) -> tuple[SequenceSpec, ...]:
     from jaxvo.camera import PRESETS
     from jaxvo.synth import SCENARIOS
 
@@ -281,7 +290,9 @@ def _parse_sequences(entries, bad, base_dir: Path) -> tuple[SequenceSpec, ...]:
             if not isinstance(given, str) or not given:
                 raise bad(f"{at}.{kinds[0]}", "must be a folder name")
             folder = _resolve_folder(given, base_dir)
-            if folder is None:
+            if folder is None and not check_folders:
+                folder = given
+            elif folder is None:
                 from jaxvo.io import data_root
 
                 raise bad(f"{at}.{kinds[0]}", f"no folder {given!r} beside the spec "
@@ -573,13 +584,13 @@ def run_id(spec: StudySpec, run: Run) -> str:
     and flow settings), every setting's value and the seed."""
     s = spec.sequences[run.sequence]
     settings = spec.configs[run.config]
-    cfg = group_config(spec, settings)
+    cfg = group_config(settings)
     blob = json.dumps({"sequence": sequence_key(s, cfg), "label": s.label,
                        "settings": settings, "seed": run.seed}, sort_keys=True)
     return hashlib.sha256(blob.encode()).hexdigest()[:20]
 
 
-def group_config(spec: StudySpec, settings: dict) -> Config:
+def group_config(settings: dict) -> Config:
     """The ``Config`` of a configuration (its Config fields over the defaults)."""
     fields = config_fields()
     return dataclasses.replace(Config(), **{k: v for k, v in settings.items() if k in fields})
@@ -617,6 +628,8 @@ def init_distributed(coordinator: str | None, num_processes: int | None,
         raise InputError(f"process id {process_id} is not in 0 .. {num_processes - 1}")
     import jax
 
+    if jax.config.jax_cpu_collectives_implementation is None:  # JAX before 0.5 had none
+        jax.config.update("jax_cpu_collectives_implementation", "gloo")
     jax.distributed.initialize(coordinator_address=coordinator, num_processes=num_processes,
                                process_id=process_id)
 
@@ -637,6 +650,10 @@ def _sharded_study(mesh, cfg: Config, grid: tuple[int, int]):
     from jax.sharding import PartitionSpec as P
 
     from jaxvo.pipeline import run_study
+
+    if not hasattr(jax, "shard_map"):
+        raise InputError(f"jaxvo study needs jax.shard_map (JAX 0.7 or later), this is JAX "
+                         f"{jax.__version__}")
 
     def local(flows, T_w_c0, seeds, params):
         keys = jax.vmap(jax.random.key)(seeds)
@@ -794,7 +811,7 @@ def run_spec(spec: StudySpec, out_dir: str | Path, *, resume: bool = False,
     groups: dict[tuple[int, Config], list[int]] = {}
     for k, r in enumerate(runs):
         if not done[k]:
-            cfg = group_config(spec, spec.configs[r.config])
+            cfg = group_config(spec.configs[r.config])
             groups.setdefault((r.sequence, cfg), []).append(k)
     pairs = {q: _pairs(spec.sequences[q]) for q, _ in groups} if first else {}
     total = sum(len(ks) * pairs[q] for (q, _), ks in groups.items()) if first else 0

@@ -96,7 +96,8 @@ def test_json_specs_and_folders_under_the_data_root(tmp_path, require_data):
 BAD = [
     ("colour = 1", "colour: unknown key"),
     ("seeds = [1, 1]", "seeds: repeats a seed"),
-    ("seeds = [-1]", "seeds: must be a non-negative integer"),
+    ("seeds = [-1]", "seeds: must be an integer in 0 .. 2^31 - 1"),
+    ("seeds = [2147483648]", "seeds: must be an integer in 0 .. 2^31 - 1"),
     ("metrics = ['ate']", "metrics: unknown metric 'ate'"),
     ("batch = 0", "batch: must be a positive integer"),
     ("[grid]\nlamda = [1.0, 2.0]", "grid.lamda: unknown setting"),
@@ -137,6 +138,14 @@ BAD_SEQUENCES = [
 def test_bad_sequences_name_the_entry(tmp_path, entry, message):
     with pytest.raises(InputError, match=re.escape(message)):
         study.load_spec(spec_of(f"[[sequences]]\n{entry}\n", tmp_path))
+
+
+def test_only_the_first_process_needs_the_folders(tmp_path):
+    path = spec_of("[[sequences]]\npath = 'on_the_first_machine'\n", tmp_path)
+    with pytest.raises(InputError, match="no folder 'on_the_first_machine'"):
+        study.load_spec(path)
+    spec = study.load_spec(path, check_folders=False)
+    assert spec.sequences[0].path == "on_the_first_machine"
 
 
 def test_two_sequences_with_one_name_are_refused(tmp_path):

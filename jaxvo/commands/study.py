@@ -57,13 +57,15 @@ def run(args: argparse.Namespace) -> int:
     from jaxvo import study
     from jaxvo.errors import InputError
 
-    spec = study.load_spec(args.spec)
+    spec = study.load_spec(args.spec, check_folders=False)
     if args.batch is not None and args.batch < 1:
         raise InputError(f"--batch must be at least 1, got {args.batch}")
     dist = spec.distributed
     coordinator = args.coordinator or dist.get("coordinator")
     nproc = args.num_processes if args.num_processes is not None else dist.get("num_processes")
     pid = args.process_id if args.process_id is not None else dist.get("process_id")
+    if not pid:  # the first process (or the only one) reads the sequences: they must exist
+        spec = study.load_spec(args.spec)
 
     import jax
 
