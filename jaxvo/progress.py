@@ -52,6 +52,15 @@ class Progress:
             self.stream.write(text + "\n")
             self.stream.flush()
 
+    def note(self, line: str) -> None:
+        """A line of its own (e.g. what a step found), above the progress line."""
+        if not self.enabled:
+            return
+        if self.tty:  # over the progress line; the next call draws it again below
+            line = "\r" + line.ljust(self._width)
+        self.stream.write(line + "\n")
+        self.stream.flush()
+
     def close(self) -> None:
         if self.enabled and self.tty:
             self.stream.write("\n")

@@ -759,6 +759,10 @@ class StudyResult(NamedTuple):
     ran: int  # runs done by this call
     config_frames: int  # configuration x frame pairs computed by this call
     seconds: float  # wall time of the device calls (compile included)
+    # the first call of each compiled program (Config, grid, sequence length), which
+    # compiles it: its configuration x frame pairs and wall time
+    first_call_frames: int
+    first_call_seconds: float
     flow_seconds: float  # host time computing flow (0 for cached flow)
     devices: int  # devices over every process
     processes: int
@@ -815,8 +819,9 @@ def run_spec(spec: StudySpec, out_dir: str | Path, *, resume: bool = False,
             groups.setdefault((r.sequence, cfg), []).append(k)
     pairs = {q: _pairs(spec.sequences[q]) for q, _ in groups} if first else {}
     total = sum(len(ks) * pairs[q] for (q, _), ks in groups.items()) if first else 0
-    done_frames = ran = 0
-    seconds = flow_seconds = 0.0
+    done_frames = ran = first_frames = 0
+    seconds = flow_seconds = first_seconds = 0.0
+    compiled: set[tuple] = set()
     if progress is not None:
         progress(0, total)
     for (q, cfg), ks in groups.items():
@@ -840,6 +845,11 @@ def run_spec(spec: StudySpec, out_dir: str | Path, *, resume: bool = False,
             seconds += took
             ran += len(chunk)
             done_frames += len(chunk) * (len(data.timestamps) - 1)
+            program = (cfg, data.flows.valid.shape, data.height, data.width)
+            if program not in compiled:
+                compiled.add(program)
+                first_frames += len(chunk) * (len(data.timestamps) - 1)
+                first_seconds += took
             if first:
                 new = []
                 for j, r in enumerate(chunk):
@@ -852,8 +862,8 @@ def run_spec(spec: StudySpec, out_dir: str | Path, *, resume: bool = False,
             if progress is not None:
                 progress(done_frames, total)
     rows = finished_rows(spec, out) if first else []
-    return StudyResult(rows, len(runs), ran, done_frames, seconds, flow_seconds,
-                       mesh.devices.size, jax.process_count(), batch)
+    return StudyResult(rows, len(runs), ran, done_frames, seconds, first_frames, first_seconds,
+                       flow_seconds, mesh.devices.size, jax.process_count(), batch)
 
 
 def spec_runs(spec: StudySpec) -> tuple[list[Run], list[str]]:

@@ -18,6 +18,7 @@ from __future__ import annotations
 import csv
 import json
 import math
+import re
 from pathlib import Path
 
 import numpy as np
@@ -77,11 +78,23 @@ def write_csv(path: Path, rows: list[dict], columns: list[str]) -> None:
             w.writerow({c: "" if row.get(c) is None else row[c] for c in columns})
 
 
+def display(metric: str) -> tuple[str, float]:
+    """How a metric reads in the Markdown table and the plot: ``(label, scale)``, lengths
+    in millimetres (``ate_rmse_m`` -> ``("ate_rmse [mm]", 1000.0)``); the files keep SI."""
+    m = re.fullmatch(r"(.+)_(m|deg)(?:_per_(frame|s))?", metric)
+    if m is None:
+        return (f"{metric} [s]", 1.0) if metric == "seconds" else (metric, 1.0)
+    unit = "mm" if m[2] == "m" else "deg"
+    return (f"{m[1]} [{unit}{'/' + m[3] if m[3] else ''}]",
+            1000.0 if m[2] == "m" else 1.0)
+
+
 def summary_markdown(spec: StudySpec, summary: list[dict], *, title: str | None = None) -> str:
-    """The summary as a Markdown table: swept settings, seeds, each metric's mean +- std."""
-    head = ["sequence", *spec.swept, "seeds", *spec.metrics]
+    """The summary as a Markdown table: swept settings, seeds, each metric's mean ± std
+    (lengths in mm, see :func:`display`)."""
+    head = ["sequence", *spec.swept, "seeds", *(display(m)[0] for m in spec.metrics)]
     lines = [f"# {title or spec.name}", "",
-             f"Mean +- standard deviation over {len(spec.seeds)} seed(s) "
+             f"Mean ± standard deviation (population) over {len(spec.seeds)} seed(s) "
              f"({', '.join(map(str, spec.seeds))}); settings not listed are at "
              + (", ".join(f"{k} = {spec.base[k]:g}" if isinstance(spec.base[k], float)
                           else f"{k} = {spec.base[k]}" for k in spec.settings
@@ -92,7 +105,8 @@ def summary_markdown(spec: StudySpec, summary: list[dict], *, title: str | None 
         cells = [e["sequence"], *(_fmt(e[k]) for k in spec.swept), str(e["seeds"])]
         for m in spec.metrics:
             mean, std = e[f"{m}_mean"], e[f"{m}_std"]
-            cells.append("n/a" if mean is None else f"{_fmt(mean)} +- {_fmt(std)}")
+            scale = display(m)[1]
+            cells.append("n/a" if mean is None else f"{mean * scale:.3g} ± {std * scale:.2g}")
         lines.append("| " + " | ".join(cells) + " |")
     return "\n".join(lines) + "\n"
 
@@ -149,19 +163,22 @@ def write_plot(spec: StudySpec, summary: list[dict], path: Path) -> str | None:
     except ImportError:
         return "matplotlib is not installed (pip install 'jaxvo[plot]')"
     rows, cols = len(spec.metrics), len(numeric)
-    fig, axes = plt.subplots(rows, cols, figsize=(3.6 * cols, 2.8 * rows), squeeze=False)
+    height = 2.8 * rows + 0.7  # and the legend above, the caption below
+    fig, axes = plt.subplots(rows, cols, figsize=(3.6 * cols, height), squeeze=False)
     for i, metric in enumerate(spec.metrics):
         for j, setting in enumerate(numeric):
             ax = axes[i][j]
+            label, scale = display(metric)
             for seq, (x, y, s) in plot_points(spec, summary, setting, metric).items():
-                ax.errorbar(x, y, yerr=s, marker="o", ms=3, capsize=2, label=seq)
+                ax.errorbar(x, y * scale, yerr=s * scale, marker="o", ms=3, capsize=2,
+                            label=seq)
             values = [float(e[setting]) for e in summary]
             if min(values) > 0 and max(values) / min(values) >= 20:
                 ax.set_xscale("log")  # lambda, delta: decades apart
             ax.axvline(float(spec.base[setting]), color="0.7", lw=0.8, ls=":")
             ax.set_xlabel(setting)
             if j == 0:
-                ax.set_ylabel(metric)
+                ax.set_ylabel(label)
             ax.grid(True, alpha=0.3)
     handles, labels = axes[0][0].get_legend_handles_labels()
     if handles:
@@ -169,7 +186,7 @@ def write_plot(spec: StudySpec, summary: list[dict], path: Path) -> str | None:
                    fontsize="small", frameon=False)
     fig.suptitle(f"{spec.name}: mean over {len(spec.seeds)} seed(s), bars one standard "
                  "deviation; dotted: base value", fontsize="small", y=0.005, va="bottom")
-    fig.tight_layout(rect=(0, 0.03, 1, 1 - 0.35 / rows))
+    fig.tight_layout(rect=(0, 0.3 / height, 1, 1 - 0.4 / height))
     fig.savefig(path, dpi=110)
     plt.close(fig)
     return None

@@ -24,3 +24,13 @@ def test_durations_read_as_minutes_and_hours():
     assert progress_mod._duration(59.4) == "59 s"
     assert progress_mod._duration(185) == "3 min 05 s"
     assert progress_mod._duration(7620) == "2 h 07 min"
+
+
+def test_a_note_is_a_line_of_its_own():
+    out = io.StringIO()
+    p = Progress("study", 10, stream=out)
+    p(5)
+    p.note("seq: flow from the cache")
+    assert out.getvalue().splitlines()[-1] == "seq: flow from the cache"
+    Progress("study", 10, stream=out, enabled=False).note("hidden")
+    assert "hidden" not in out.getvalue()

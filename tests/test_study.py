@@ -390,5 +390,18 @@ def test_summary_over_seeds_and_the_plotted_points(tmp_path):
     status = write_report(spec, rows, tmp_path, plot=False)
     assert set(status.values()) == {"written"} and "plot.png" not in status
     md = (tmp_path / "summary.md").read_text()
-    assert "| sequence | lam | max_age | seeds | ate_rmse_m | moving_f |" in md
+    assert "| sequence | lam | max_age | seeds | ate_rmse [mm] | moving_f |" in md
     assert json.loads((tmp_path / "results.json").read_text())[0]["moving_f"] is None
+
+
+@pytest.mark.parametrize("metric, label, scale", [
+    ("ate_rmse_m", "ate_rmse [mm]", 1000.0),
+    ("rpe_trans_m_per_frame", "rpe_trans [mm/frame]", 1000.0),
+    ("rpe_rot_deg_per_s", "rpe_rot [deg/s]", 1.0),
+    ("moving_f", "moving_f", 1.0),
+    ("seconds", "seconds [s]", 1.0),
+])
+def test_lengths_read_in_millimetres(metric, label, scale):
+    from jaxvo.study_report import display
+
+    assert display(metric) == (label, scale)
