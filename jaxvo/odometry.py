@@ -23,7 +23,7 @@ import numpy as np
 from jaxvo.camera import Intrinsics
 from jaxvo.config import Config, Params, grid_shape, params_as_arrays
 from jaxvo.flow import GridFlowTracker, flows_for_sequence
-from jaxvo.io import Trajectory
+from jaxvo.io import Trajectory, first_pose
 from jaxvo.pipeline import StepOutput, init_pipeline, jit_step, run_scan
 from jaxvo.status import Status
 
@@ -205,8 +205,7 @@ def run_sequence(
 
         raise InputError(f"sequence {seq.name!r} has {len(seq)} frame(s); odometry needs 2 or more")
     grid = grid_shape(seq.height, seq.width, cfg.cell)
-    gt = getattr(seq, "groundtruth", None)
-    T0 = gt.poses[0] if gt is not None and len(gt) == len(seq) else np.eye(4)
+    T0 = first_pose(seq)
 
     t0 = time.perf_counter()
     flows = flows_for_sequence(seq, cfg, progress=progress)

@@ -76,7 +76,7 @@ import numpy as np
 
 from jaxvo.config import Config, Params, grid_shape
 from jaxvo.errors import InputError
-from jaxvo.io import Trajectory
+from jaxvo.io import Trajectory, first_pose, groundtruth_of_frames
 
 # Columns of the results table: the scores of one run. ``moving_*`` need ground-truth
 # masks, the trajectory scores ground truth, the per-second RPE a sequence over 1 s long.
@@ -456,10 +456,7 @@ class _Subset:
         self.name, self.intrinsics = label, seq.intrinsics
         self.height, self.width = seq.height, seq.width
         self.timestamps = np.asarray(seq.timestamps, np.float64)[self._idx]
-        gt = getattr(seq, "groundtruth", None)
-        if gt is not None and len(gt) == len(seq):  # one pose per frame: keep the same ones
-            gt = Trajectory(np.asarray(gt.timestamps)[self._idx], np.asarray(gt.poses)[self._idx])
-        self.groundtruth = gt  # otherwise associated by timestamp when scored
+        self.groundtruth = groundtruth_of_frames(seq, self._idx)
         self.cell: int | None = None
         self.truth: dict[int, np.ndarray | None] = {}
 
@@ -544,11 +541,10 @@ def sequence_data(s: SequenceSpec, cfg: Config, cache_dir: str | Path | None, *,
     grid_shape(seq.height, seq.width, cfg.cell)  # an impossible cell fails here, in one line
     flows = flows_for_sequence(seq, cfg, progress=progress)
     gt = seq.groundtruth
-    T0 = gt.poses[0] if gt is not None and len(gt) == len(seq) else np.eye(4)
     pairs = len(seq) - 1
     masks = [seq.truth.get(k) for k in range(pairs)]
     truth = None if any(m is None for m in masks) else np.stack(masks)
-    data = SequenceData(s.label, flows, np.asarray(T0, np.float64), seq.timestamps, gt, truth,
+    data = SequenceData(s.label, flows, first_pose(seq), seq.timestamps, gt, truth,
                         seq.height, seq.width)
     if path is not None:
         arrays = {**flows._asdict(), "T_w_c0": data.T_w_c0, "timestamps": data.timestamps,

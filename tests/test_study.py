@@ -6,7 +6,6 @@ from __future__ import annotations
 import csv
 import json
 import os
-import re
 import socket
 import subprocess
 import sys
@@ -109,35 +108,28 @@ BAD = [
     ("[fixed]\nlam = 1.0\n[sweep]\nlam = [2.0]", "fixed.lam: is also swept"),
     ("[[points]]\nmax_age = 'old'", "points[0].max_age: a Params value must be a number"),
     ("[distributed]\ncoordinator = 'nohost'", "distributed.coordinator: bad value"),
+    # the sequences (a spec with its own [[sequences]] takes no default one)
+    ("[[sequences]]\nscene = 'moon'", "sequences[0].scene: unknown scene 'moon'"),
+    ("[[sequences]]\npath = 'no_such_folder_here'",
+     "sequences[0].path: no folder 'no_such_folder_here'"),
+    ("[[sequences]]\ncomposite = '.'", "sequences[0].scene: a composite needs the scene"),
+    ("[[sequences]]\nscene = 'static'\nframes = 1",
+     "sequences[0].frames: must be an integer >= 2"),
+    ("[[sequences]]\nscene = 'static'\ncamera = 'tum_fr1'", "sequences[0].camera: only a folder"),
+    ("[[sequences]]\nscene = 'static'\nfps = 10", "sequences[0].fps: unknown key"),
+    ("[[sequences]]\nframes = 5", "sequences[0]: needs scene (a built-in scene), path"),
 ]
 
 
 @pytest.mark.parametrize("extra, message", BAD)
 def test_bad_specs_name_the_key_and_the_fault(tmp_path, extra, message):
-    seq = '[[sequences]]\nscene = "static"\n'
+    seq = '' if "[[sequences]]" in extra else '[[sequences]]\nscene = "static"\n'
     # TOML: top-level keys before the first table
     path = spec_of(seq + extra if extra.startswith("[") else extra + "\n" + seq, tmp_path)
     with pytest.raises(InputError) as err:
         study.load_spec(path)
     text = str(err.value)
     assert message in text and "\n" not in text and text.startswith(str(path))
-
-
-BAD_SEQUENCES = [
-    ("scene = 'moon'", "sequences[0].scene: unknown scene 'moon'"),
-    ("path = 'no_such_folder_here'", "sequences[0].path: no folder 'no_such_folder_here'"),
-    ("composite = '.'", "sequences[0].scene: a composite needs the scene"),
-    ("scene = 'static'\nframes = 1", "sequences[0].frames: must be an integer >= 2"),
-    ("scene = 'static'\ncamera = 'tum_fr1'", "sequences[0].camera: only a folder"),
-    ("scene = 'static'\nfps = 10", "sequences[0].fps: unknown key"),
-    ("frames = 5", "sequences[0]: needs scene (a built-in scene), path"),
-]
-
-
-@pytest.mark.parametrize("entry, message", BAD_SEQUENCES)
-def test_bad_sequences_name_the_entry(tmp_path, entry, message):
-    with pytest.raises(InputError, match=re.escape(message)):
-        study.load_spec(spec_of(f"[[sequences]]\n{entry}\n", tmp_path))
 
 
 def test_only_the_first_process_needs_the_folders(tmp_path):

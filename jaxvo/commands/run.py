@@ -64,7 +64,7 @@ def run(args: argparse.Namespace) -> int:
 
     from jaxvo.config import Config
     from jaxvo.errors import InputError
-    from jaxvo.io import TrajectoryWriter, check_depth_scale, open_sequence
+    from jaxvo.io import TrajectoryWriter, check_depth_scale, first_pose, open_sequence
     from jaxvo.masks import dynamic_pixels, grid_to_pixels, overlay_panel
     from jaxvo.odometry import Odometry
     from jaxvo.plugin import mask_png
@@ -83,8 +83,7 @@ def run(args: argparse.Namespace) -> int:
     first = seq[0]
     check_depth_scale(first.depth, seq.intrinsics, where=f"{args.sequence} frame 0")
     gt = seq.groundtruth
-    odo = Odometry(seq.intrinsics, cfg=cfg, seed=args.seed,
-                   T_w_c0=gt.poses[0] if gt is not None and len(gt) == len(seq) else None)
+    odo = Odometry(seq.intrinsics, cfg=cfg, seed=args.seed, T_w_c0=first_pose(seq))
     progress = Progress("jaxvo run", n - 1, enabled=not args.quiet)
     skipped: Counter[str] = Counter()
     times: list[float] = []
