@@ -796,13 +796,16 @@ def run_spec(spec: StudySpec, out_dir: str | Path, *, resume: bool = False,
     cache = Path(flow_cache) if flow_cache is not None else out / "flows"
     runs, ids = spec_runs(spec)
     done_ids: set[str] = set()
+    problem = None
     if first:
         if runs_path.is_file() and not resume:
-            raise InputError(f"{out} already holds a study's runs ({RUNS_FILE}); pass --resume "
-                             "to continue it, or choose another --out")
-        done_ids = set(read_runs(runs_path)) if resume else set()
-        out.mkdir(parents=True, exist_ok=True)
-        (out / "spec.json").write_text(json.dumps(_spec_record(spec), indent=1) + "\n")
+            problem = InputError(f"{out} already holds a study's runs ({RUNS_FILE}); pass "
+                                 "--resume to continue it, or choose another --out")
+        else:
+            done_ids = set(read_runs(runs_path)) if resume else set()
+            out.mkdir(parents=True, exist_ok=True)
+            (out / "spec.json").write_text(json.dumps(_spec_record(spec), indent=1) + "\n")
+    _agree(problem)
     done = _from_first(np.asarray([i in done_ids for i in ids], bool))
 
     mesh = device_mesh()
@@ -822,14 +825,19 @@ def run_spec(spec: StudySpec, out_dir: str | Path, *, resume: bool = False,
         progress(0, total)
     for (q, cfg), ks in groups.items():
         s = spec.sequences[q]
-        data = None
+        data = problem = None
         if first:
             t0 = time.perf_counter()
-            data, cached = sequence_data(s, cfg, cache)
-            flow_seconds += 0.0 if cached else time.perf_counter() - t0
-            if log is not None:
-                log(f"{s.label}: {len(data.timestamps) - 1} frame pairs, flow "
-                    + ("from the cache" if cached else f"in {time.perf_counter() - t0:.1f} s"))
+            try:
+                data, cached = sequence_data(s, cfg, cache)
+            except InputError as exc:  # told to every process, which all stop
+                problem = exc
+            else:
+                flow_seconds += 0.0 if cached else time.perf_counter() - t0
+                if log is not None:
+                    log(f"{s.label}: {len(data.timestamps) - 1} frame pairs, flow " + (
+                        "from the cache" if cached else f"in {time.perf_counter() - t0:.1f} s"))
+        _agree(problem)
         data = _share_data(data)
         per_call = batch * mesh.devices.size
         for start in range(0, len(ks), per_call):
@@ -934,6 +942,13 @@ def _from_first(x: np.ndarray) -> np.ndarray:
     from jax.experimental import multihost_utils
 
     return np.asarray(multihost_utils.broadcast_one_to_all(x))
+
+
+def _agree(problem: InputError | None) -> None:
+    """Raise the first process's ``problem`` on every process (the others would otherwise
+    wait for it in the next exchange until JAX's timeout)."""
+    if _from_first(np.asarray([problem is not None]))[0]:
+        raise problem or InputError("the first process stopped the study; see its message")
 
 
 def _share_data(data: SequenceData | None) -> SequenceData:

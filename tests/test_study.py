@@ -285,9 +285,8 @@ def _free_port() -> int:
         return s.getsockname()[1]
 
 
-def test_two_processes_give_the_same_bits_as_one(tiny):
-    _, path, root, _ = tiny
-    out = root / "two"
+def _two_processes(path, out, root):
+    """``jaxvo study`` as two processes on this machine: (return codes, outputs)."""
     port = _free_port()
     procs = [subprocess.Popen(
         _cli(path, "--out", out, "--flow-cache", root / "flows", "--json",
@@ -295,7 +294,14 @@ def test_two_processes_give_the_same_bits_as_one(tiny):
         env=_env(), stdout=subprocess.PIPE, stderr=subprocess.PIPE, text=True)
         for i in (0, 1)]
     outs = [p.communicate(timeout=600) for p in procs]
-    assert [p.returncode for p in procs] == [0, 0], [e[-2000:] for _, e in outs]
+    return [p.returncode for p in procs], outs
+
+
+def test_two_processes_give_the_same_bits_as_one(tiny):
+    _, path, root, _ = tiny
+    out = root / "two"
+    codes, outs = _two_processes(path, out, root)
+    assert codes == [0, 0], [e[-2000:] for _, e in outs]
     # Gloo's C++ side prints its connection line to stdout
     printed = ["".join(ln for ln in o.splitlines(keepends=True) if not ln.startswith("[Gloo]"))
                for o, _ in outs]
@@ -303,6 +309,12 @@ def test_two_processes_give_the_same_bits_as_one(tiny):
     assert summary["devices"] == 2 and summary["processes"] == 2
     assert printed[1] == ""  # only the first process reports
     assert digests(out) == digests(root / "one")
+
+    # a fault the first process finds stops both, each with one line
+    codes, outs = _two_processes(path, out, root)
+    assert codes == [2, 2]
+    assert outs[0][1].strip().splitlines()[-1].endswith("or choose another --out")
+    assert "the first process stopped the study" in outs[1][1]
 
 
 def test_an_interrupted_study_resumes_where_it_stopped(tiny, tmp_path):
@@ -331,6 +343,26 @@ def test_an_interrupted_study_resumes_where_it_stopped(tiny, tmp_path):
     more = spec._replace(seeds=(0, 1, 2))
     res = study.run_spec(more, out, resume=True, flow_cache=root / "flows")
     assert res.ran == 3 and len(res.rows) == 9
+
+
+def test_cli_interrupted_keeps_the_tables_of_what_finished(tiny, tmp_path, monkeypatch, capsys):
+    from jaxvo.progress import Progress
+
+    _, path, root, first = tiny
+    calls = []
+
+    def interrupt_third(self, done, total=None):
+        calls.append(done)
+        if len(calls) == 3:
+            raise KeyboardInterrupt
+
+    monkeypatch.setattr(Progress, "__call__", interrupt_third)
+    out = tmp_path / "cut"
+    assert main(["study", str(path), "--out", str(out), "--flow-cache", str(root / "flows"),
+                 "--no-plot"]) == 130
+    assert "2 finished runs kept" in capsys.readouterr().err
+    rows = json.loads((out / "results.json").read_text())
+    assert [r["digest"] for r in rows] == [r["digest"] for r in first.rows[:2]]
 
 
 def test_cli_writes_the_tables_and_a_plot(tiny, tmp_path, capsys):
