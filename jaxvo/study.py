@@ -77,6 +77,7 @@ import numpy as np
 from jaxvo.config import Config, Params, grid_shape
 from jaxvo.errors import InputError
 from jaxvo.io import Trajectory, first_pose, groundtruth_of_frames
+from jaxvo.status import Status
 
 # Columns of the results table: the scores of one run. ``moving_*`` need ground-truth
 # masks, the trajectory scores ground truth, the per-second RPE a sequence over 1 s long.
@@ -729,7 +730,7 @@ def score_run(data: SequenceData, T_w_c: np.ndarray, moving: np.ndarray,
     for a in (T_w_c, moving, status):
         h.update(np.ascontiguousarray(a).tobytes())
     row["digest"] = h.hexdigest()[:16]
-    row["skipped_pairs"] = int(np.count_nonzero(status != 0))
+    row["skipped_pairs"] = int(np.count_nonzero(status != Status.OK))
     if data.groundtruth is not None:
         poses = np.concatenate([data.T_w_c0[None], np.asarray(T_w_c, np.float64)])
         try:
