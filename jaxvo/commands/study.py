@@ -1,6 +1,6 @@
 """``jaxvo study SPEC --out DIR``: a study over sequences, settings and seeds.
 
-The spec (TOML or JSON; see :mod:`jaxvo.study`) names sequences, ``Params`` and
+The spec (TOML or JSON; see docs/study.md) names sequences, ``Params`` and
 ``Config`` values and seeds. Each sequence's flow is computed once and cached; the
 configurations run as vmapped whole-sequence scans split over every device; every run is
 scored and kept as soon as its call finishes, so an interrupted study continues with
@@ -21,15 +21,18 @@ def add_arguments(p: argparse.ArgumentParser) -> None:
     p.description = __doc__.split("\n\n", 1)[1].replace("``", "")
     p.formatter_class = argparse.RawDescriptionHelpFormatter
     p.epilog = (
-        "files written under --out: results.csv / results.json (one row per run), "
-        "summary.csv / summary.json / summary.md (mean and spread over seeds), plot.png "
-        "(each metric against each swept setting; needs matplotlib), runs.jsonl (finished "
-        "runs, for --resume), spec.json, flows/ (the flow cache)\n\n"
+        "files written under --out:\n"
+        "  results.csv, results.json         one row per run\n"
+        "  summary.csv, summary.json, .md    mean and spread over seeds\n"
+        "  plot.png                          each metric against each swept setting "
+        "(needs matplotlib)\n"
+        "  runs.jsonl                        finished runs, read by --resume\n"
+        "  spec.json, flows/                 the parsed spec, the flow cache\n\n"
         "several machines: start on every machine, each with its own --process-id,\n"
         "  jaxvo study SPEC --out DIR --coordinator HOST0:12345 --num-processes N "
         "--process-id I\n"
-        "HOST0:12345 is reachable from every machine (process 0 listens there); only "
-        "process 0 needs the sequences and writes DIR."
+        "HOST0:12345 is reachable from every machine (process 0 listens there);\n"
+        "only process 0 needs the sequences and writes DIR."
     )
     p.add_argument("spec", metavar="SPEC", help="study spec, .toml or .json")
     p.add_argument("--out", "-o", required=True, metavar="DIR", help="results folder (created)")
