@@ -418,6 +418,15 @@ def test_summary_over_seeds_and_the_plotted_points(tmp_path):
     assert json.loads((tmp_path / "results.json").read_text())[0]["moving_f"] is None
 
 
+def test_without_matplotlib_the_plot_is_skipped_and_said_so(tmp_path, monkeypatch):
+    spec = study.parse_spec({"sequences": [{"scene": "static"}], "sweep": {"lam": [10.0]}})
+    rows = [{"sequence": "static_s0", **c, "seed": 0, "ate_rmse_m": 0.01} for c in spec.configs]
+    monkeypatch.setitem(sys.modules, "matplotlib", None)  # import matplotlib now fails
+    status = write_report(spec, rows, tmp_path)
+    assert status["plot.png"].startswith("matplotlib is not installed")
+    assert not (tmp_path / "plot.png").exists() and (tmp_path / "results.csv").is_file()
+
+
 @pytest.mark.parametrize("metric, label, scale", [
     ("ate_rmse_m", "ate_rmse [mm]", 1000.0),
     ("rpe_trans_m_per_frame", "rpe_trans [mm/frame]", 1000.0),
