@@ -39,7 +39,7 @@ from jaxvo.config import Config, Params, grid_shape, params_as_arrays
 from jaxvo.egomotion import estimate_egomotion
 from jaxvo.evaluation import segmentation_scores, trajectory_scores
 from jaxvo.flow import GridFlowTracker, stack_flows
-from jaxvo.io import Trajectory, data_root, open_sequence, write_trajectory
+from jaxvo.io import Trajectory, data_root, first_pose, open_sequence, write_trajectory
 from jaxvo.masks import overlay_panel
 from jaxvo.metrics import SegmentationScores, ate
 from jaxvo.peers import OPEN3D_PEERS, available_peers, run_peer
@@ -179,8 +179,7 @@ def time_stages(flows, key, params, cfg: Config, grid):
 def run_jaxvo(seq: CachedSequence, cfg: Config, seed: int, repeats: int):
     """Flow on the host, then the whole-sequence scan (compile apart, median of ``repeats``)."""
     grid = grid_shape(seq.height, seq.width, cfg.cell)
-    gt = seq.groundtruth
-    T0 = gt.poses[0] if gt is not None and len(gt) == len(seq) else np.eye(4)
+    T0 = first_pose(seq)
     flows, flow_times = host_flows(seq, cfg)
     T = len(flows.valid)
     flows_dev = jax.tree.map(jnp.asarray, flows)

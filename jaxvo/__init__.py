@@ -54,6 +54,8 @@ from jaxvo.plugin import dynamic_masks, iter_dynamic_masks
 from jaxvo.procrustes import fit_rigid, residuals
 from jaxvo.spatial import Segmentation, segment
 from jaxvo.status import Status
+from jaxvo.study import StudyResult, StudySpec, load_spec, parse_spec, run_spec
+from jaxvo.study_report import write_report
 from jaxvo.synth import (
     SCENARIOS,
     ObjectSpec,
@@ -94,6 +96,9 @@ __all__ = [
     "SequenceResult",
     "Status",
     "StepOutput",
+    # studies
+    "StudyResult",
+    "StudySpec",
     "SyntheticSequence",
     # temporal
     "TemporalOut",
@@ -119,9 +124,11 @@ __all__ = [
     "init_temporal",
     "iter_dynamic_masks",
     "jit_step",
+    "load_spec",
     "make_sequence",
     "open_sequence",
     "params_as_arrays",
+    "parse_spec",
     "preset",
     "read_camera_file",
     "read_trajectory",
@@ -129,6 +136,7 @@ __all__ = [
     "rpe",
     "run_scan",
     "run_sequence",
+    "run_spec",
     "run_study",
     "segment",
     "segmentation_scores",
@@ -136,6 +144,7 @@ __all__ = [
     "step",
     "trajectory_scores",
     "update_temporal",
+    "write_report",
     "write_sequence",
     "write_trajectory",
 ]

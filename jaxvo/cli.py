@@ -40,6 +40,7 @@ COMMANDS: dict[str, tuple[str, str]] = {
     "run": ("jaxvo.commands.run", "odometry over a recorded TUM-layout RGB-D sequence"),
     "eval": ("jaxvo.commands.eval", "score a trajectory against ground truth (ATE, RPE)"),
     "synth": ("jaxvo.commands.synth", "render a synthetic dynamic RGB-D sequence with ground truth"),
+    "study": ("jaxvo.commands.study", "run and score a study over sequences, settings and seeds"),
 }
 
 

@@ -671,6 +671,25 @@ def check_depth_scale(depth: np.ndarray, K, *, where: str) -> str | None:
     return None
 
 
+def first_pose(seq) -> np.ndarray:
+    """(4, 4) float64 pose of a sequence's first camera: its first ground-truth pose when it
+    has one a frame (estimated and true trajectories then share a frame without
+    alignment), else the identity."""
+    gt = getattr(seq, "groundtruth", None)
+    if gt is not None and len(gt) == len(seq):
+        return np.asarray(gt.poses[0], np.float64)
+    return np.eye(4)
+
+
+def groundtruth_of_frames(seq, idx: np.ndarray) -> Trajectory | None:
+    """The ground truth of frames ``idx`` of ``seq``: the same poses when it has one a
+    frame, else the trajectory as it is (the metrics associate it by timestamp)."""
+    gt = getattr(seq, "groundtruth", None)
+    if gt is not None and len(gt) == len(seq):
+        return Trajectory(np.asarray(gt.timestamps)[idx], np.asarray(gt.poses)[idx])
+    return gt
+
+
 class InMemorySequence:
     """The first ``frames`` frames of a sequence, read (or rendered) once and kept in memory.
 
@@ -691,10 +710,7 @@ class InMemorySequence:
         self.height, self.width = seq.height, seq.width
         self.timestamps = np.asarray(seq.timestamps, np.float64)[idx]
         self._frames = [seq[int(i)] for i in idx]
-        gt = getattr(seq, "groundtruth", None)
-        if gt is not None and len(gt) == len(seq):  # one pose per frame: keep the same ones
-            gt = Trajectory(np.asarray(gt.timestamps)[idx], np.asarray(gt.poses)[idx])
-        self.groundtruth = gt  # otherwise associated by timestamp, as the metrics do
+        self.groundtruth = groundtruth_of_frames(seq, idx)
         self.has_masks = self._frames[0].mask is not None
 
     def __len__(self) -> int:

@@ -367,3 +367,23 @@ def test_sevenscenes_sequence(require_data):
     valid = f.depth[f.depth > 0]
     # Millimetres at scale 1000: a room seen from a hand-held Kinect, 0.3 m to 8 m.
     assert 0.3 < np.median(valid) < 8.0
+
+
+def test_first_pose_and_the_ground_truth_of_chosen_frames():
+    from jaxvo.io import first_pose, groundtruth_of_frames
+
+    poses = np.tile(np.eye(4), (5, 1, 1))
+    poses[:, 0, 3] = np.arange(5.0)
+    per_frame = Trajectory(np.arange(5) / 30.0, poses)
+    seq = type("Seq", (), {"groundtruth": per_frame, "__len__": lambda self: 5})()
+    assert np.array_equal(first_pose(seq), poses[0]) and first_pose(seq).dtype == np.float64
+    sub = groundtruth_of_frames(seq, np.array([1, 3]))
+    assert np.array_equal(sub.poses[:, 0, 3], [1.0, 3.0])
+    assert np.array_equal(sub.timestamps, per_frame.timestamps[[1, 3]])
+    # a ground truth at its own rate (not one pose a frame) is kept whole, and gives no
+    # first pose: the metrics associate it by timestamp
+    sparse = type("Seq", (), {"groundtruth": per_frame, "__len__": lambda self: 9})()
+    assert groundtruth_of_frames(sparse, np.array([0, 2])) is per_frame
+    assert np.array_equal(first_pose(sparse), np.eye(4))
+    none = type("Seq", (), {"groundtruth": None, "__len__": lambda self: 3})()
+    assert groundtruth_of_frames(none, np.array([0])) is None

@@ -1,0 +1,440 @@
+"""Studies: the spec and its one-line errors, the flow cache's key, sharded runs that give
+the same bits on 1 device, 4 devices and 2 processes, resuming, and the tables."""
+
+from __future__ import annotations
+
+import csv
+import json
+import os
+import socket
+import subprocess
+import sys
+from pathlib import Path
+from typing import NamedTuple
+
+import jax
+import jax.numpy as jnp
+import numpy as np
+import pytest
+
+from jaxvo import study
+from jaxvo.cli import main
+from jaxvo.config import Config, Params
+from jaxvo.errors import InputError
+from jaxvo.evaluation import trajectory_scores
+from jaxvo.io import Trajectory
+from jaxvo.pipeline import batch_params, run_study
+from jaxvo.study_report import plot_points, summarise, write_report
+
+# a tiny study: 8 frames of the fast hand-held scene (its runs differ by seed and setting,
+# unlike a fixed camera over so few frames), a coarse grid, few hypotheses
+TINY = """
+name = "tiny"
+seeds = [0, 1]
+batch = 1
+[[sequences]]
+scene = "handheld_fast"
+frames = 8
+[fixed]
+cell = 32
+num_hypotheses = 4
+[sweep]
+lam = [10.0, 100000.0]
+"""
+
+
+def spec_of(text: str, tmp_path: Path, name: str = "spec.toml") -> Path:
+    path = tmp_path / name
+    path.write_text(text)
+    return path
+
+
+# ----------------------------------------------------------------------------- the spec
+
+
+def test_sweep_grid_and_points_make_the_configurations_in_order(tmp_path):
+    spec = study.load_spec(spec_of("""
+seeds = 3
+[[sequences]]
+scene = "static"
+[fixed]
+delta = 0.05
+[grid]
+num_hypotheses = [10, 20]
+[sweep]
+lam = [100.0, 1000.0]
+[[points]]
+max_age = 5
+""", tmp_path))
+    assert spec.seeds == (3,)
+    # Config fields first, then Params fields, each in its class's order
+    assert spec.settings == ("num_hypotheses", "lam", "delta", "max_age")
+    assert spec.base == {"num_hypotheses": 20, "lam": 1e3, "delta": 0.05, "max_age": 15.0}
+    got = [(c["num_hypotheses"], c["lam"], c["max_age"]) for c in spec.configs]
+    # each grid point, then the sweep around it (lam 1000 is the base: not repeated), then
+    # the points
+    assert got == [(10, 1e3, 15.0), (10, 100.0, 15.0), (20, 1e3, 15.0), (20, 100.0, 15.0),
+                   (20, 1e3, 5.0)]
+    assert spec.swept == ("num_hypotheses", "lam", "max_age")
+    assert all(c["delta"] == 0.05 for c in spec.configs)
+    assert spec.sequences[0].label == "static_s0" and spec.metrics == study.DEFAULT_METRICS
+
+
+def test_json_specs_and_folders_under_the_data_root(tmp_path, require_data):
+    require_data("7scenes_static_0000_0299", "associations.txt")
+    spec = study.load_spec(spec_of(json.dumps({
+        "sequences": [{"path": "7scenes_static_0000_0299", "frames": 10, "step": 4},
+                      {"composite": "7scenes_static_0000_0299", "scene": "handheld_slow"}],
+    }), tmp_path, "s.json"))
+    folder, comp = spec.sequences
+    assert Path(folder.path).is_dir() and folder.label == "7scenes_static_0000_0299_every4"
+    assert comp.label == "composite_handheld_slow_7scenes_static_0000_0299_s0"
+    assert len(spec.configs) == 1 and spec.swept == ()
+
+
+BAD = [
+    ("colour = 1", "colour: unknown key"),
+    ("seeds = [1, 1]", "seeds: repeats a seed"),
+    ("seeds = [-1]", "seeds: must be an integer in 0 .. 2^31 - 1"),
+    ("seeds = [2147483648]", "seeds: must be an integer in 0 .. 2^31 - 1"),
+    ("metrics = ['ate']", "metrics: unknown metric 'ate'"),
+    ("batch = 0", "batch: must be a positive integer"),
+    ("[grid]\nlamda = [1.0, 2.0]", "grid.lamda: unknown setting"),
+    ("[sweep]\nlam = []", "sweep.lam: is an empty list"),
+    ("[sweep]\nlam = ['big']", "sweep.lam: a Params value must be a number"),
+    ("[fixed]\nnum_hypotheses = 2.5", "fixed.num_hypotheses: a Config value of type int"),
+    ("[fixed]\ndepth_smooth = 1", "fixed.depth_smooth: a Config value of type bool"),
+    ("[fixed]\nmax_age = true", "fixed.max_age: a Params value must be a number"),
+    ("[fixed]\nlam = 1.0\n[sweep]\nlam = [2.0]", "fixed.lam: is also swept"),
+    ("[[points]]\nmax_age = 'old'", "points[0].max_age: a Params value must be a number"),
+    ("[distributed]\ncoordinator = 'nohost'", "distributed.coordinator: bad value"),
+    # the sequences (a spec with its own [[sequences]] takes no default one)
+    ("[[sequences]]\nscene = 'moon'", "sequences[0].scene: unknown scene 'moon'"),
+    ("[[sequences]]\npath = 'no_such_folder_here'",
+     "sequences[0].path: no folder 'no_such_folder_here'"),
+    ("[[sequences]]\ncomposite = '.'", "sequences[0].scene: a composite needs the scene"),
+    ("[[sequences]]\nscene = 'static'\nframes = 1",
+     "sequences[0].frames: must be an integer >= 2"),
+    ("[[sequences]]\nscene = 'static'\ncamera = 'tum_fr1'", "sequences[0].camera: only a folder"),
+    ("[[sequences]]\nscene = 'static'\nfps = 10", "sequences[0].fps: unknown key"),
+    ("[[sequences]]\nframes = 5", "sequences[0]: needs scene (a built-in scene), path"),
+]
+
+
+@pytest.mark.parametrize("extra, message", BAD)
+def test_bad_specs_name_the_key_and_the_fault(tmp_path, extra, message):
+    seq = '' if "[[sequences]]" in extra else '[[sequences]]\nscene = "static"\n'
+    # TOML: top-level keys before the first table
+    path = spec_of(seq + extra if extra.startswith("[") else extra + "\n" + seq, tmp_path)
+    with pytest.raises(InputError) as err:
+        study.load_spec(path)
+    text = str(err.value)
+    assert message in text and "\n" not in text and text.startswith(str(path))
+
+
+def test_only_the_first_process_needs_the_folders(tmp_path):
+    path = spec_of("[[sequences]]\npath = 'on_the_first_machine'\n", tmp_path)
+    with pytest.raises(InputError, match="no folder 'on_the_first_machine'"):
+        study.load_spec(path)
+    spec = study.load_spec(path, check_folders=False)
+    assert spec.sequences[0].path == "on_the_first_machine"
+
+
+def test_two_sequences_with_one_name_are_refused(tmp_path):
+    text = "[[sequences]]\nscene = 'static'\n[[sequences]]\nscene = 'static'\n"
+    with pytest.raises(InputError, match=r"sequences\[1\]: its name 'static_s0' is that of "
+                                         r"sequences\[0\]"):
+        study.load_spec(spec_of(text, tmp_path))
+
+
+def test_settings_are_checked_against_params_as_they_are_now(tmp_path, monkeypatch):
+    """The spec follows Params' fields at run time: a renamed field is refused, a new one
+    accepted, with no list to update."""
+
+    class Renamed(NamedTuple):
+        noise_sigma: float = 0.002
+        max_age: float = 15.0
+
+    monkeypatch.setattr(study, "Params", Renamed)
+    spec = study.load_spec(spec_of("[[sequences]]\nscene = 'static'\n[sweep]\n"
+                                   "noise_sigma = [0.001, 0.004]\n", tmp_path))
+    assert spec.swept == ("noise_sigma",) and spec.base["noise_sigma"] == 0.002
+    with pytest.raises(InputError, match="sweep.lam: unknown setting; Params has "
+                                         "noise_sigma, max_age"):
+        study.load_spec(spec_of("[[sequences]]\nscene = 'static'\n[sweep]\nlam = [1.0]\n",
+                                tmp_path))
+
+
+def test_cli_bad_spec_is_one_line_and_exit_2(tmp_path, capsys):
+    path = spec_of("[[sequences]]\nscene = 'static'\n[grid]\nH = [10, 20]\n", tmp_path)
+    assert main(["study", str(path), "--out", str(tmp_path / "o")]) == 2
+    err = capsys.readouterr().err.strip().splitlines()
+    assert len(err) == 1 and err[0].startswith("jaxvo: error:") and "grid.H: unknown" in err[0]
+    broken = spec_of("seeds = [0,\n", tmp_path, "broken.toml")
+    assert main(["study", str(broken), "--out", str(tmp_path / "o")]) == 2
+    err = capsys.readouterr().err.strip().splitlines()
+    assert len(err) == 1 and "not valid TOML" in err[0]
+    assert main(["study", str(tmp_path / "none.toml"), "--out", str(tmp_path / "o")]) == 2
+    assert "cannot read the study spec" in capsys.readouterr().err
+
+
+# ---------------------------------------------------------------------- the flow cache
+
+
+class _Recorder:
+    """A Config that notes every field read from it."""
+
+    def __init__(self, cfg, seen):
+        self._cfg, self._seen = cfg, seen
+
+    def __getattr__(self, name):
+        self._seen.add(name)
+        return getattr(self._cfg, name)
+
+
+def test_flow_cache_key_covers_every_config_field_the_flow_reads():
+    from jaxvo.flow import flows_for_sequence
+    from jaxvo.synth import make_sequence
+
+    seen: set[str] = set()
+    flows_for_sequence(make_sequence("handheld_fast", frames=3, seed=0),
+                       _Recorder(Config(cell=32), seen))
+    read = seen & set(study.config_fields())
+    assert read and read <= set(study.flow_fields())
+    assert "num_hypotheses" not in study.flow_fields()
+
+    s = study.SequenceSpec("x", "static", None, 5, 0, 1, None)
+    key = study.sequence_key(s, Config())
+    assert key == study.sequence_key(s, Config(num_hypotheses=5, max_ids=4))
+    assert key != study.sequence_key(s, Config(cell=32))
+    assert key != study.sequence_key(s._replace(seed=1), Config())
+    assert key == study.sequence_key(s._replace(label="y"), Config())
+
+
+# ---------------------------------------------------------------------------- the runs
+
+
+@pytest.fixture(scope="module")
+def tiny(tmp_path_factory):
+    """The tiny study run once in this process (one CPU device)."""
+    root = tmp_path_factory.mktemp("study")
+    path = spec_of(TINY, root)
+    spec = study.load_spec(path)
+    res = study.run_spec(spec, root / "one", flow_cache=root / "flows")
+    return spec, path, root, res
+
+
+def digests(out: Path) -> dict[tuple, str]:
+    rows = json.loads((out / "results.json").read_text()) if (out / "results.json").is_file() \
+        else list(study.read_runs(out / study.RUNS_FILE).values())
+    return {(r["sequence"], r["lam"], r["seed"]): r["digest"] for r in rows}
+
+
+def test_a_study_run_matches_run_study_called_directly(tiny):
+    spec, _, root, res = tiny
+    assert res.total == res.ran == len(res.rows) == 6 and res.devices == 1
+    assert res.config_frames == 6 * 7
+    # the runs differ (else the comparisons below could not see a run out of place)
+    assert len({r["digest"] for r in res.rows}) >= 4
+
+    data, cached = study.sequence_data(spec.sequences[0], Config(cell=32), root / "flows")
+    assert cached and data.truth.shape == (7, 15 * 20)
+    cfg = Config(cell=32, num_hypotheses=4)
+    for row in (res.rows[1], res.rows[4]):  # lam 1000 seed 1, lam 1e5 seed 0
+        out = run_study(jax.tree.map(jnp.asarray, data.flows), jax.random.key(row["seed"])[None],
+                        batch_params(Params(), lam=[row["lam"]]),
+                        jnp.asarray(data.T_w_c0, jnp.float32), cfg=cfg, grid=(15, 20))
+        T, moving, status = (np.asarray(a[0]) for a in (out.T_w_c, out.moving, out.status))
+        direct = study.score_run(data, T, moving, status)
+        assert direct["digest"] == row["digest"]
+        poses = np.concatenate([data.T_w_c0[None], T.astype(np.float64)])
+        ref = trajectory_scores(data.groundtruth, Trajectory(data.timestamps, poses))
+        assert row["ate_rmse_m"] == pytest.approx(ref["ate_rmse_m"], rel=0, abs=0)
+        truth, pred = data.truth, moving
+        tp = np.sum(truth & pred)
+        assert row["moving_recall"] == pytest.approx(tp / np.sum(truth), abs=1e-12)
+        assert row["moving_precision"] == pytest.approx(tp / np.sum(pred), abs=1e-12)
+
+
+def _env(**extra) -> dict:
+    env = {k: v for k, v in os.environ.items() if k != "XLA_FLAGS"}
+    return {**env, "JAX_PLATFORMS": "cpu", **extra}
+
+
+def _cli(*args) -> list[str]:
+    return [sys.executable, "-m", "jaxvo.cli", "study", *map(str, args)]
+
+
+def test_four_devices_give_the_same_bits_as_one(tiny):
+    _, path, root, _ = tiny
+    out = root / "four"
+    done = subprocess.run(
+        _cli(path, "--out", out, "--flow-cache", root / "flows", "--json"),
+        env=_env(XLA_FLAGS="--xla_force_host_platform_device_count=4"),
+        capture_output=True, text=True, timeout=600, check=False)
+    assert done.returncode == 0, done.stderr[-2000:]
+    summary = json.loads(done.stdout)
+    assert summary["devices"] == 4 and summary["runs"] == 6
+    assert summary["flow_seconds"] == 0.0  # the flow came from the shared cache
+    assert digests(out) == digests(root / "one")
+
+
+def _free_port() -> int:
+    with socket.socket() as s:
+        s.bind(("127.0.0.1", 0))
+        return s.getsockname()[1]
+
+
+def _two_processes(path, out, root):
+    """``jaxvo study`` as two processes on this machine: (return codes, outputs)."""
+    port = _free_port()
+    procs = [subprocess.Popen(
+        _cli(path, "--out", out, "--flow-cache", root / "flows", "--json",
+             "--coordinator", f"127.0.0.1:{port}", "--num-processes", 2, "--process-id", i),
+        env=_env(), stdout=subprocess.PIPE, stderr=subprocess.PIPE, text=True)
+        for i in (0, 1)]
+    outs = [p.communicate(timeout=600) for p in procs]
+    return [p.returncode for p in procs], outs
+
+
+def test_two_processes_give_the_same_bits_as_one(tiny):
+    _, path, root, _ = tiny
+    out = root / "two"
+    codes, outs = _two_processes(path, out, root)
+    assert codes == [0, 0], [e[-2000:] for _, e in outs]
+    # Gloo's C++ side prints its connection line to stdout
+    printed = ["".join(ln for ln in o.splitlines(keepends=True) if not ln.startswith("[Gloo]"))
+               for o, _ in outs]
+    summary = json.loads(printed[0])
+    assert summary["devices"] == 2 and summary["processes"] == 2
+    assert printed[1] == ""  # only the first process reports
+    assert digests(out) == digests(root / "one")
+
+    # a fault the first process finds stops both, each with one line
+    codes, outs = _two_processes(path, out, root)
+    assert codes == [2, 2]
+    assert outs[0][1].strip().splitlines()[-1].endswith("or choose another --out")
+    assert "the first process stopped the study" in outs[1][1]
+
+
+def test_an_interrupted_study_resumes_where_it_stopped(tiny, tmp_path):
+    spec, _, root, first = tiny
+    out = tmp_path / "resumed"
+    calls = []
+
+    def stop_after_two(done, total):
+        calls.append(done)
+        if len(calls) == 3:  # after the second call of one configuration each
+            raise KeyboardInterrupt
+
+    with pytest.raises(KeyboardInterrupt):
+        study.run_spec(spec, out, flow_cache=root / "flows", progress=stop_after_two)
+    kept = study.read_runs(out / study.RUNS_FILE)
+    assert len(kept) == 2
+    with (out / study.RUNS_FILE).open("a") as fh:
+        fh.write('{"id": "cut sho')  # a line cut short by the interruption
+    with pytest.raises(InputError, match="pass --resume"):
+        study.run_spec(spec, out, flow_cache=root / "flows")
+    res = study.run_spec(spec, out, resume=True, flow_cache=root / "flows")
+    assert res.ran == 4 and len(res.rows) == 6
+    assert [r["digest"] for r in res.rows] == [r["digest"] for r in first.rows]
+
+    # a larger study in the same folder runs only what is new
+    more = spec._replace(seeds=(0, 1, 2))
+    res = study.run_spec(more, out, resume=True, flow_cache=root / "flows")
+    assert res.ran == 3 and len(res.rows) == 9
+
+
+def test_cli_interrupted_keeps_the_tables_of_what_finished(tiny, tmp_path, monkeypatch, capsys):
+    from jaxvo.progress import Progress
+
+    _, path, root, first = tiny
+    calls = []
+
+    def interrupt_third(self, done, total=None):
+        calls.append(done)
+        if len(calls) == 3:
+            raise KeyboardInterrupt
+
+    monkeypatch.setattr(Progress, "__call__", interrupt_third)
+    out = tmp_path / "cut"
+    assert main(["study", str(path), "--out", str(out), "--flow-cache", str(root / "flows"),
+                 "--no-plot"]) == 130
+    assert "2 finished runs kept" in capsys.readouterr().err
+    rows = json.loads((out / "results.json").read_text())
+    assert [r["digest"] for r in rows] == [r["digest"] for r in first.rows[:2]]
+
+
+def test_cli_writes_the_tables_and_a_plot(tiny, tmp_path, capsys):
+    _, path, root, first = tiny
+    out = tmp_path / "cli"
+    assert main(["study", str(path), "--out", str(out), "--flow-cache", str(root / "flows"),
+                 "-q"]) == 0
+    text = capsys.readouterr().out
+    assert "6 of 6 runs" in text and "| handheld_fast_s0 |" in text
+    with (out / "results.csv").open() as fh:
+        rows = list(csv.DictReader(fh))
+    assert len(rows) == 6 and set(Params._fields) <= set(rows[0])
+    assert rows[0]["rpe_trans_m_per_s"] == ""  # 8 frames last under a second
+    assert [r["digest"] for r in rows] == [r["digest"] for r in first.rows]
+    assert (out / "plot.png").stat().st_size > 1000
+    summary = json.loads((out / "summary.json").read_text())
+    assert [e["seeds"] for e in summary] == [2, 2, 2]
+
+
+# --------------------------------------------------------------------------- the tables
+
+
+def test_summary_over_seeds_and_the_plotted_points(tmp_path):
+    spec = study.parse_spec({"sequences": [{"scene": "static"}], "seeds": [0, 1, 2],
+                             "metrics": ["ate_rmse_m", "moving_f"],
+                             "grid": {"lam": [100.0, 1000.0], "max_age": [5.0, 15.0]}})
+    rng = np.random.default_rng(0)
+    rows = [{"sequence": "static_s0", **c, "seed": s, "ate_rmse_m": float(rng.random()),
+             "moving_f": None} for c in spec.configs for s in spec.seeds]
+    summary = summarise(spec, rows)
+    assert len(summary) == 4
+    for e, c in zip(summary, spec.configs, strict=True):
+        v = [r["ate_rmse_m"] for r in rows if r["lam"] == c["lam"]
+             and r["max_age"] == c["max_age"]]
+        assert e["seeds"] == 3
+        assert e["ate_rmse_m_mean"] == pytest.approx(np.mean(v), abs=1e-15)
+        assert e["ate_rmse_m_std"] == pytest.approx(np.std(v), abs=1e-15)
+        assert (e["ate_rmse_m_min"], e["ate_rmse_m_max"]) == (min(v), max(v))
+        assert e["moving_f_mean"] is None
+    # lam against the base max_age (15, the default, is in the grid): the max_age 5 runs
+    # are left out
+    x, y, s = plot_points(spec, summary, "lam", "ate_rmse_m")["static_s0"]
+    at15 = [e for e in summary if e["max_age"] == 15.0]
+    assert list(x) == [100.0, 1000.0]
+    assert list(y) == [e["ate_rmse_m_mean"] for e in at15]
+    assert list(s) == [e["ate_rmse_m_std"] for e in at15]
+    assert plot_points(spec, summary, "lam", "moving_f") == {}
+
+    status = write_report(spec, rows, tmp_path, plot=False)
+    assert set(status.values()) == {"written"} and "plot.png" not in status
+    md = (tmp_path / "summary.md").read_text()
+    assert "| sequence | lam | max_age | seeds | ate_rmse [mm] | moving_f |" in md
+    assert json.loads((tmp_path / "results.json").read_text())[0]["moving_f"] is None
+
+
+def test_without_matplotlib_the_plot_is_skipped_and_said_so(tmp_path, monkeypatch):
+    spec = study.parse_spec({"sequences": [{"scene": "static"}], "sweep": {"lam": [10.0]}})
+    rows = [{"sequence": "static_s0", **c, "seed": 0, "ate_rmse_m": 0.01} for c in spec.configs]
+    monkeypatch.setitem(sys.modules, "matplotlib", None)  # import matplotlib now fails
+    status = write_report(spec, rows, tmp_path)
+    assert status["plot.png"].startswith("matplotlib is not installed")
+    assert not (tmp_path / "plot.png").exists() and (tmp_path / "results.csv").is_file()
+
+
+@pytest.mark.parametrize("metric, label, scale", [
+    ("ate_rmse_m", "ate_rmse [mm]", 1000.0),
+    ("rpe_trans_m_per_frame", "rpe_trans [mm/frame]", 1000.0),
+    ("rpe_rot_deg_per_s", "rpe_rot [deg/s]", 1.0),
+    ("moving_f", "moving_f", 1.0),
+    ("seconds", "seconds [s]", 1.0),
+])
+def test_lengths_read_in_millimetres(metric, label, scale):
+    from jaxvo.study_report import display
+
+    assert display(metric) == (label, scale)
