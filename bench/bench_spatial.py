@@ -179,6 +179,7 @@ def time_batched(frames, params, cfg, grid, reps):
         uv_cur=jnp.zeros((n, frames[0][0].shape[0], 2), jnp.float32),
         valid=jnp.stack([jnp.asarray(f[2]) for f in frames]),
         status=jnp.zeros((n,), jnp.int32),
+        focal=jnp.full((n,), 525.0, jnp.float32),
     )
     fn = jax.jit(lambda fl, keys, p: segment_frames(fl, keys, p, cfg=cfg, grid=grid))
     key = jax.random.key(0)

@@ -20,6 +20,11 @@ class Intrinsics(NamedTuple):
     cy: float
     depth_scale: float = 5000.0
 
+    @property
+    def focal(self) -> float:
+        """The mean focal length, pixels: metres per pixel at depth z is z / focal."""
+        return 0.5 * (float(self.fx) + float(self.fy))
+
     def matrix(self) -> np.ndarray:
         """The 3x3 camera matrix K."""
         return np.array(

@@ -61,18 +61,10 @@ class Config:
     # synthetic scenes; 1 trip let fixed_camera_2 lose its background in one run
     cluster_refine_iters: int = 2
     max_segments: int = 8  # most distinct motions kept per frame
-    # most frames a recorded sequence segments per vmapped call (run_scan, run_study);
-    # None picks by backend (scan_batch_for). On the CPU, XLA's runtime then shares its
-    # per-operation cost: 8 measured 1.5x faster than 1, 16 no faster. On an H100, 100
-    # frames a call ran 2.0x faster than 8 and 32 1.7x (docs/report/pipeline_h100.md)
-    scan_batch: int | None = None
 
     # --- temporal segmentation (thesis chapter 4, Algorithm 3) ---
     max_ids: int = 8  # identifiers (m of section 4.1); identifier 1 is the static background
     match_window: int = 5  # tMinSize: previous frames the label matching looks back over
-    # moving identifiers (those with the most labelled points) checked each frame for a slow
-    # object merged into the background (pipeline.held_objects)
-    held_ids: int = 2
 
     # --- ego-motion ---
     # robust re-weighting iterations: 5 and 10 score the same (ATE within 0.1 mm on four
@@ -94,20 +86,25 @@ class Params(NamedTuple):
     # point still has entropy 1 - exp(-delta) = 0.00995, so the rule can only fire above
     # that floor; a slow object on a tenth of the image keeps the mean near 0.02 (0.05 here
     # stopped the search before the object was sampled; 0.012 and 0.005 score the same).
-    # With 2 mm of noise the mean stays above it, so the search also ends once at most
+    # With noise the mean stays above it, so the search also ends once at most
     # min_segment_points valid points are inliers of no hypothesis; 0 runs all H trips
     s_min: float = 0.012
-    # inlier distance at 1 m depth, metres: ~3 sigma of the refined depth's frame-to-frame
-    # noise; a hand-held object moves 1-3 cm per frame at 30 Hz, slower near turns (8 mm
-    # found the slow object of fixed_camera_1 in 60 of 89 frames, 4 mm in 68)
-    inlier_dist: float = 0.004
-    # extra inlier distance per m^2 of depth beyond 1 m (Kinect axial noise ~1.5e-3 z^2 per
-    # frame); 0.01 let a slow object's motion absorb the camera's at 3 m (10 cm threshold)
-    inlier_depth_coeff: float = 0.002
-    sample_dist: float = 0.015  # max residual of the m sample points themselves, at 1 m, metres
+    # confidence of every statistical test against the sensor noise model (jaxvo.noise):
+    # a point is an inlier of a motion when its normalised residual is within the
+    # chi-square(3) quantile at this confidence; a minimal sample fits one motion when its
+    # points' residuals sum within chi-square(3 m - 6)
+    confidence: float = 0.99
     cluster_eps: float = 0.5  # DBSCAN radius on the inlier-set (Jaccard) distance
     cluster_min_samples: float = 1.0  # DBSCAN core-point threshold (count, incl. itself)
     min_segment_points: float = 12.0  # N_threshold of Algorithm 2, grid points
+
+    # sensor noise (jaxvo.noise): the values a sequence starts from, those of a real
+    # structured-light sensor after depth refinement (7-Scenes frames 0-149 against ground
+    # truth: 0.75 px, 1.5e-3 z^2; bench/calibrate_noise.py); the pipeline calibrates both
+    # online from the background's residuals, moving log(value) by noise_rate a frame
+    pixel_sigma: float = 0.75  # tracker noise across the viewing ray, pixels per axis
+    depth_coeff: float = 1.5e-3  # depth noise along the ray over z^2, 1/m
+    noise_rate: float = 0.2
 
     # temporal segmentation
     min_match_corr: float = 0.3  # weakest correlation (eq. 4.1) that still counts as a match
@@ -115,15 +112,17 @@ class Params(NamedTuple):
     # after about this many frames, a stopped object turns static after as many
     max_age: float = 15.0
     id_retention: float = 15.0  # frames before an unseen identifier may be reused
-    # an object the spatial stage merged into the background keeps its identifier while its
-    # own rigid fit lowers its points' squared residuals by at least this share of tau^2 on
-    # average (tau ~ 3 sigma, so 0.25 ~ 2.25 sigma^2 a point; refitting 6 degrees of
-    # freedom to 12 or more points of one motion gains under 0.06). 0.1 scores the same,
-    # 0.5 keeps too little (see pipeline.held_objects)
-    hold_gain: float = 0.25
+    # moving evidence of a cell (pipeline.evidence_delta, temporal.update_evidence): a
+    # point that moves has residuals about evidence_effect times the noise; one frame
+    # shifts the log-odds by at most evidence_step; the evidence decays by evidence_decay
+    # a frame and stays within +-evidence_clamp; a cell is reported moving once its
+    # posterior exceeds `confidence`
+    evidence_effect: float = 3.0
+    evidence_step: float = 3.0
+    evidence_decay: float = 0.9
+    evidence_clamp: float = 6.0
 
     # ego-motion
-    ego_huber: float = 0.02  # Huber threshold of the robust refinement at 1 m depth, metres
     min_static_points: float = 12.0  # fewer static points than this: the frame is skipped
 
 
@@ -137,23 +136,6 @@ def params_as_arrays(params: Params) -> Params:
     import jax.numpy as jnp  # here, so that host-only commands (jaxvo eval) never load JAX
 
     return Params(*(jnp.asarray(v, jnp.float32) for v in params))
-
-
-def scan_batch_for(cfg: Config, frames: int, backend: str) -> int:
-    """Frames per vmapped spatial call for a sequence of ``frames`` pairs on ``backend``.
-
-    At most ``cfg.scan_batch`` (by default 8 on the CPU, 128 on an accelerator), split into
-    calls of equal size so that padding the last call wastes at most one frame per call:
-    299 pairs at most 128 a call run as 3 calls of 100, not 3 of 128. A study vmaps this
-    over its B configurations, so a call holds B times as many frames: on a GPU with
-    little memory, a large study may need a smaller ``scan_batch``.
-    """
-    most = cfg.scan_batch if cfg.scan_batch is not None else (8 if backend == "cpu" else 128)
-    if most < 1:
-        raise ValueError(f"scan_batch must be at least 1, got {most}")
-    frames = max(frames, 1)
-    calls = -(-frames // most)
-    return -(-frames // calls)
 
 
 # Smallest grid cell checked by check_config, pixels: a 4-pixel grid already tracks 16
@@ -200,8 +182,6 @@ def check_config(
             raise InputError(f"{name(field)} must be a whole number, got {value!r}") from None
         if whole < least:
             raise InputError(f"{name(field)} must be at least {least} {unit}, got {value}")
-    if cfg.scan_batch is not None and cfg.scan_batch < 1:
-        raise InputError(f"{name('scan_batch')} must be at least 1, got {cfg.scan_batch}")
     if height is not None and width is not None and min(height, width) // cfg.cell < 2:
         raise InputError(
             f"{name('cell')} {cfg.cell} leaves fewer than 2 x 2 grid cells on the "

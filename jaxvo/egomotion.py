@@ -5,8 +5,9 @@ static background: with ``p_cur = T_cur_prev p_prev`` for static points, the new
 pose is ``T_w_cur = T_w_prev @ inv(T_cur_prev)``.
 
 The fit is the weighted Procrustes of thesis eqs. (2.1), (2.2) on the static points,
-refined by iteratively re-weighted least squares with Huber weights so that a few points
-the temporal model mislabels (object edges, late-detected objects) cannot pull the pose.
+refined by iteratively re-weighted least squares with Huber weights on the residuals in
+units of the sensor noise (:mod:`jaxvo.noise`), so that a few points the temporal model
+mislabels (object edges, late-detected objects) cannot pull the pose.
 A last few Gauss-Newton steps (:func:`refine_reprojection`, our addition to the thesis)
 weigh the image-plane and depth parts of the error separately, because RGB-D depth noise
 lies along the viewing ray and biases the isotropic 3D fit.
@@ -18,14 +19,20 @@ import jax
 import jax.numpy as jnp
 
 from jaxvo.config import Config, Params
-from jaxvo.geometry import make_pose, masked_median, so3_exp
-from jaxvo.procrustes import fit_rigid_cols, residuals_cols
+from jaxvo.geometry import make_pose, masked_median, masked_quantile, so3_exp
+from jaxvo.noise import chi2_quantile, init_noise, point_noise, residuals
+from jaxvo.procrustes import fit_rigid_cols
 from jaxvo.status import Status
 
-
-def noise_scale(z):
-    """Expected depth-noise scale at depth ``z`` metres, relative to 1 m (structured light ~ z^2)."""
-    return 0.5 + 0.5 * z * z
+# The robust noise scale of a frame is the lower quartile of the normalised residual
+# lengths over that of a 3-D standard normal vector (sqrt of chi2_3's, 1.1081): a quarter
+# of the usable points on the background suffice.
+_QUARTILE = 0.25
+_CHI_3_Q25 = 1.1081
+# The frame's robust scale may differ from the calibrated model's by at most these factors:
+# a frame whose usable points are mostly mislabelled cannot inflate the Huber threshold
+# beyond twice the noise, nor shrink it below a quarter.
+_SCALE_RANGE = (0.25, 2.0)
 
 
 def _huber_threshold(x, mask):
@@ -35,10 +42,10 @@ def _huber_threshold(x, mask):
     return 2.0 * 1.4826 * masked_median(x, mask, precision_bits=12)
 
 
-def _huber_weights(r, c, w):
+def _huber_weights(r, c, w, cut=3.0):
     """Weights ``w`` times Huber's ``min(1, c / r)`` for residual sizes ``r >= 0``; 0 beyond
-    ``3 c``."""
-    return jnp.where(r < 3.0 * c, w * jnp.minimum(1.0, c / jnp.maximum(r, 1e-20)), 0.0)
+    ``cut * c``."""
+    return jnp.where(r < cut * c, w * jnp.minimum(1.0, c / jnp.maximum(r, 1e-20)), 0.0)
 
 
 def refine_reprojection(T, src, dst, weights, iters):
@@ -96,51 +103,68 @@ def refine_reprojection(T, src, dst, weights, iters):
     return jax.lax.fori_loop(0, iters, gn, T)
 
 
-def estimate_egomotion(pts_prev, pts_cur, weights, params: Params, *, cfg: Config):
+def estimate_egomotion(pts_prev, pts_cur, weights, params: Params, *, cfg: Config,
+                       focal=525.0, scale=None, T_init=None):
     """Robust rigid motion of the static background between two frames.
 
-    Each re-weighting iteration measures the residuals in units of the expected noise at
-    each point's depth, takes a robust scale from their median absolute value (so that a
-    fifth of mislabelled points cannot inflate it), caps that scale at ``params.ego_huber``
-    and refits with Huber weights, points beyond three scales getting weight 0.
+    Each re-weighting iteration takes the residuals in units of the sensor noise
+    (:mod:`jaxvo.noise`), a robust scale of the frame from their median length (so that a
+    fifth of mislabelled points cannot inflate it, and within ``_SCALE_RANGE`` of the
+    calibrated model), and refits with Huber weights whose corner is the inlier test
+    (``chi2_3(confidence)``) at that scale; points beyond three corners get weight 0.
 
     Args:
       pts_prev: (n, 3) previous-frame points, metres.
       pts_cur: (n, 3) the same points in the current frame, metres.
       weights: (n,) float, > 0 for points that may be used (static and valid).
-      params: numeric settings (``ego_huber`` metres at 1 m, ``min_static_points``).
+      params: numeric settings (``confidence``, ``min_static_points``).
       cfg: static settings (``ego_iters`` re-weighting iterations).
+      focal: () focal length, pixels; scale: the calibrated :class:`jaxvo.noise.NoiseScale`
+        (by default the starting values of ``params``).
+      T_init: optional (4, 4) starting motion (the background segment's); the first
+        weights are then taken from its residuals instead of a fit on all usable points,
+        so that the re-weighting converges to the background, not to a compromise with an
+        object not yet known to move.
 
     Returns:
       T_cur_prev: (4, 4) float32, maps previous-frame points into the current frame
         (identity when the status is not OK).
       status: () int32, ``Status.OK``, ``NO_STATIC`` or ``EGO_DEGENERATE``.
-      inliers: (n,) bool, points within three robust scales of the final fit.
+      inliers: (n,) bool, points the final fit explains within the inlier test at the
+        frame's scale.
     """
     # columns (3, n): every coordinate a contiguous vector, which XLA's CPU backend
     # vectorises far better than (n, 3) rows (see procrustes.fit_rigid_cols)
     src, dst = pts_prev.T, pts_cur.T
     usable = weights > 0
     n_usable = jnp.sum(usable)
-    s_z = noise_scale(pts_prev[:, 2])
-    # a point's weight falls with its expected noise (1/sigma rather than the statistically
+    noise = point_noise(src, dst, jnp.asarray(focal, jnp.float32),
+                        init_noise(params) if scale is None else scale)
+    corner = jnp.sqrt(chi2_quantile(3, params.confidence))
+    # a point's weight falls with its depth noise (1/sigma rather than the statistically
     # optimal 1/sigma^2: that let near, mislabelled object points pull the fit, fixed_camera_1
     # ATE 0.6 -> 190 mm, while 1/sigma keeps most of the gain on static scenes, 6.6 -> 4.9 mm)
-    w0 = jnp.where(usable, weights / s_z, 0.0).astype(jnp.float32)
+    w_ray = jnp.sqrt(noise.w_ray)
+    w0 = jnp.where(usable, weights * w_ray / jnp.maximum(jnp.max(w_ray), 1e-12), 0.0)
+    w0 = w0.astype(jnp.float32)
 
     def scaled_residuals(T):
-        r = jnp.sqrt(residuals_cols(T, src, dst) + 1e-12) / s_z
-        return r, jnp.clip(_huber_threshold(r, usable), 1e-3, params.ego_huber)
+        r = jnp.sqrt(residuals(T, src, dst, noise)[0] + 1e-12)
+        q = masked_quantile(r, usable, _QUARTILE) / _CHI_3_Q25
+        return r, corner * jnp.clip(q, *_SCALE_RANGE)
 
     def reweight(_, carry):
         T, _ok = carry
         r, c = scaled_residuals(T)
         return fit_rigid_cols(src, dst, _huber_weights(r, c, w0))
 
-    T0, ok0 = fit_rigid_cols(src, dst, w0)
+    if T_init is None:
+        T0, ok0 = fit_rigid_cols(src, dst, w0)
+    else:
+        T0, ok0 = reweight(0, (jnp.asarray(T_init, jnp.float32), jnp.bool_(True)))
     T, ok = jax.lax.fori_loop(0, cfg.ego_iters, reweight, (T0, ok0))
     r, c = scaled_residuals(T)
-    inliers = usable & (r < 3.0 * c)
+    inliers = usable & (r <= c)
     if cfg.ego_reprojection_iters > 0:
         T = refine_reprojection(T, src, dst, inliers, cfg.ego_reprojection_iters)
 

@@ -95,9 +95,11 @@ class GridFlow(NamedTuple):
     uv_cur: np.ndarray  # (n, 2) float32 pixels, tracked positions (= uv_prev where invalid)
     valid: np.ndarray  # (n,) bool, passed LK, forward-backward, similarity and depth checks
     status: np.ndarray  # () int32 Status code: OK, or BAD_INPUT
+    focal: np.ndarray  # () float32 pixels, the camera's mean focal length (jaxvo.noise)
 
 
-def invalid_flow(uv_grid: np.ndarray, status: int = Status.BAD_INPUT) -> GridFlow:
+def invalid_flow(uv_grid: np.ndarray, status: int = Status.BAD_INPUT, *,
+                 focal: float = 1.0) -> GridFlow:
     """An all-invalid :class:`GridFlow` on the grid ``uv_grid`` (n, 2) with ``status``."""
     n = uv_grid.shape[0]
     uv = np.asarray(uv_grid, np.float32)
@@ -108,6 +110,7 @@ def invalid_flow(uv_grid: np.ndarray, status: int = Status.BAD_INPUT) -> GridFlo
         uv_cur=uv.copy(),
         valid=np.zeros(n, bool),
         status=np.int32(status),
+        focal=np.float32(focal),
     )
 
 
@@ -484,7 +487,7 @@ class GridFlowTracker:
         grey = _as_grey(bgr, self.height, self.width)
         d = _as_depth(depth, self.height, self.width)
         if grey is None or d is None:
-            return invalid_flow(self.uv_grid, Status.BAD_INPUT)
+            return invalid_flow(self.uv_grid, Status.BAD_INPUT, focal=self.K.focal)
         # this frame's depth at the grid is read by the next pair only: refined beside LK
         grid_depth = _beside(_depth_at, d, self._grid_lookup, self.cfg)
         prev = self._prev
@@ -564,6 +567,7 @@ class GridFlowTracker:
             uv_cur=uv_cur,
             valid=valid,
             status=np.int32(Status.OK),
+            focal=np.float32(self.K.focal),
         )
 
 
@@ -772,7 +776,7 @@ def sequence_flows(
         if i and progress is not None:
             progress(i, n_frames - 1)
     if not flows:
-        empty = invalid_flow(tracker.uv_grid)
+        empty = invalid_flow(tracker.uv_grid, focal=seq.intrinsics.focal)
         stacked = GridFlow(*(np.zeros((0, *np.shape(f)), np.asarray(f).dtype) for f in empty))
     else:
         stacked = stack_flows(flows)

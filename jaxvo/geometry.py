@@ -84,6 +84,16 @@ def _kth_key(keys, mask, k, halvings=32):
     return lo
 
 
+def masked_quantile(x, mask, q: float, precision_bits: int = 12):
+    """The ``q`` quantile of ``x[mask]`` (the order statistic ``floor(q (k - 1))`` of the
+    ``k`` masked values) to a relative ``2**-precision_bits``, 0 when the mask is empty
+    (bisection on the float bit patterns, as :func:`masked_median`)."""
+    k = jnp.sum(mask)
+    j = jnp.maximum(jnp.floor(q * (k - 1)).astype(jnp.int32), 0)
+    value = _from_order_key(_kth_key(_order_key(x), mask, j, halvings=9 + int(precision_bits)))
+    return jnp.where(k > 0, value, 0.0).astype(x.dtype)
+
+
 def masked_median(x, mask, precision_bits: int | None = None):
     """Median of ``x[mask]`` for a fixed-shape ``(n,)`` vector, 0 when the mask is empty.
 

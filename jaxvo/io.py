@@ -691,19 +691,22 @@ def groundtruth_of_frames(seq, idx: np.ndarray) -> Trajectory | None:
 
 
 class InMemorySequence:
-    """The first ``frames`` frames of a sequence, read (or rendered) once and kept in memory.
+    """``frames`` frames of a sequence from ``start`` on, read (or rendered) once and kept in
+    memory.
 
-    With ``step`` k, every k-th frame (0, k, 2k, ...): the same images with k times the
-    motion between frames, a fast-motion test with the sequence's own ground truth.
+    With ``step`` k, every k-th frame (start, start + k, ...): the same images with k times
+    the motion between frames, a fast-motion test with the sequence's own ground truth.
 
     jaxvo and every peer then read the same frames, and rendering a synthetic frame (about
     0.1 s) is paid once instead of once per method.
     """
 
-    def __init__(self, seq, frames: int | None = None, *, step: int = 1):
+    def __init__(self, seq, frames: int | None = None, *, step: int = 1, start: int = 0):
         if int(step) < 1:
             raise InputError(f"frame step must be at least 1, got {step}")
-        idx = np.arange(0, len(seq), int(step))
+        if int(start) < 0:
+            raise InputError(f"start frame must be 0 or more, got {start}")
+        idx = np.arange(int(start), len(seq), int(step))
         idx = idx if frames is None else idx[: max(int(frames), 0)]
         self.name = seq.name if step == 1 else f"{seq.name}_every{int(step)}"
         self.intrinsics = seq.intrinsics
@@ -712,6 +715,11 @@ class InMemorySequence:
         self._frames = [seq[int(i)] for i in idx]
         self.groundtruth = groundtruth_of_frames(seq, idx)
         self.has_masks = self._frames[0].mask is not None
+        # a synthetic sequence's moving objects, on the frames kept
+        self.scenario = getattr(seq, "scenario", None)
+        self.object_trajectories = {
+            k: Trajectory(np.asarray(t.timestamps)[idx], np.asarray(t.poses)[idx])
+            for k, t in getattr(seq, "object_trajectories", {}).items()}
 
     def __len__(self) -> int:
         return len(self._frames)

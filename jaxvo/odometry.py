@@ -185,7 +185,8 @@ class Odometry:
                                      max_dropped=self._max_dropped)
             self._grid = tracker.grid
             self._state = jax.device_put(
-                init_pipeline(cfg=self.cfg, grid=self._grid, T_w_c0=self._T_w_c0), self.device
+                init_pipeline(cfg=self.cfg, grid=self._grid, T_w_c0=self._T_w_c0,
+                              params=self.params), self.device
             )
         self._last_t = t
         flow, dropped = self._chain.push(bgr, depth)

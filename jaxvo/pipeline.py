@@ -21,210 +21,255 @@ from typing import NamedTuple
 import jax
 import jax.numpy as jnp
 
-from jaxvo.config import Config, Params, scan_batch_for
+from jaxvo.config import Config, Params
 from jaxvo.egomotion import estimate_egomotion
 from jaxvo.geometry import invert_pose
-from jaxvo.procrustes import fit_rigid_cols, residuals, residuals_cols
-from jaxvo.spatial import inlier_threshold, segment
+from jaxvo.noise import NoiseScale, chi2_quantile, init_noise, residuals, transfer, update_noise
+from jaxvo.spatial import frame_points, segment
 from jaxvo.status import Status, first_failure
 from jaxvo.temporal import (
     STATIC_ID,
     TemporalState,
+    choose_background,
+    identify,
     init_temporal,
-    own_segment_err,
+    measured_labels,
     update_temporal,
 )
+
+# The calibration stays within these: LK is not more precise than about 0.1 px (and a
+# simulator's noise can be far below a real sensor's), and a sensor noisier than 2 px and
+# 4e-3 z^2 (three times a Kinect's raw depth noise) is not one the method can work with;
+# without the ceiling, frames whose ego-motion followed an object measured the background's
+# residuals as noise, and the model grew until every motion merged (to 4 px, 5e-3 z^2).
+NOISE_FLOOR = NoiseScale(jnp.float32(0.1), jnp.float32(3e-4))
+NOISE_CEILING = NoiseScale(jnp.float32(2.0), jnp.float32(4e-3))
+# Depth bins of the background's support (choose_background): from 0.5 m, each 25 % deeper.
+_DEPTH_BINS, _DEPTH_BASE, _DEPTH_RATIO = 12, 0.5, 1.25
+# The weight of a point whose evidence has not yet established it as background or as
+# moving (new in view, or its evidence faded) against one established as background.
+_UNESTABLISHED = 0.1
 
 
 class PipelineState(NamedTuple):
     """What the odometry carries from one frame to the next."""
 
-    temporal: TemporalState  # dual-mode grid model, identifiers, label history
+    temporal: TemporalState  # dual-mode grid model, identifiers, evidence, label history
     T_w_c: jax.Array  # (4, 4) float32, pose of the latest camera (camera-to-world)
     frame: jax.Array  # () int32, frame pairs processed so far
     T_last: jax.Array  # (4, 4) float32, the last accepted ego-motion T_cur_prev
     have_last: jax.Array  # () bool, whether T_last holds an accepted ego-motion yet
+    noise: NoiseScale  # the sensor noise calibrated so far (jaxvo.noise)
 
 
 class StepOutput(NamedTuple):
     """Per frame pair; grid arrays are anchored on the previous image of the pair."""
 
     T_w_c: jax.Array  # (4, 4) float32, pose of the current camera
-    T_cur_prev: jax.Array  # (4, 4) float32, estimated motion of the static background
-    status: jax.Array  # () int32 Status code, OK or why the frame was skipped
+    T_cur_prev: jax.Array  # (4, 4) float32, motion of the static background (carried: predicted)
+    status: jax.Array  # () int32 Status code, OK or why the motion was carried
     ids: jax.Array  # (n,) int32 temporal identifiers: 0 unknown, 1 static, >1 moving objects
-    moving: jax.Array  # (n,) bool points reported as moving (see moving_points)
+    moving: jax.Array  # (n,) bool points reported as moving (evidence over time)
     static: jax.Array  # (n,) bool, points the ego-motion used (static, valid, inlier)
     labels: jax.Array  # (n,) int32 spatial segments of this pair (0 = none)
     hyp_labels: jax.Array  # (n,) int32 best raw hypothesis per point, before clustering
     matched: jax.Array  # (n,) int32 spatial segments after label matching
     num_segments: jax.Array  # () int32 distinct motions found by the spatial stage
+    evidence: jax.Array  # (n,) float32 log-odds that each point moves
+    background: jax.Array  # () int32 spatial label of the background segment, 0 none
+    reacquired: jax.Array  # () bool the background took its identifier back this frame
+    noise: NoiseScale  # the calibrated sensor noise after this frame
 
 
-def moving_points(tout, follows):
-    """Grid points reported as moving: the temporal model says a moving identifier, or this
-    frame's label-matched measurement does (the model switches only after several frames,
-    thesis section 4.2; the measurement shows a newly moving object at once).
-
-    The measurement alone does not count where the model says static and the point itself
-    follows the predicted camera motion (``follows`` (n,) bool): an object's segment also
-    takes far-wall points that its motion explains within the wall's wide threshold
-    (``handheld_slow`` seed 2: 15-40 such points a frame), and these are no evidence of
-    motion. (The same rule as for cells an object enters, ``temporal._update_models``.)
-    """
-    still = (tout.ids == STATIC_ID) & follows
-    return (tout.ids > STATIC_ID) | ((tout.matched > STATIC_ID) & ~still)
+def belief_weights(prior, params: Params):
+    """(n,) how much each point counts as background by what earlier frames say of it: 1
+    where its static posterior reaches the confidence (established background),
+    ``_UNESTABLISHED`` where it is not yet established either way (new in view, or its
+    evidence faded), 0 where it is believed to move."""
+    L = _moving_logodds(params)
+    return jnp.where(prior <= -L, 1.0, jnp.where(prior <= L, _UNESTABLISHED, 0.0))
 
 
-def static_weights(tout, valid):
-    """(n,) float weights of the points the ego-motion may use.
+def background_support(d2_seg, sizes, weights, z, d2_pred, have_last, thr):
+    """(S,) float32 each segment's support as the background in this frame (0 unused).
 
-    The temporal model's static points, less those this frame's matched measurement gives
-    to a moving identifier, as long as that leaves at least half of them. The model takes
-    up to ``max_age`` frames to hand a cell over, so an object that starts to move (or
-    separates from a background it was merged with) stays static in the model meanwhile
-    and drags the ego-motion (``fixed_camera_2``: 400 mm of drift in one run of four); the
-    measurement shows it at once. The measurement alone is not used: where the label
-    matching briefly hands the background another identifier it would remove most of the
-    background (tried: fixed-camera scenes 10-30x worse); the half rule keeps the model's
-    set then.
-    """
-    model = valid & (tout.ids == STATIC_ID)
-    agreed = model & (tout.matched <= STATIC_ID)
-    use_agreed = 2 * jnp.sum(agreed) >= jnp.sum(model)
-    return jnp.where(use_agreed, agreed, model).astype(jnp.float32)
-
-
-def follows_prediction(seg, follows, *, cfg: Config):
-    """(max_segments,) bool: whether most of each segment's points move as the camera motion
-    predicted from the previous frame says static points do; ``follows`` (n,) bool says it
-    of each valid point (its residual under that motion within the inlier threshold)."""
-    member = seg.labels[None, :] == jnp.arange(1, cfg.max_segments + 1)[:, None]
-    n = jnp.sum(member, axis=1)
-    return 2 * jnp.sum(member & follows[None, :], axis=1) > n
-
-
-def held_objects(ids, flow, valid, own_err, tau2, params: Params, *, cfg: Config):
-    """(n,) int32 per point: a moving identifier its point still moves with (0 = none).
-
-    A slow object merges with the background in the spatial stage once its motion differs
-    from the background's by less than the per-point inlier threshold (``handheld_fast``
-    seed 2: a box at 1.9 m moving 5-10 mm a frame against a 9.4 mm threshold), and the
-    temporal model then hands its cells to the background within a few frames. The points
-    still labelled with the object's identifier tell where it is, and together they show
-    its motion where no single point can. The points of each of the ``cfg.held_ids``
-    moving identifiers with the most labelled points get a rigid fit of their own (a refit
-    on that fit's inliers scored the same and cost 0.15 ms a frame). The identifier is
-    held when that fit lowers their squared residuals, relative to the segments now
-    holding them, by at least ``params.hold_gain`` of ``tau^2`` on average over at least
-    ``min_segment_points`` points; it then claims the points its fit explains within the
-    threshold and better than their own segment does.
+    The support of a segment's motion is the surface its explained points stand for,
+    each weighted by how much earlier frames say it is background (:func:`belief_weights`):
+    a grid point at depth z stands for ``(z / f)^2`` square metres of surface, so the
+    room behind a person or a box covering half the view still has more surface than
+    they have. Points are counted where the motion explains them (not only its own
+    segment's), so a piece of the background split off by noise adds to the motion that
+    explains it.
 
     Args:
-      ids: (n,) int32 temporal labels carried into this frame (on this pair's grid).
-      flow: the pair's ``GridFlow`` (``pts_prev``, ``pts_cur``).
-      valid: (n,) bool points with a segment.
-      own_err: (n,) squared residual of each point under its own segment's motion.
-      tau2: (n,) squared inlier thresholds.
+      d2_seg: (S, n) normalised residuals of every point under each segment's motion;
+      sizes: (S,) segment sizes (0 unused); weights: (n,) belief weights (0 invalid);
+      z: (n,) depth, metres; thr: () the inlier test.
     """
-    moving = jnp.arange(STATIC_ID + 1, cfg.max_ids + 1)
-    in_id = valid[None, :] & (ids[None, :] == moving[:, None])  # (max_ids - 1, n)
-    count, slot = jax.lax.top_k(jnp.sum(in_id, axis=1), min(cfg.held_ids, cfg.max_ids - 1))
-    k = moving[slot]
-    member = in_id[slot]  # (held_ids, n)
-    src, dst = flow.pts_prev.T, flow.pts_cur.T
-
-    def fit(w):
-        T, ok = fit_rigid_cols(src, dst, w)
-        return residuals_cols(T, src, dst), ok
-
-    err, ok = jax.vmap(fit)(member.astype(jnp.float32))
-    gain = jnp.sum(jnp.where(member, (own_err[None, :] - err) / tau2[None, :], 0.0), axis=1)
-    held = ok & (count >= params.min_segment_points) & (gain >= params.hold_gain * count)
-    claims = member & held[:, None] & (err <= tau2[None, :]) & (err < own_err[None, :])
-    return jnp.where(jnp.any(claims, axis=0), k[jnp.argmax(claims, axis=0)], 0)
+    import os
+    explained = d2_seg <= thr
+    support = jnp.sum(explained * (weights * z * z)[None, :], axis=1)
+    eps = float(os.environ.get("JV_EPS", "100"))
+    if eps < 100:
+        f = jnp.where(have_last, jnp.sum(explained & (d2_pred <= thr)[None, :], axis=1)
+                      / jnp.maximum(jnp.sum(explained, axis=1), 1), 1.0)
+        support = (eps + f) * support
+    return jnp.where(sizes > 0, support, 0.0)
 
 
-def init_pipeline(*, cfg: Config, grid: tuple[int, int], T_w_c0=None) -> PipelineState:
-    """Start state: empty grid model and the first camera pose (identity by default)."""
+def explained_segments(seg, d2, valid, thr, *, cfg: Config):
+    """(S,) bool the segments most of whose valid points the motion behind ``d2`` (n,)
+    explains within the inlier test ``thr``."""
+    member = (seg.labels[None, :] == jnp.arange(1, cfg.max_segments + 1)[:, None]) & valid
+    count = jnp.sum(member, axis=1)
+    fits = jnp.sum(member & (d2 <= thr)[None, :], axis=1)
+    return (count > 0) & (2 * fits >= count)
+
+
+def evidence_delta(seg, d2_ego, d2_seg, explained, valid, params: Params):
+    """(n,) float32 this frame's log-likelihood ratio, moving over static, of every point.
+
+    Static: the point follows the ego-motion, its residual ``d2_ego`` chi-square with 3
+    degrees of freedom. Moving: it follows its own segment's motion, when that segment
+    moves unlike the background (not ``explained``), the log-ratio being the Gaussian
+    ``(d2_ego - d2_own) / 2``; otherwise some motion of unknown size, taken as residuals
+    ``params.evidence_effect`` times the noise, which gives ``-3 log k + d2 (1 - 1/k^2) / 2``
+    (negative for residuals the noise explains, positive beyond). Every ratio is kept
+    within ``+-params.evidence_step``: one frame cannot shift the odds by more than that,
+    whatever an outlier's residual (a depth edge, a mistracked point).
+    """
+    import os
+    s = d2_seg.shape[0]
+    lab = jnp.clip(seg.labels - 1, 0, s - 1)
+    own = jnp.take_along_axis(d2_seg, lab[None, :], axis=0)[0]
+    in_moving = (seg.labels > 0) & ~explained[lab]
+    k2 = params.evidence_effect ** 2
+    generic = -1.5 * jnp.log(k2) + 0.5 * d2_ego * (1.0 - 1.0 / k2)
+    if os.environ.get("JV_SEGLR", "1") == "1":
+        delta = jnp.where(in_moving, 0.5 * (d2_ego - own), generic)
+    else:
+        delta = generic
+    delta = jnp.clip(delta, -params.evidence_step, params.evidence_step)
+    return jnp.where(valid, delta, 0.0).astype(jnp.float32)
+
+
+def init_pipeline(*, cfg: Config, grid: tuple[int, int], T_w_c0=None,
+                  params: Params | None = None) -> PipelineState:
+    """Start state: empty grid model, the first camera pose (identity by default) and the
+    starting sensor noise of ``params`` (default :class:`Params`)."""
     T0 = jnp.eye(4, dtype=jnp.float32) if T_w_c0 is None else jnp.asarray(T_w_c0, jnp.float32)
     eye = jnp.eye(4, dtype=jnp.float32)
-    return PipelineState(init_temporal(cfg=cfg, grid=grid), T0, jnp.int32(0), eye, jnp.bool_(False))
+    return PipelineState(init_temporal(cfg=cfg, grid=grid), T0, jnp.int32(0), eye,
+                         jnp.bool_(False), init_noise(Params() if params is None else params))
 
 
-def spatial_step(flow, key, params: Params, *, cfg: Config, grid, batch_axis=None):
-    """The spatial stage of one frame pair (Algorithms 1, 2); it needs no carried state, so
-    a recorded sequence segments many frames at once (see :func:`segment_frames`, which
-    names its vmapped axes in ``batch_axis``)."""
-    valid = flow.valid & (flow.status == Status.OK)
-    return segment(key, flow.pts_prev, flow.pts_cur, valid, params, cfg=cfg, grid=grid,
-                   batch_axis=batch_axis)
-
-
-def step(state: PipelineState, flow, key, params: Params, *, cfg: Config, grid, seg=None):
+def step(state: PipelineState, flow, key, params: Params, *, cfg: Config, grid,
+         batch_axis=None):
     """One frame pair: ``(state, GridFlow, key) -> (state, StepOutput)``.
 
     Args:
       state: carried :class:`PipelineState`.
       flow: a ``GridFlow`` of device or host arrays (``pts_prev``, ``pts_cur``, ``uv_prev``,
-        ``uv_cur``, ``valid``, ``status``), see :mod:`jaxvo.flow`.
+        ``uv_cur``, ``valid``, ``status``, ``focal``), see :mod:`jaxvo.flow`.
       key: PRNG key of this frame (hypothesis sampling).
       params: numeric settings, possibly traced (vmappable).
       cfg: static settings; grid: static ``(rows, cols)``.
-      seg: this pair's :func:`spatial_step` result when already computed (``key`` is then
-        unused).
+      batch_axis: the name(s) of vmapped axes the call runs under (a study), see
+        :func:`jaxvo.spatial.segment`.
     """
     valid = flow.valid & (flow.status == Status.OK)
+    pts = frame_points(flow.pts_prev, flow.pts_cur, valid, params, focal=flow.focal,
+                       scale=state.noise)
+    valid = pts.valid
 
-    if seg is None:
-        seg = spatial_step(flow, key, params, cfg=cfg, grid=grid)
+    # 1. spatial segmentation (Algorithms 1, 2) under the calibrated noise
+    seg = segment(key, flow.pts_prev, flow.pts_cur, valid, params, cfg=cfg, grid=grid,
+                  focal=flow.focal, scale=state.noise, batch_axis=batch_axis)
 
-    disp = flow.uv_cur - flow.uv_prev
-    # after the first accepted ego-motion, the previous one predicts the background's
-    # every point's residual under the predicted camera motion and under each segment's
-    # motion: the first says which segments move as the background should, the others let
-    # the temporal stage keep an object in cells its motion still explains best, and let a
-    # slow object merged into the background keep its identifier (held_objects)
-    z = jnp.maximum(flow.pts_prev[:, 2], flow.pts_cur[:, 2])
-    tau2 = inlier_threshold(z, params.inlier_dist, params) ** 2
-    err = jax.vmap(lambda T: residuals(T, flow.pts_prev, flow.pts_cur))(
-        jnp.concatenate([state.T_last[None], seg.motions])
-    )
-    follows = valid & (err[0] <= tau2) & state.have_last
-    consistent = follows_prediction(seg, follows, cfg=cfg)
-    seg_err = jnp.where((seg.sizes > 0)[:, None], err[1:], 1e6)
-    held = held_objects(state.temporal.ids, flow, valid & (seg.labels > 0),
-                        own_segment_err(seg_err, seg.labels), tau2, params, cfg=cfg)
-    temporal, tout = update_temporal(
-        state.temporal, seg, disp, valid, params, cfg=cfg, grid=grid, consistent=consistent,
-        follows=follows, seg_err=(seg_err, tau2), held=held,
-    )
+    # 2. identifiers (Algorithm 3) and the background: the segment whose motion explains
+    # the most surface that earlier frames established as background
+    T_pred = jnp.where(state.have_last, state.T_last, jnp.eye(4, dtype=jnp.float32))
+    d2_all = jax.vmap(lambda T: residuals(T, pts.src, pts.dst, pts.noise)[0])(
+        jnp.concatenate([T_pred[None], seg.motions]))
+    d2_pred, d2_seg = d2_all[0], d2_all[1:]
+    z = jnp.maximum(pts.src[2], pts.dst[2])
+    prior = state.temporal.evidence
+    belief = jnp.where(valid, belief_weights(prior, params), 0.0)
+    labels = measured_labels(seg, valid, cfg=cfg)
+    segment_ids = identify(state.temporal, labels, params, cfg=cfg)
+    support = background_support(d2_seg, seg.sizes, belief, z, d2_pred, state.have_last,
+                                 pts.thr)
+    temporal, segment_ids, bg, reacquired = choose_background(
+        state.temporal, segment_ids, support, params)
 
-    static_w = static_weights(tout, valid)
-    T_cur_prev, ego_status, inliers = estimate_egomotion(
-        flow.pts_prev, flow.pts_cur, static_w, params, cfg=cfg
-    )
-
+    # 3. ego-motion: re-weighted from the background segment's motion over every point, each
+    # weighted by its belief, less those in a segment that moves unlike the background
+    # (Algorithm 1's refinement on all points, for the background; a segment the
+    # background's motion explains is a piece of the background that fast motion or depth
+    # distortion split off)
+    import os
+    bgi = jnp.maximum(bg - 1, 0)
+    bg_explains = explained_segments(seg, d2_seg[bgi], valid, pts.thr, cfg=cfg)
+    static_seg = bg_explains | (jnp.arange(1, cfg.max_segments + 1) == bg)
+    in_moving_seg = (seg.labels > 0) & ~static_seg[jnp.clip(seg.labels - 1, 0, None)]
+    if os.environ.get("JV_IMS", "1") == "1":
+        use = jnp.where(in_moving_seg, 0.0, belief)
+    else:
+        use = belief
+    T_ego, ego_status, inliers = estimate_egomotion(
+        flow.pts_prev, flow.pts_cur, use, params, cfg=cfg,
+        focal=flow.focal, scale=state.noise, T_init=seg.motions[bgi])
+    believed = use > 0
     status = first_failure(flow.status, seg.status, ego_status)
     ok = status == Status.OK
-    T_cur_prev = jnp.where(ok, T_cur_prev, jnp.eye(4, dtype=jnp.float32))
+    # a frame without a motion of its own carries the predicted one: a moving camera is
+    # never frozen by a skipped pair
+    T_cur_prev = jnp.where(ok, T_ego, T_pred)
     T_w_c = state.T_w_c @ invert_pose(T_cur_prev)
+
+    # 4. evidence of each point's own motion under the ego-motion, and the temporal model
+    d2_ego = residuals(T_cur_prev, pts.src, pts.dst, pts.noise)[0]
+    explained = explained_segments(seg, d2_ego, valid, pts.thr, cfg=cfg)
+    delta = evidence_delta(seg, d2_ego, d2_seg, explained, valid & ok, params)
+    temporal, tout = update_temporal(
+        temporal, seg, flow.uv_cur - flow.uv_prev, valid, params, cfg=cfg, grid=grid,
+        segment_ids=segment_ids, explained=explained & ok, evidence_delta=delta,
+    )
+
+    # 5. the sensor noise, from the residuals under the ego-motion
+    used = inliers & ok
+    import os
+    nset = valid & ok if os.environ.get("JV_NSET", "valid") == "valid" else believed & ok
+    noise = update_noise(state.noise, transfer(T_cur_prev, pts.src) - pts.dst, nset,
+                         flow.focal, pts.src, pts.dst, params.noise_rate, floor=NOISE_FLOOR,
+                         ceiling=NOISE_CEILING)
 
     out = StepOutput(
         T_w_c=T_w_c,
         T_cur_prev=T_cur_prev,
         status=status,
         ids=tout.ids,
-        moving=moving_points(tout, follows),
-        static=inliers & ok,
+        moving=tout.evidence > _moving_logodds(params),
+        static=used,
         labels=seg.labels,
         hyp_labels=seg.hyp_labels,
         matched=tout.matched,
         num_segments=seg.num_segments,
+        evidence=tout.evidence,
+        background=jnp.where(ok, bg, 0),
+        reacquired=reacquired & ok,
+        noise=noise,
     )
     T_last = jnp.where(ok, T_cur_prev, state.T_last)
     have_last = state.have_last | ok
-    return PipelineState(temporal, T_w_c, state.frame + 1, T_last, have_last), out
+    return PipelineState(temporal, T_w_c, state.frame + 1, T_last, have_last, noise), out
+
+
+def _moving_logodds(params: Params):
+    """The log-odds above which a cell is reported moving: its posterior exceeds the
+    confidence of the tests (``logit(confidence)``)."""
+    p = jnp.asarray(params.confidence, jnp.float32)
+    return jnp.log(p) - jnp.log1p(-p)
 
 
 def frame_key(key, index):
@@ -238,48 +283,16 @@ def jit_step(state, flow, key, params, *, cfg: Config, grid):
     return step(state, flow, frame_key(key, state.frame), params, cfg=cfg, grid=grid)
 
 
-def segment_frames(flows, keys, params, *, cfg: Config, grid, outer_axes=()):
-    """The spatial stage of many frame pairs: ``spatial_step`` on several frames per vmapped
-    call, the calls one after another (``Segmentation`` fields stacked over the frames).
-
-    The spatial stage carries no state, so a recorded sequence segments several frames at
-    once, which shares XLA's per-operation cost on the CPU (8 a call: 1.5x faster than one
-    by one) and fills an accelerator (see :func:`jaxvo.config.scan_batch_for`). The vmapped
-    axis is named so that the hypothesis search skips its trips once every frame of the
-    call is done (``spatial._search_step``), of every configuration too in a study (whose
-    vmapped axes are ``outer_axes``). The frames are padded to a whole number of calls (the
-    padding's results are dropped) so that only one batched body compiles.
-
-    Args:
-      flows: ``GridFlow`` stacked over T frame pairs; keys: (T,) PRNG keys, one per pair.
-    """
-    n = flows.valid.shape[0]
-    b = scan_batch_for(cfg, n, jax.default_backend())
-    pad = (-n) % b
-    padded = jax.tree.map(lambda a: jnp.concatenate([a, a[:pad]]), (flows, keys))
-    batched = jax.vmap(
-        lambda f, k: spatial_step(f, k, params, cfg=cfg, grid=grid,
-                                  batch_axis=("frames", *outer_axes)),
-        axis_name="frames",
-    )
-    segs = jax.lax.map(
-        lambda fk: batched(*fk),
-        jax.tree.map(lambda a: a.reshape(-1, b, *a.shape[1:]), padded),
-    )
-    return jax.tree.map(lambda a: a.reshape(-1, *a.shape[2:])[:n], segs)
-
-
 def _scan(flows, key, params, T_w_c0, cfg, grid, outer_axes=()):
-    # the stateless spatial stage for every frame first, then the stateful stages frame by
-    # frame
-    keys = jax.vmap(lambda i: frame_key(key, i))(jnp.arange(flows.valid.shape[0]))
-    segs = segment_frames(flows, keys, params, cfg=cfg, grid=grid, outer_axes=outer_axes)
+    """Every frame pair in turn; ``outer_axes`` names the vmapped axes of a study, so that
+    the hypothesis search skips a trip once every configuration's frame is done."""
 
-    def body(state, flow_seg):
-        flow, seg = flow_seg
-        return step(state, flow, None, params, cfg=cfg, grid=grid, seg=seg)
+    def body(state, flow):
+        return step(state, flow, frame_key(key, state.frame), params, cfg=cfg, grid=grid,
+                    batch_axis=outer_axes or None)
 
-    return jax.lax.scan(body, init_pipeline(cfg=cfg, grid=grid, T_w_c0=T_w_c0), (flows, segs))
+    return jax.lax.scan(body, init_pipeline(cfg=cfg, grid=grid, T_w_c0=T_w_c0, params=params),
+                        flows)
 
 
 @functools.partial(jax.jit, static_argnames=("cfg", "grid"))

@@ -19,15 +19,13 @@
 3. labelling: each valid point takes the kept segment that explains it best (smallest
    residual among those it is an inlier of), else 0.
 
-Inlier rule. RGB-D depth noise grows with the square of depth (Khoshelham and Elberink 2012)
-and flow error grows with depth too, so the distance threshold of a point is
-
-    tau(z) = max(base + params.inlier_depth_coeff * (z^2 - 1), base / 2),   z = max(z_prev, z_cur)
-
-with ``base = params.inlier_dist`` for inliers and ``base = params.sample_dist`` for the
-check of a minimal sample: ``base`` is the threshold at 1 m, the floor keeps near points from
-getting a vanishing threshold. A point is an inlier of ``T`` when its eq. (2.19) residual is
-at most ``tau(z)^2``.
+Inlier rule: the sensor noise model (:mod:`jaxvo.noise`). A point is an inlier of ``T``
+when the Mahalanobis length ``d2`` of its residual ``T p_prev - p_cur`` (eq. 2.19 with the
+depth noise along the viewing ray and the tracker's pixel noise across it) is within
+``chi2_3(params.confidence)``, the same test at every depth; a minimal sample of ``m``
+points fits one motion when their ``d2`` sum within ``chi2_(3m - 6)(confidence)`` (``3 m``
+coordinates, 6 fitted). The entropy of eq. (3.1) keeps the thesis's raw squared distance
+``E`` in m^2, so that its ``lambda`` and ``delta`` mean what they mean there.
 """
 
 from __future__ import annotations
@@ -39,16 +37,13 @@ import jax.numpy as jnp
 from jax import lax
 
 from jaxvo.cluster import dbscan, jaccard_distance, overlaps
-from jaxvo.procrustes import fit_rigid_cols, residuals_cols
+from jaxvo.noise import PointNoise, chi2_quantile, residuals
+from jaxvo.procrustes import fit_rigid_cols
 from jaxvo.status import Status
 
-# Stand-in for "no hypothesis explains this point" in residual minima (m^2): finite so that
-# no inf - inf can appear, large enough that exp(-lambda * _FAR) is 0.
+# Stand-in for "no hypothesis explains this point" in residual minima (m^2 and noise
+# units): finite so that no inf - inf can appear, large enough that exp(-lambda * _FAR) is 0.
 _FAR = 1e6
-# Near tie of two residuals (m^2): within this factor of the smallest (twice the distance),
-# plus (1 mm)^2 so that points both motions fit almost exactly also count as tied.
-_TIE = 4.0
-_TIE_FLOOR = 1e-6
 # Grid offsets drawn around a seed, of which the first m - 1 valid ones are used.
 _NEIGHBOUR_DRAWS = 12
 
@@ -65,29 +60,36 @@ class Segmentation(NamedTuple):
     status: jax.Array  # () int32: a Status code
 
 
+class _Points(NamedTuple):
+    """One frame pair's points as the search reads them: columns, noise, validity, tests."""
+
+    src: jax.Array  # (3, n) float32 previous points, metres (0 where invalid)
+    dst: jax.Array  # (3, n) float32 current points, metres
+    noise: PointNoise  # per-point weights of the normalised residual
+    valid: jax.Array  # (n,) bool
+    thr: jax.Array  # () float32 inlier test: chi2_3(confidence), noise units
+    tie: jax.Array  # () float32 two motions explain a point alike: chi2_1(confidence)
+    six: jax.Array  # () float32 two motions are one over a set of points: chi2_6(confidence)
+
+
 class _SearchState(NamedTuple):
     entropy: jax.Array  # (n,) float32: S of eq. (3.1), 0 at invalid points
     err_min: jax.Array  # (n,) float32: min_h E_ih, m^2 (_FAR before any hypothesis)
+    d2_min: jax.Array  # (n,) float32: min_h d2_ih, noise units (_FAR before any)
     count: jax.Array  # () int32: hypotheses found so far (h of Algorithm 1)
     done: jax.Array  # () bool: the while condition of Algorithm 1 line 3 has failed
 
 
 class _Hypothesis(NamedTuple):
     motion: jax.Array  # (4, 4) float32: T_cur_prev, identity where not found
-    err: jax.Array  # (n,) float32: eq. (2.19) residuals, m^2
-    inliers: jax.Array  # (n,) bool: valid points within the inlier threshold
+    d2: jax.Array  # (n,) float32: normalised residuals, noise units
+    inliers: jax.Array  # (n,) bool: valid points within the inlier test
     found: jax.Array  # () bool
 
 
-def inlier_threshold(z, base, params):
-    """Depth-dependent distance threshold ``tau(z)`` in metres (see the module docstring).
-
-    Args:
-      z: (...) depth in metres.
-      base: () threshold at 1 m depth, metres.
-      params: :class:`jaxvo.config.Params` (``inlier_depth_coeff``, metres per m^2).
-    """
-    return jnp.maximum(base + params.inlier_depth_coeff * (z * z - 1.0), 0.5 * base)
+def _res(T, pts: _Points):
+    """``(d2, e2)``: normalised and raw squared residuals of every point under ``T``."""
+    return residuals(T, pts.src, pts.dst, pts.noise)
 
 
 def _entropy(err_min, valid, params):
@@ -103,7 +105,7 @@ def _mean_valid(x, valid):
     return jnp.sum(jnp.where(valid, x, 0.0)) / jnp.maximum(nv, 1)
 
 
-def _refine(motion, nmax, pts_prev, pts_cur, valid, tau2, iters, bound):
+def _refine(motion, nmax, pts: _Points, iters, bound):
     """Algorithm 1 lines 9-16 as ``iters`` fixed trips.
 
     Each trip evaluates the motion on all points and, while the inlier count grows, refits
@@ -111,28 +113,30 @@ def _refine(motion, nmax, pts_prev, pts_cur, valid, tau2, iters, bound):
 
     A point counts as an inlier only if the motion explains it better than the hypotheses
     found before (its residual is below ``bound``, their smallest residual). Without this, a
-    sample drawn on a slow object is refined into the camera's motion: the depth-scaled
-    threshold at 3 m exceeds the object's motion per frame, so the far background joins the
-    object's inliers, outnumbers them, and the refit follows the background.
+    sample drawn on a slow object is refined into the camera's motion: the far background,
+    whose noise is larger than the object's motion per frame, joins the object's inliers,
+    outnumbers them, and the refit follows the background.
+
+    Returns ``(motion, d2 (n,), e2 (n,), inliers (n,))``.
     """
 
     def inliers(motion):
-        err = residuals_cols(motion, pts_prev, pts_cur)
-        return err, valid & (err <= tau2) & (err < bound)
+        d2, e2 = _res(motion, pts)
+        return d2, e2, pts.valid & (d2 <= pts.thr) & (d2 < bound)
 
     def trip(carry, _):
         motion, nmax, done = carry
-        _, inl = inliers(motion)
+        _, _, inl = inliers(motion)
         count = jnp.sum(inl).astype(jnp.int32)
         improve = (count > nmax) & ~done
-        refit, ok = fit_rigid_cols(pts_prev, pts_cur, inl.astype(jnp.float32))
+        refit, ok = fit_rigid_cols(pts.src, pts.dst, inl.astype(jnp.float32))
         motion = jnp.where(improve & ok, refit, motion)
         nmax = jnp.where(improve, count, nmax)
         return (motion, nmax, done | ~improve), None
 
     (motion, _, _), _ = lax.scan(trip, (motion, nmax, jnp.bool_(False)), None, length=iters)
-    err, inl = inliers(motion)
-    return motion, err, inl
+    d2, e2, inl = inliers(motion)
+    return motion, d2, e2, inl
 
 
 def _inverse_cdf(weights, u):
@@ -200,8 +204,7 @@ def _draw_samples(key, entropy, valid, *, cfg, grid):
     return jnp.concatenate([seed[:, None], chosen], axis=1)
 
 
-def _search_step(state, key, pts_prev, pts_cur, valid, tau2, tau_s2, params, *, cfg, grid,
-                 batch_axis=None):
+def _search_step(state, key, pts: _Points, params, *, cfg, grid, batch_axis=None):
     """One trip of Algorithm 1 (lines 4-20), a no-op once ``state.done``.
 
     The work sits under ``lax.cond`` on ``done``: a fixed trip count still, but a frame that
@@ -211,7 +214,7 @@ def _search_step(state, key, pts_prev, pts_cur, valid, tau2, tau_s2, params, *, 
     stays a real cond, and the work of a trip runs for the whole batch or not at all (it
     is a no-op for the frames already done).
     """
-    n = valid.shape[0]
+    n = pts.valid.shape[0]
 
     def skip(state, key):
         eye = jnp.eye(4, dtype=jnp.float32)
@@ -221,9 +224,7 @@ def _search_step(state, key, pts_prev, pts_cur, valid, tau2, tau_s2, params, *, 
         return state, none
 
     def work(state, key):
-        return _search_work(
-            state, key, pts_prev, pts_cur, valid, tau2, tau_s2, params, cfg=cfg, grid=grid
-        )
+        return _search_work(state, key, pts, params, cfg=cfg, grid=grid)
 
     if batch_axis is None:
         all_done = state.done
@@ -232,47 +233,50 @@ def _search_step(state, key, pts_prev, pts_cur, valid, tau2, tau_s2, params, *, 
     return lax.cond(all_done, skip, work, state, key)
 
 
-def _search_work(state, key, pts_prev, pts_cur, valid, tau2, tau_s2, params, *, cfg, grid):
+def _search_work(state, key, pts: _Points, params, *, cfg, grid):
     m = cfg.sample_size
+    valid = pts.valid
     idx = _draw_samples(key, state.entropy, valid, cfg=cfg, grid=grid)  # (K, m)
     earlier = jnp.tril(jnp.ones((m, m), bool), -1)
     dup = jnp.any((idx[:, :, None] == idx[:, None, :]) & earlier, axis=2)
     w = valid[idx] & ~dup
-    src, dst = pts_prev[:, idx], pts_cur[:, idx]  # (3, K, m)
+    src, dst = pts.src[:, idx], pts.dst[:, idx]  # (3, K, m)
+    noise = PointNoise(pts.noise.ray[:, idx], pts.noise.w_lat[idx], pts.noise.w_ray[idx])
     motions, ok = jax.vmap(fit_rigid_cols, in_axes=(1, 1, 0))(src, dst, w.astype(jnp.float32))
-    err = jax.vmap(residuals_cols, in_axes=(0, 1, 1))(motions, src, dst)
-    # Algorithm 1 lines 7-8: the m points must all be valid, distinct and fit the motion.
-    verified = ok & jnp.all(w & (err <= tau_s2[idx]), axis=1)
+    d2, _ = jax.vmap(residuals, in_axes=(0, 1, 1, PointNoise(1, 0, 0)))(motions, src, dst, noise)
+    # Algorithm 1 lines 7-8: the m points must all be valid, distinct and fit one motion:
+    # 3 m coordinates less the 6 the fit took leave chi-square with 3 m - 6 degrees of freedom
+    fits = jnp.sum(d2, axis=1) <= chi2_quantile(3 * m - 6, params.confidence)
+    verified = ok & jnp.all(w, axis=1) & fits
     first = jnp.argmax(verified)
     # a frame already done finds nothing: in a batched trip (batch_axis) the work runs for
     # every frame of the call, and must leave the finished ones as they are
     found = jnp.any(verified) & ~state.done
 
-    motion, err_all, inl = _refine(
-        motions[first], jnp.int32(m), pts_prev, pts_cur, valid, tau2, cfg.refine_iters,
-        state.err_min,
-    )
+    motion, d2_all, e2_all, inl = _refine(motions[first], jnp.int32(m), pts, cfg.refine_iters,
+                                          state.d2_min)
     eye = jnp.eye(4, dtype=motion.dtype)
     hyp = _Hypothesis(
         motion=jnp.where(found, motion, eye),
-        err=jnp.where(found, err_all, _FAR),
+        d2=jnp.where(found, d2_all, _FAR),
         inliers=inl & found,
         found=found,
     )
-    err_min = jnp.where(found, jnp.minimum(state.err_min, err_all), state.err_min)
+    err_min = jnp.where(found, jnp.minimum(state.err_min, e2_all), state.err_min)
+    d2_min = jnp.where(found, jnp.minimum(state.d2_min, d2_all), state.d2_min)
     entropy = _entropy(err_min, valid, params)
     count = state.count + found.astype(jnp.int32)
     # Also done when no segment is left to find: Algorithm 2 drops segments of at most
     # N_threshold points, and no more valid points than that lie outside every hypothesis.
-    unexplained = jnp.sum(valid & (err_min > tau2))
+    unexplained = jnp.sum(valid & (d2_min > pts.thr))
     done = (
         state.done | (count >= cfg.num_hypotheses) | (_mean_valid(entropy, valid) < params.s_min)
         | ((unexplained <= params.min_segment_points) & (params.s_min > 0))
     )
-    return _SearchState(entropy, err_min, count, done), hyp
+    return _SearchState(entropy, err_min, d2_min, count, done), hyp
 
 
-def _cluster_refine(start, active, pts_prev, pts_cur, valid, tau2, *, cfg):
+def _cluster_refine(start, active, pts: _Points, *, cfg):
     """Algorithm 2 lines 3-11 for all clusters at once, by alternating assignment.
 
     Each trip gives every point to one active cluster motion it is an inlier of (see
@@ -285,27 +289,27 @@ def _cluster_refine(start, active, pts_prev, pts_cur, valid, tau2, *, cfg):
       active: (C,) bool, slots that hold a cluster.
 
     Returns:
-      motions (C, 4, 4), residuals (C, n) m^2, inliers (C, n) bool (every point each
-      motion explains), own (C, n) bool (the points assigned to each cluster).
+      motions (C, 4, 4), residuals (C, n) in noise units, inliers (C, n) bool (every point
+      each motion explains), own (C, n) bool (the points assigned to each cluster).
     """
 
     def assign(motions):
-        err = jax.vmap(lambda t: residuals_cols(t, pts_prev, pts_cur))(motions)
-        inl = active[:, None] & valid[None, :] & (err <= tau2[None, :])
-        best, has = _assign(err, inl, active, by_fit=True)
+        d2 = jax.vmap(lambda t: _res(t, pts)[0])(motions)
+        inl = active[:, None] & pts.valid[None, :] & (d2 <= pts.thr)
+        best, has = _assign(d2, inl, active, pts.tie, by_fit=True)
         own = (jnp.arange(motions.shape[0])[:, None] == best[None, :]) & has[None, :]
-        return err, inl, own
+        return d2, inl, own
 
     def trip(motions, _):
         _, _, own = assign(motions)
-        refit, ok = jax.vmap(lambda w: fit_rigid_cols(pts_prev, pts_cur, w))(
+        refit, ok = jax.vmap(lambda w: fit_rigid_cols(pts.src, pts.dst, w))(
             own.astype(jnp.float32)
         )
         return jnp.where((ok & active)[:, None, None], refit, motions), None
 
     motions, _ = lax.scan(trip, start, None, length=cfg.cluster_refine_iters)
-    err, inl, own = assign(motions)
-    return motions, jnp.where(active[:, None], err, _FAR), inl, own
+    d2, inl, own = assign(motions)
+    return motions, jnp.where(active[:, None], d2, _FAR), inl, own
 
 
 def _apply(T, pts):
@@ -313,59 +317,66 @@ def _apply(T, pts):
     return T[:3, :3] @ pts + T[:3, 3:4]
 
 
-def _assign(err, inliers, keep, *, by_fit=False):
+def _assign(d2, inliers, keep, tie, *, by_fit=False):
     """Per point: index of the kept segment it belongs to, and whether there is one.
 
     A point takes the segment that explains it best, except that a near tie (a residual
-    within ``_TIE`` times the smallest) goes to the segment with the most inliers. At 3 m the
-    depth-scaled threshold exceeds a slow object's motion per frame, so both the object's
-    and the background's motion explain the far wall; by residual alone, noise handed a
-    share of it to the object in about half of the frames of ``fixed_camera_1``.
+    within ``tie``, chi-square with 1 degree of freedom at the test's confidence, of the
+    smallest: the point alone cannot tell the two motions apart) goes to the segment with
+    the most inliers. Far points are noisy, so both an object's and the background's
+    motion explain a far wall; by residual alone, noise handed a share of it to the object
+    in about half of the frames of ``fixed_camera_1``.
 
     With ``by_fit``, a tie is first decided between each two segments over all the points
     tied between them: the one whose residuals there sum lower wins them (noise averages
     out over a region, a motion's systematic offset does not); among the segments a point
     is tied between, it goes to the one that wins against most of the others, then to the
     one with the most inliers. The joint cluster refinement uses it: a near object's
-    motion that also explains the far wall within the wall's wider threshold has the most
-    inliers, and by size alone it took the wall from the wall's own motion and refitted
-    to a motion between the two (``fixed_camera_2``, frames 46-47). The final labelling
-    keeps the size rule: on real frames under fast motion the background splits into
-    regional fits, each a little better on its own region, and the size rule keeps their
-    points together (7-Scenes at every 4th frame: ATE 20 mm, 35 mm with ``by_fit`` there).
+    motion that also explains the far wall within the wall's noise has the most inliers,
+    and by size alone it took the wall from the wall's own motion and refitted to a motion
+    between the two (``fixed_camera_2``, frames 46-47). The final labelling keeps the size
+    rule: on real frames under fast motion the background splits into regional fits, each
+    a little better on its own region, and the size rule keeps their points together.
 
-    ``err``/``inliers`` (C, n), ``keep`` (C,).
+    ``d2``/``inliers`` (C, n), ``keep`` (C,), ``tie`` () noise units.
     """
     cand = inliers & keep[:, None]
-    e = jnp.where(cand, err, _FAR * 10)
+    e = jnp.where(cand, d2, _FAR * 10)
     e_min = jnp.min(e, axis=0)
-    near = cand & (e <= _TIE * e_min + _TIE_FLOOR)
+    near = cand & (e <= e_min + tie)
     size = jnp.sum(cand, axis=1)
     rank = jnp.broadcast_to(size[:, None].astype(jnp.float32), near.shape)
     if by_fit:
         both = near[:, None, :] & near[None, :, :]  # (C, C, n) tied between a and b
         gap = jnp.sum(jnp.where(both, e[:, None, :] - e[None, :, :], 0.0), axis=2)
         wins = (gap < 0).astype(jnp.float32) @ near.astype(jnp.float32)  # (C, n)
-        rank = wins * (err.shape[1] + 1.0) + rank  # wins first, inlier count second
+        rank = wins * (d2.shape[1] + 1.0) + rank  # wins first, inlier count second
     best = jnp.argmax(jnp.where(near, rank, -1.0), axis=0)
     return best, jnp.any(cand, axis=0)
 
 
-def _same_motion(pred_a, own_a, pred_b, tau2, eps):
+def _same_motion(pred_a, own_a, pred_b, pts: _Points, eps):
     """(A, B) bool: motion ``b`` moves more than ``1 - eps`` of ``a``'s own points to where
-    motion ``a`` does, within half the inlier threshold: the same motion found twice.
+    motion ``a`` does, within a quarter of the inlier test: the same motion found twice.
 
     Comparing the motions where ``a``'s points are (not inlier-set overlap) keeps a small
-    object whose motion differs from the camera's by less than the inlier threshold at
-    depth. ``pred_a`` (A, 3, n) and ``pred_b`` (B, 3, n) are the points moved by each
-    motion; ``own_a`` (A, n) bool.
+    object whose motion differs from the camera's by less than the noise at depth.
+    ``pred_a`` (A, 3, n) and ``pred_b`` (B, 3, n) are the points moved by each motion;
+    ``own_a`` (A, n) bool.
     """
-    gap = jnp.sum((pred_a[:, None] - pred_b[None, :]) ** 2, axis=2)  # (A, B, n)
-    close = jnp.sum(own_a[:, None, :] & (gap <= 0.25 * tau2), axis=2)
+    from jaxvo.noise import mahalanobis
+
+    gap = jax.vmap(lambda pa: jax.vmap(lambda pb: mahalanobis(pa - pb, pts.noise))(pred_b))(
+        pred_a)  # (A, B, n)
+    import os
+    if os.environ.get("JV_SAME", "count") == "group":
+        total = jnp.sum(jnp.where(own_a[:, None, :], gap, 0.0), axis=2)
+        return total <= pts.six
+    close = jnp.sum(own_a[:, None, :] & (gap <= 0.25 * pts.thr), axis=2)
     return close > (1.0 - eps) * jnp.sum(own_a, axis=1)[:, None]
 
 
-def _leftover_segment(motions, err_c, inl_c, keep, left, pred, pts_prev, pts_cur, tau2, params):
+def _leftover_segment(motions, d2_c, inl_c, keep, left, pred, pts: _Points, params):
     """One more segment from the valid points no kept segment explains, when they move
     together and unlike every kept segment.
 
@@ -377,31 +388,50 @@ def _leftover_segment(motions, err_c, inl_c, keep, left, pred, pts_prev, pts_cur
     ``min_segment_points`` inliers and is not a kept motion again (:func:`_same_motion`).
 
     Returns:
-      ``(motions, err_c, inl_c, keep)`` with the new segment in slot ``slot`` when added,
+      ``(motions, d2_c, inl_c, keep)`` with the new segment in slot ``slot`` when added,
       ``slot``, and ``new`` (n,) bool: its points (all False when none was added). They are
       inliers of no other kept segment, so they are its points in the labelling too.
     """
     inl = left
     for _ in range(2):
-        motion, ok = fit_rigid_cols(pts_prev, pts_cur, inl.astype(jnp.float32))
-        err = residuals_cols(motion, pts_prev, pts_cur)
-        inl = left & (err <= tau2) & ok
-    again = _same_motion(_apply(motion, pts_prev)[None], inl[None], pred, tau2,
+        motion, ok = fit_rigid_cols(pts.src, pts.dst, inl.astype(jnp.float32))
+        d2 = _res(motion, pts)[0]
+        inl = left & (d2 <= pts.thr) & ok
+    again = _same_motion(_apply(motion, pts.src)[None], inl[None], pred, pts,
                          params.cluster_eps)[0]
     slot = jnp.argmin(keep)  # the first free slot
     add = ~jnp.all(keep) & (jnp.sum(inl) > params.min_segment_points) & ~jnp.any(keep & again)
     at = add & (jnp.arange(keep.shape[0]) == slot)
     motions = jnp.where(at[:, None, None], motion, motions)
-    err_c = jnp.where(at[:, None], err, err_c)
+    d2_c = jnp.where(at[:, None], d2, d2_c)
     inl_c = jnp.where(at[:, None], inl, inl_c)
-    return motions, err_c, inl_c, keep | at, slot, inl & add
+    return motions, d2_c, inl_c, keep | at, slot, inl & add
 
 
 def _counts(best, has, c):
     return jnp.sum((best[None, :] == jnp.arange(c)[:, None]) & has[None, :], axis=1)
 
 
-def segment(key, pts_prev, pts_cur, valid, params, *, cfg, grid, batch_axis=None):
+def frame_points(pts_prev, pts_cur, valid, params, *, focal, scale=None) -> _Points:
+    """One frame pair's points as columns with their noise and the tests' thresholds.
+
+    Points that are non-finite or have non-positive depth count as invalid and are zeroed.
+    """
+    from jaxvo.noise import init_noise, point_noise
+
+    finite = jnp.all(jnp.isfinite(pts_prev), axis=1) & jnp.all(jnp.isfinite(pts_cur), axis=1)
+    valid = valid & finite & (pts_prev[:, 2] > 0) & (pts_cur[:, 2] > 0)
+    # Columns (3, n) from here on: each coordinate a contiguous vector (see fit_rigid_cols).
+    src = jnp.where(valid, pts_prev.T, 0.0).astype(jnp.float32)
+    dst = jnp.where(valid, pts_cur.T, 0.0).astype(jnp.float32)
+    scale = init_noise(params) if scale is None else scale
+    noise = point_noise(src, dst, jnp.asarray(focal, jnp.float32), scale)
+    return _Points(src, dst, noise, valid, chi2_quantile(3, params.confidence),
+                   chi2_quantile(1, params.confidence), chi2_quantile(6, params.confidence))
+
+
+def segment(key, pts_prev, pts_cur, valid, params, *, cfg, grid, focal=525.0, scale=None,
+            batch_axis=None):
     """Segment one frame pair's grid flow into rigid motions (Algorithms 1 and 2).
 
     Args:
@@ -412,6 +442,9 @@ def segment(key, pts_prev, pts_cur, valid, params, *, cfg, grid, batch_axis=None
       params: :class:`jaxvo.config.Params`; numeric fields may be traced arrays.
       cfg: :class:`jaxvo.config.Config` (static).
       grid: (rows, cols) static.
+      focal: () the camera's focal length, pixels (:class:`jaxvo.flow.GridFlow` ``focal``).
+      scale: the sensor noise (:class:`jaxvo.noise.NoiseScale`), by default the starting
+        values of ``params`` (the pipeline passes its calibrated one).
       batch_axis: the name of a ``vmap`` axis over frames (or a tuple of names), when
         called under one: the search then skips a trip only once every frame of the batch
         is done (see :func:`_search_step`); the results are the same.
@@ -428,14 +461,8 @@ def segment(key, pts_prev, pts_cur, valid, params, *, cfg, grid, batch_axis=None
     big_h, max_seg = cfg.num_hypotheses, cfg.max_segments
     n_slots = min(big_h, max_seg)
 
-    finite = jnp.all(jnp.isfinite(pts_prev), axis=1) & jnp.all(jnp.isfinite(pts_cur), axis=1)
-    valid = valid & finite & (pts_prev[:, 2] > 0) & (pts_cur[:, 2] > 0)
-    # Columns (3, n) from here on: each coordinate a contiguous vector (see fit_rigid_cols).
-    pts_prev = jnp.where(valid, pts_prev.T, 0.0).astype(jnp.float32)
-    pts_cur = jnp.where(valid, pts_cur.T, 0.0).astype(jnp.float32)
-    z = jnp.maximum(pts_prev[2], pts_cur[2])
-    tau2 = inlier_threshold(z, params.inlier_dist, params) ** 2
-    tau_s2 = inlier_threshold(z, params.sample_dist, params) ** 2
+    pts = frame_points(pts_prev, pts_cur, valid, params, focal=focal, scale=scale)
+    valid = pts.valid
 
     n_valid = jnp.sum(valid)
     too_few = (n_valid < max(cfg.sample_size, 3)) | (n_valid <= params.min_segment_points)
@@ -445,20 +472,18 @@ def segment(key, pts_prev, pts_cur, valid, params, *, cfg, grid, batch_axis=None
     state0 = _SearchState(
         entropy=entropy0,
         err_min=jnp.full((n,), _FAR, jnp.float32),
+        d2_min=jnp.full((n,), _FAR, jnp.float32),
         count=jnp.int32(0),
         done=too_few | ~(_mean_valid(entropy0, valid) > params.s_min),
     )
 
     def step(state, k):
-        return _search_step(
-            state, k, pts_prev, pts_cur, valid, tau2, tau_s2, params, cfg=cfg, grid=grid,
-            batch_axis=batch_axis,
-        )
+        return _search_step(state, k, pts, params, cfg=cfg, grid=grid, batch_axis=batch_axis)
 
     state, hyps = lax.scan(step, state0, jax.random.split(key, big_h))
     num_hyp = state.count
 
-    hyp_best = jnp.argmin(jnp.where(hyps.inliers, hyps.err, _FAR * 10), axis=0)
+    hyp_best = jnp.argmin(jnp.where(hyps.inliers, hyps.d2, _FAR * 10), axis=0)
     hyp_labels = jnp.where(jnp.any(hyps.inliers, axis=0), hyp_best + 1, 0).astype(jnp.int32)
 
     # --- Algorithm 2: cluster the hypotheses, refine each cluster ------------------------
@@ -493,18 +518,18 @@ def segment(key, pts_prev, pts_cur, valid, params, *, cfg, grid, batch_axis=None
     )
     top = jnp.argsort(jnp.where(chosen, -size_h, 1), stable=True)[:n_slots]
     members = jax.nn.one_hot(top, big_h, dtype=bool) & chosen[top][:, None]
-    motions, err_c, inl_c, own_c = _cluster_refine(
-        hyps.motion[top], jnp.any(members, axis=1), pts_prev, pts_cur, valid, tau2, cfg=cfg
+    motions, d2_c, inl_c, own_c = _cluster_refine(
+        hyps.motion[top], jnp.any(members, axis=1), pts, cfg=cfg
     )
     n_c = jnp.sum(own_c, axis=1)
     big_enough = jnp.any(members, axis=1) & (n_c > params.min_segment_points)
 
     # Merge: the same motion found twice (cluster k duplicates a larger kept cluster j).
-    pred = jax.vmap(lambda t: _apply(t, pts_prev))(motions)  # (C, 3, n)
-    same = _same_motion(pred, own_c, pred, tau2, params.cluster_eps)  # (k, j)
+    pred = jax.vmap(lambda t: _apply(t, pts.src))(motions)  # (C, 3, n)
+    same = _same_motion(pred, own_c, pred, pts, params.cluster_eps)  # (k, j)
     # ... and k's motion explains most of j's own points: a near object's motion can move
-    # the far wall's points to within half the wall's wide threshold of where the wall's
-    # motion does, but the wall's motion does not explain the object (fixed_camera_2)
+    # the far wall's points to within the wall's wide noise of where the wall's motion
+    # does, but the wall's motion does not explain the object (fixed_camera_2)
     explains = jnp.sum(inl_c[:, None, :] & own_c[None, :, :], axis=2)  # (k, j)
     same = same & (explains > (1.0 - params.cluster_eps) * n_c[None, :])
     order = jnp.argsort(-n_c, stable=True)
@@ -517,11 +542,11 @@ def segment(key, pts_prev, pts_cur, valid, params, *, cfg, grid, batch_axis=None
     keep = lax.fori_loop(0, n_slots, merge, jnp.zeros((n_slots,), bool))
 
     # --- labelling: best explaining kept segment; drop segments left too small ------------
-    best, has = _assign(err_c, inl_c, keep)
+    best, has = _assign(d2_c, inl_c, keep, pts.tie)
     keep = keep & (_counts(best, has, n_slots) > params.min_segment_points)
-    best, has = _assign(err_c, inl_c, keep)
-    motions, err_c, inl_c, keep, slot, new = _leftover_segment(
-        motions, err_c, inl_c, keep, valid & ~has, pred, pts_prev, pts_cur, tau2, params
+    best, has = _assign(d2_c, inl_c, keep, pts.tie)
+    motions, d2_c, inl_c, keep, slot, new = _leftover_segment(
+        motions, d2_c, inl_c, keep, valid & ~has, pred, pts, params
     )
     best = jnp.where(new, slot, best)
     has = (has | new) & valid

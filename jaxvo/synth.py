@@ -112,7 +112,9 @@ class ObjectSpec:
 
     Position ``centre + amplitude * sin(2 pi t / period + phase)`` per axis (world frame,
     metres, seconds); rotation about a seeded axis at ``spin`` rad/s. ``phase`` ``None``
-    draws the phases from the seed.
+    draws the phases from the seed. ``stops`` are ``(start, end)`` intervals in seconds
+    from the first frame during which the box holds still (its path's clock stops), so
+    an object can stop and start again.
     """
 
     size: tuple[float, float, float]
@@ -121,6 +123,7 @@ class ObjectSpec:
     period: tuple[float, float, float]
     spin: float = 0.4
     phase: tuple[float, float, float] | None = None
+    stops: tuple[tuple[float, float], ...] = ()
 
 
 @dataclass(frozen=True)
@@ -188,6 +191,47 @@ SCENARIOS: dict[str, Scenario] = {
         Scenario(
             "static", "hand-held camera (about 0.2 m/s) in the room, nothing moves: the "
             "control", camera="handheld", camera_speed=0.2,
+        ),
+        # built for composites into real frames (the evaluation's failure cases); the
+        # camera settings apply when rendered fully synthetic
+        Scenario(
+            "three_boxes",
+            "three boxes that together cover about half the view, swinging in front of a "
+            "hand-held camera", camera="handheld", camera_speed=0.15,
+            objects=(
+                ObjectSpec(size=(0.55, 0.5, 0.35), centre=(-0.45, 0.05, 1.5),
+                           amplitude=(0.25, 0.1, 0.2), period=(4.1, 3.3, 5.2), spin=0.35),
+                ObjectSpec(size=(0.5, 0.55, 0.4), centre=(0.5, 0.0, 1.7),
+                           amplitude=(0.2, 0.12, 0.25), period=(3.6, 4.4, 4.9), spin=0.3),
+                ObjectSpec(size=(0.4, 0.4, 0.4), centre=(0.0, 0.35, 1.3),
+                           amplitude=(0.3, 0.08, 0.15), period=(4.8, 3.9, 4.2), spin=0.45),
+            ),
+        ),
+        Scenario(
+            "enter_leave",
+            "two boxes that sweep in from one side of the view and out at the other",
+            camera="handheld", camera_speed=0.15,
+            objects=(
+                # about 1 m/s at the centre of the view, as a person walking past
+                ObjectSpec(size=(0.45, 0.45, 0.4), centre=(0.0, 0.1, 1.5),
+                           amplitude=(1.3, 0.1, 0.15), period=(8.0, 3.1, 3.7), spin=0.4,
+                           phase=(-0.5 * np.pi, 0.0, 0.0)),
+                ObjectSpec(size=(0.4, 0.5, 0.35), centre=(0.1, -0.1, 1.9),
+                           amplitude=(0.2, 1.0, 0.2), period=(3.4, 7.0, 4.1), spin=0.3,
+                           phase=(0.0, 0.5 * np.pi, 1.0)),
+            ),
+        ),
+        Scenario(
+            "stop_start",
+            "two boxes; one stops for a while, moves again and stops again",
+            camera="handheld", camera_speed=0.15,
+            objects=(
+                ObjectSpec(size=(0.5, 0.5, 0.4), centre=(-0.25, 0.1, 1.5),
+                           amplitude=(0.4, 0.1, 0.25), period=(4.4, 3.5, 5.1), spin=0.4,
+                           stops=((1.0, 2.3), (3.3, 4.3))),
+                ObjectSpec(size=(0.35, 0.35, 0.35), centre=(0.45, 0.2, 1.8),
+                           amplitude=(0.25, 0.1, 0.2), period=(3.9, 4.6, 4.3), spin=0.5),
+            ),
         ),
     )
 }
@@ -361,7 +405,13 @@ class _ObjectPath:
         a0 = rng.normal(size=3)
         self.R0 = _rot(a0 / np.linalg.norm(a0), rng.uniform(0, 0.5))
 
+    def clock(self, t: float) -> float:
+        """The path's own time at ``t`` seconds from the first frame: it stands still during
+        each stop."""
+        return t - sum(float(np.clip(t, a, b)) - a for a, b in self.spec.stops)
+
     def pose(self, t: float) -> np.ndarray:
+        """``T_w_o`` at the path's own time ``t`` (see :meth:`clock`)."""
         T = np.eye(4)
         T[:3, :3] = self.R0 @ _rot(self.axis, self.spec.spin * t)
         T[:3, 3] = self.centre + self.amp * np.sin(self.w * t + self.phase)
@@ -458,10 +508,29 @@ class SyntheticSequence:
         return self._camera.pose(self.timestamps[i] if t is None else t)
 
     def _object_pose(self, k: int, i: int, t: float) -> np.ndarray:
-        T_local = self._objects[k].pose(t)
+        # paths run on the time since the first frame (a real sequence's timestamps may be
+        # large: sin of 1.3e9 s keeps few significant digits), on the object's own clock
+        path = self._objects[k]
+        tau = path.clock(t - float(self.timestamps[0]))
+        T_local = path.pose(tau)
         if self._background is not None:
-            return self._background.anchors[i] @ T_local
+            # the anchor follows the object's clock too, so a stop stops the object in the
+            # world (and it moves on from there, its anchor as far behind as it stood)
+            return self._anchor(tau) @ T_local
         return T_local
+
+    def _anchor(self, tau: float) -> np.ndarray:
+        """The smoothed camera pose the objects move around, at ``tau`` seconds from the first
+        frame: translation interpolated between frames, rotation of the nearer frame."""
+        anchors = self._background.anchors
+        since = self.timestamps - self.timestamps[0]
+        j = int(np.clip(np.searchsorted(since, tau, side="right") - 1, 0, len(since) - 1))
+        j1 = min(j + 1, len(since) - 1)
+        span = since[j1] - since[j]
+        a = float(np.clip((tau - since[j]) / span, 0.0, 1.0)) if span > 0 else 0.0
+        out = anchors[j1 if a >= 0.5 else j].copy()
+        out[:3, 3] = (1 - a) * anchors[j][:3, 3] + a * anchors[j1][:3, 3]
+        return out
 
     def _check(self, halves: list[np.ndarray]) -> None:
         room_min = 2 * min(ROOM_HALF)
@@ -688,7 +757,7 @@ def make_sequence(scenario: str | Scenario = "handheld_slow", *, frames: int = D
 
 def composite_sequence(sequence: str | Path | TumSequence,
                        scenario: str | Scenario = "handheld_slow", *,
-                       frames: int | None = None, seed: int = 0,
+                       frames: int | None = None, start: int = 0, seed: int = 0,
                        options: SensorOptions | None = None) -> SyntheticSequence:
     """Insert a preset's moving boxes into a real RGB-D sequence with camera ground truth.
 
@@ -702,7 +771,8 @@ def composite_sequence(sequence: str | Path | TumSequence,
       sequence: a TUM-layout folder (with ``groundtruth.txt``, ``camera.txt``) or an open
         ``io.TumSequence``.
       scenario: which preset's objects to insert (its camera motion is ignored).
-      frames: use the first ``frames`` frames (default all).
+      frames: use ``frames`` frames (default all from ``start`` on).
+      start: the first of them: the ``start``-th frame that has a ground-truth pose.
       seed, options: as in :func:`make_sequence`.
     """
     spec = _scenario(scenario)
@@ -712,6 +782,9 @@ def composite_sequence(sequence: str | Path | TumSequence,
                          "(groundtruth.txt)")
     ia, ib = associate(seq.timestamps, seq.groundtruth.timestamps, 0.02,
                        names=(seq.name, "groundtruth.txt"))
+    if int(start) < 0:
+        raise InputError(f"start must be 0 or more, got {start}")
+    ia, ib = ia[int(start):], ib[int(start):]
     if frames is not None:
         if int(frames) < 1:
             raise InputError(f"frames must be at least 1, got {frames}")
@@ -730,7 +803,8 @@ def composite_sequence(sequence: str | Path | TumSequence,
     bg = _Background(seq, ia, poses, anchors, z_scale)
     return SyntheticSequence(spec, frames=len(ia), seed=seed,
                              options=options or SensorOptions(), fps=DEFAULT_FPS,
-                             background=bg, name=f"composite_{spec.name}_{seq.name}_s{seed}")
+                             background=bg, name=f"composite_{spec.name}_{seq.name}"
+                             f"{f'_from{int(start)}' if start else ''}_s{seed}")
 
 
 def _smooth_poses(poses: np.ndarray, half_window: int) -> np.ndarray:

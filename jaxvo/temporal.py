@@ -19,22 +19,23 @@ Design decisions where the thesis leaves room (each also noted where it is imple
   region that is temporarily unmeasured keeps its identifier for the matching ("how long grid
   retains its identifier", section 4.1).
 * ``N_j`` of eq. (4.1) counts identifier ``j``'s cells among those measured now (see
-  ``label_correlation``), and every segment that follows the predicted camera motion joins
-  the background when the background segment does too (``_consistent_segments_join_background``):
-  fast motion splits the static background into several segments.
+  ``label_correlation``).
 * The score of eq. (4.2) divides by the size of *all* current segments, so an unmatched
   segment counts as correlation 0 and a window frame that matches more of the image wins.
 * A new identifier is the least observed (frames with a segment carrying it) among the free
-  ones; the background identifier ``1`` is preferred whenever it is free (first frame, or
-  background lost for ``id_retention`` frames), so the largest unmatched segment takes it.
-* A slow object that the spatial stage merged into the background keeps its identifier
-  while the points labelled with it still move together as a rigid body of their own
-  (``held``, computed by the pipeline: ``pipeline.held_objects``); the thesis lets the
-  background take its cells over ``max_age`` frames.
-* The candidate also takes over at once where the measurement is decisive: an object
-  seen elsewhere has left the cell, an object unobserved for ``id_retention`` frames is
-  forgotten, or a tracked segment that moves unlike the predicted camera motion has entered
-  it (see ``_update_models``); the thesis waits up to ``max_age`` frames in each case.
+  ones; the background identifier ``1`` is preferred whenever it is free (first frame), so
+  the largest unmatched segment takes it.
+* The background is not left to the overlap of eq. (4.1): the pipeline chooses the
+  background segment of every frame (:func:`jaxvo.pipeline.choose_background`) and says
+  which segments its motion explains; those take identifier 1, and when the chosen one had
+  matched another identifier the background is re-acquired in that frame
+  (``_force_background``). The thesis notes the weakness this removes: the region that
+  covers most of the image takes identifier 1, and an object covering more than half the
+  view took the background's.
+* Besides the probability vectors, every cell carries the log-odds that it moves
+  (``evidence``, compensated with the models): the pipeline adds each frame's evidence of
+  the cell's own motion, which decays, and reports the cell moving once it is significant
+  (:func:`update_evidence`).
 * Compensation moves a cell without flow as its identifier's valid cells move on average
   (the thesis leaves such cells open; see ``compensation_weights``).
 * After a swap the demoted model is cleared, as in the model the thesis builds on
@@ -64,6 +65,7 @@ class TemporalOut(NamedTuple):
     ids: jax.Array  # (n,) int32 temporal identifier per grid cell: 0 unknown, 1 static background
     matched: jax.Array  # (n,) int32 the measurement after label matching (Fig. 5.1 "Group")
     segment_ids: jax.Array  # (max_segments,) int32 identifier given to each spatial segment
+    evidence: jax.Array  # (n,) float32 log-odds that the cell moves, after this frame
 
 
 class TemporalState(NamedTuple):
@@ -73,12 +75,16 @@ class TemporalState(NamedTuple):
     cand_prob: jax.Array  # (n, max_ids) float32 candidate model's probability vector
     cand_age: jax.Array  # (n,) float32 candidate model's age, 0 = empty
     ids: jax.Array  # (n,) int32 temporal label map, 0 = unknown
+    # log-odds that the cell moves, relative to the prior (0 = no evidence either way)
+    evidence: jax.Array  # (n,) float32
     # window of Algorithm 3 (tMinSize), aligned with the same grid as the models
     history: jax.Array  # (match_window, n) int32 identifier maps, most recent first
     history_valid: jax.Array  # (match_window,) bool slot holds a past frame
     # identifier management (section 4.1)
     obs_count: jax.Array  # (max_ids,) int32 frames in which each identifier was observed
     last_seen: jax.Array  # (max_ids,) int32 update index of the last observation
+    # each identifier's support as the background, accumulated over frames and decaying
+    bg_score: jax.Array  # (max_ids,) float32
     frame: jax.Array  # () int32 number of updates so far
     initialised: jax.Array  # () bool some segment has received an identifier
 
@@ -101,10 +107,12 @@ def init_temporal(*, cfg: Config, grid: tuple[int, int]) -> TemporalState:
         cand_prob=jnp.zeros((n, m), jnp.float32),
         cand_age=jnp.zeros((n,), jnp.float32),
         ids=jnp.zeros((n,), jnp.int32),
+        evidence=jnp.zeros((n,), jnp.float32),
         history=jnp.zeros((cfg.match_window, n), jnp.int32),
         history_valid=jnp.zeros((cfg.match_window,), bool),
         obs_count=jnp.zeros((m,), jnp.int32),
         last_seen=jnp.full((m,), _NEVER, jnp.int32),
+        bg_score=jnp.zeros((m,), jnp.float32),
         frame=jnp.zeros((), jnp.int32),
         initialised=jnp.zeros((), bool),
     )
@@ -230,54 +238,99 @@ def _assign_identifiers(state: TemporalState, seg_labels, params: Params, *, cfg
     return segment_ids, n_seg
 
 
-def _prefer_consistent_background(segment_ids, n_seg, consistent):
-    """Give the background identifier to a segment that moves as the camera was predicted
-    to, when the segment that matched it does not.
+def measured_labels(seg, flow_valid, *, cfg: Config):
+    """(n,) int32 the spatial labels of the cells measured this frame (0 elsewhere): a
+    segmentation that failed, or a cell without valid flow, measures nothing."""
+    labels = jnp.asarray(seg.labels, jnp.int32)
+    ok = (jnp.asarray(seg.status) == Status.OK) & flow_valid & (labels > 0)
+    return jnp.where(ok & (labels <= cfg.max_segments), labels, 0)
 
-    Label matching (eq. 4.1) goes by overlap alone. When a large object stops, the spatial
-    stage merges it with the background for a few frames; when it moves again, it can
-    overlap the background's past area more than the background itself does, take
-    identifier 1, and the camera follows the object (``fixed_camera_2``: 400 mm of drift
-    in one run of four); or the merged segment keeps the object's identifier and no
-    segment has the background's. The largest consistent segment takes identifier 1 when
-    the matched one is not consistent (and is at most twice its size) or when no segment
-    matched identifier 1; a wrong prediction (a sudden camera move, where no segment is
-    consistent) changes nothing.
+
+def identify(state: TemporalState, labels, params: Params, *, cfg: Config):
+    """(max_segments,) int32 the identifier of each spatial segment (Algorithm 3, section
+    4.1), from the measured ``labels`` (n,) (:func:`measured_labels`); 0 when no identifier
+    was free."""
+    return _assign_identifiers(state, labels, params, cfg=cfg)[0]
+
+
+def choose_background(state: TemporalState, segment_ids, support, params: Params):
+    """The background of this frame: the identifier with the most support as the
+    background, accumulated over frames; it becomes identifier 1.
+
+    ``support`` (S,) is each segment's support this frame (see
+    :func:`jaxvo.pipeline.background_support`); each identifier's accumulated score decays
+    by ``params.evidence_decay`` a frame and adds the support of the segment carrying it.
+    The background is the identifier present now with the highest score (the segment of
+    most support when no segment has an identifier). When that is not identifier 1, the two
+    identifiers swap everywhere in the state (the background is re-acquired in this frame,
+    never lost): a wrong choice on a frame where an object dominates is outvoted as the
+    background keeps its support over the next frames.
+
+    Returns ``(state, segment_ids, background () int32 spatial label 1..S or 0,
+    reacquired () bool)``.
+    """
+    s, m = segment_ids.shape[0], state.bg_score.shape[0]
+    present = segment_ids > 0
+    add = jnp.zeros((m,), jnp.float32).at[jnp.clip(segment_ids - 1, 0, m - 1)].add(
+        jnp.where(present, support, 0.0))
+    import os
+    score = float(os.environ.get("JV_BGD", "0.9")) * state.bg_score + add
+    seg_score = jnp.where(present, score[jnp.clip(segment_ids - 1, 0, m - 1)], -1.0)
+    any_id = jnp.any(present & (support > 0))
+    pick = jnp.where(any_id, jnp.argmax(jnp.where(support > 0, seg_score, -1.0)),
+                     jnp.argmax(support))
+    has = jnp.any(support > 0)
+    background = jnp.where(has, pick + 1, 0).astype(jnp.int32)
+    bg_id = jnp.where(has & present[pick], segment_ids[pick], STATIC_ID)
+    reacquired = has & (bg_id != STATIC_ID) & state.initialised
+    state = _swap_identifiers(state._replace(bg_score=score), bg_id)
+    perm = _swap_perm(bg_id, m)
+    segment_ids = jnp.where(segment_ids > 0, perm[jnp.clip(segment_ids - 1, 0, m - 1)] + 1, 0)
+    # a segment without an identifier chosen as the background takes identifier 1 (the
+    # segment that had it keeps it only if it is the background)
+    segment_ids = jnp.where(jnp.arange(s) == pick, jnp.where(has, STATIC_ID, segment_ids[pick]),
+                            jnp.where(has & ~present[pick] & (segment_ids == STATIC_ID), 0,
+                                      segment_ids))
+    return state, segment_ids.astype(jnp.int32), background, reacquired
+
+
+def _swap_perm(k, m):
+    """(m,) the permutation of identifiers 1..m (as indices 0..m-1) swapping 1 and ``k``."""
+    idx = jnp.arange(m)
+    return jnp.where(idx == 0, k - 1, jnp.where(idx == k - 1, 0, idx))
+
+
+def _swap_identifiers(state: TemporalState, k):
+    """The state with identifiers 1 and ``k`` exchanged in every map, model and count."""
+    m = state.bg_score.shape[0]
+    perm = _swap_perm(k, m)
+
+    def relabel(x):
+        return jnp.where(x > 0, perm[jnp.clip(x - 1, 0, m - 1)] + 1, 0).astype(x.dtype)
+
+    return state._replace(
+        app_prob=state.app_prob[:, perm], cand_prob=state.cand_prob[:, perm],
+        ids=relabel(state.ids), history=relabel(state.history),
+        obs_count=state.obs_count[perm], last_seen=state.last_seen[perm],
+        bg_score=state.bg_score[perm],
+    )
+
+
+def update_evidence(evidence, delta, measured, params: Params):
+    """One frame of the moving evidence of every cell: a binary Bayes filter in log-odds.
+
+    ``evidence`` is the log-odds that the cell moves, relative to the prior; each frame it
+    decays by ``params.evidence_decay`` (so old evidence fades and a cell can change its
+    mind) and a measured cell adds this frame's log-likelihood ratio ``delta``; the sum is
+    kept within ``+-params.evidence_clamp`` so that a long history cannot outweigh a
+    change for longer than ``clamp / |delta|`` frames.
 
     Args:
-      segment_ids: (S,) int32 identifiers from the matching; n_seg: (S,) float32 sizes;
-      consistent: (S,) bool, most of the segment's points follow the predicted motion.
+      evidence: (n,) float32 compensated log-odds; delta: (n,) float32 this frame's
+        log-likelihood ratios (moving over static); measured: (n,) bool.
     """
-    s = segment_ids.shape[0]
-    is_bg = segment_ids == STATIC_ID
-    has_bg = jnp.any(is_bg)
-    cur = jnp.argmax(is_bg)
-    cand = consistent & (n_seg > 0) & (~has_bg | (2.0 * n_seg >= n_seg[cur]))
-    best = jnp.argmax(jnp.where(cand, n_seg, -1.0))
-    swap = jnp.any(cand) & ~(has_bg & consistent[cur])
-    idx = jnp.arange(s)
-    # the segment that had identifier 1 takes the chosen one's (0 if it had none)
-    others = jnp.where(has_bg & (idx == cur), segment_ids[best], segment_ids)
-    swapped = jnp.where(idx == best, STATIC_ID, others)
-    return jnp.where(swap, swapped, segment_ids).astype(jnp.int32)
-
-
-def _consistent_segments_join_background(segment_ids, n_seg, consistent):
-    """Every segment that moves as the camera was predicted to, while the background
-    segment does too, is background: identifier 1.
-
-    Under fast motion or noisy depth the spatial stage splits the static background into
-    several segments (7-Scenes at every fourth frame: 3-5 segments a frame, the largest
-    one's motion explaining the others within twice the inlier distance); only one of them
-    can match identifier 1, and the others took new, moving identifiers. Without a trusted
-    background (the identifier-1 segment does not follow the prediction) nothing changes.
-
-    Args:
-      segment_ids: (S,) int32; n_seg: (S,) float32 sizes; consistent: (S,) bool.
-    """
-    bg_follows = jnp.any((segment_ids == STATIC_ID) & consistent)
-    join = bg_follows & consistent & (n_seg > 0)
-    return jnp.where(join, STATIC_ID, segment_ids).astype(jnp.int32)
+    e = params.evidence_decay * evidence + jnp.where(measured, delta, 0.0)
+    return jnp.clip(e, -params.evidence_clamp, params.evidence_clamp).astype(jnp.float32)
 
 
 # --------------------------------------------------------------------------------------
@@ -292,51 +345,12 @@ def _blend(prob, age, meas_1h, max_age):
     return new_prob, jnp.minimum(age + 1.0, max_age)
 
 
-def _update_models(state: TemporalState, meas, seen, moving, max_age, retention, *,
-                   cfg: Config, fits=None, follows=None):
+def _update_models(state: TemporalState, meas, max_age, *, cfg: Config):
     """Apply the update criteria of section 4.2.1 with the matched label ``meas`` (n,).
 
-    Besides the thesis's swap (the candidate saturates or outgrows the apparent model), the
-    candidate takes over at once where the measurement is decisive:
-
-    * vacated: the cell's apparent identifier is a moving object that this frame's
-      measurement shows elsewhere (``seen``), so the object has left the cell. Waiting up
-      to ``max_age`` frames left a trail of the object behind it: precision of the moving
-      points 0.75-0.80 on the synthetic scenes, 0.92-0.96 with this rule. With ``fits``
-      (the pipeline gives it), a cell whose point the object's own motion this frame
-      explains better than the segment now holding it is not vacated: a slow part of the
-      object that the spatial stage merged into the background. Without that, such cells
-      turned static at once and their points dragged the ego-motion (``fixed_camera_2``
-      ATE 16.3 / 21.9 mm at seeds 0 / 2, 0.2 / 0.9 mm with it). With ``follows``, only a
-      cell whose own point moves as the predicted camera motion says is vacated at once:
-      a merged motion can explain an object at 0.9 m within its 2.8 mm threshold and a far
-      wall within 20 mm, 6 mm off (``fixed_camera_2`` seed 3: 122 object cells turned
-      static in one frame, ATE 14.2 mm; 0.1 mm with this rule).
-    * forgotten: the cell's apparent identifier is a moving object unobserved for
-      ``retention`` frames, as long as it takes to free its identifier for a new object.
-      The cell keeps its label while unmeasured, but a measurement now takes it. An object
-      that went unmeasured (a depth blind zone, out of view) otherwise left its label in
-      cells measured only now and then, for up to ``max_age`` of their measured frames:
-      ``close_approach`` seed 1, 150-270 false moving points a frame over frames 75-88,
-      57-89 with this rule (moving-point precision 0.865 -> 0.948).
-    * entered: the cell's segment does not follow the predicted camera motion (``moving``)
-      and carries an identifier seen within the matching window, so an object tracked as
-      moving has come into the cell. Without it a large object that starts to move stays
-      static in the model and drags the ego-motion (``fixed_camera_2``, 8 seeds: ATE
-      13-47 mm before, 0.3-12 mm after). A new identifier alone does not count: spurious
-      splits of a real static scene (7-Scenes) would pass into the model. With the
-      pipeline's per-point ``follows``, a cell whose own point moves as predicted is not
-      entered: one motion can explain a near object and a far wall within the wall's wide
-      threshold, and the merged segment took the whole grid at once (``fixed_camera_2``
-      seed 1: ATE 42.7 -> 5.6 mm, F 0.900 -> 0.934).
-
-    Args:
-      meas: (n,) int32 matched identifier per cell, 0 = no measurement.
-      seen: (max_ids,) bool identifiers present in this frame's measurement.
-      moving: (n,) bool the cell's segment moves unlike the predicted camera motion.
-      retention: () frames an identifier stays reserved (``Params.id_retention``).
-      fits: optional (max_ids, n) bool, a segment carrying the identifier explains the
-        cell's point better than the cell's own segment (see ``update_temporal``).
+    Both models are initialised directly where empty; the apparent model is updated where
+    its label equals the measurement, the candidate where the apparent model is not; they
+    swap when the candidate saturates (``max_age``) or outgrows the apparent model.
 
     Returns the new ``(app_prob, app_age, cand_prob, cand_age, ids)``.
     """
@@ -357,21 +371,9 @@ def _update_models(state: TemporalState, meas, seen, moving, max_age, retention,
     cand_p = jnp.where(cand_touch[:, None], cand_p, state.cand_prob)
     cand_a = jnp.where(cand_touch, cand_a, state.cand_age)
 
-    # swap when the candidate saturates or outgrows the apparent model, or at once when the
-    # measurement is decisive (see above); the demoted model is cleared (as in [20]) so a
-    # lone erroneous label cannot swap it straight back
-    vacated = seen[jnp.clip(app_label - 1, 0, m - 1)] & ~app_empty & (app_label != STATIC_ID)
-    if fits is not None:  # ... unless the object's own motion still fits the cell better
-        vacated = vacated & ~jnp.take_along_axis(
-            fits, jnp.clip(app_label - 1, 0, m - 1)[None, :], axis=0
-        )[0]
-    if follows is not None:  # ... and only where the cell's own point moves as predicted
-        vacated = vacated & follows
-    forgotten = _forgotten(state, retention) & ~seen
-    gone = forgotten[jnp.clip(app_label - 1, 0, m - 1)] & ~app_empty & (app_label != STATIC_ID)
-    recent = state.frame - state.last_seen <= cfg.match_window
-    entered = moving & (meas != STATIC_ID) & recent[jnp.clip(meas - 1, 0, m - 1)]
-    swap = cand_touch & ((cand_a >= max_age) | (cand_a > app_a) | vacated | gone | entered)
+    # swap when the candidate saturates or outgrows the apparent model; the demoted model
+    # is cleared (as in [20]) so a lone erroneous label cannot swap it straight back
+    swap = cand_touch & ((cand_a >= max_age) | (cand_a > app_a))
     app_p = jnp.where(swap[:, None], cand_p, app_p)
     app_a = jnp.where(swap, cand_a, app_a)
     cand_p = jnp.where(swap[:, None], 0.0, cand_p)
@@ -474,6 +476,8 @@ def _compensate_state(state: TemporalState, disp, flow_valid, *, cfg: Config, gr
                                                    ids=state.ids)
     app_p, app_a = compensate_models(state.app_prob, state.app_age, idx, w)
     cand_p, cand_a = compensate_models(state.cand_prob, state.cand_age, idx, w)
+    # evidence as the models: interpolated; a cell from outside the old view has none
+    evidence = jnp.sum(w * state.evidence[idx], axis=1)
     # label maps are categorical: nearest neighbour instead of interpolation
     ids = jnp.where(inside, state.ids[nearest], 0)
     history = jnp.where(inside[None, :], state.history[:, nearest], 0)
@@ -483,6 +487,7 @@ def _compensate_state(state: TemporalState, disp, flow_valid, *, cfg: Config, gr
         cand_prob=cand_p,
         cand_age=cand_a,
         ids=ids,
+        evidence=evidence,
         history=history,
     )
 
@@ -490,14 +495,6 @@ def _compensate_state(state: TemporalState, disp, flow_valid, *, cfg: Config, gr
 # --------------------------------------------------------------------------------------
 # The per-frame update
 # --------------------------------------------------------------------------------------
-
-
-def own_segment_err(err, labels):
-    """(n,) each point's squared residual under the motion of its own segment, from ``err``
-    (max_segments, n) per segment and ``labels`` (n,) 1..max_segments (0 reads segment 1;
-    callers mask those points)."""
-    return jnp.take_along_axis(err, jnp.clip(labels - 1, 0, err.shape[0] - 1)[None, :], axis=0)[0]
-
 
 
 def update_temporal(
@@ -509,10 +506,9 @@ def update_temporal(
     *,
     cfg: Config,
     grid: tuple[int, int],
-    consistent=None,
-    follows=None,
-    seg_err=None,
-    held=None,
+    segment_ids=None,
+    explained=None,
+    evidence_delta=None,
 ) -> tuple[TemporalState, TemporalOut]:
     """One frame of motion temporal segmentation (Algorithm 3, eqs. 4.1-4.9).
 
@@ -521,85 +517,56 @@ def update_temporal(
       seg: the spatial stage's ``Segmentation`` (any object with ``labels`` (n,) int32,
         0 = unlabelled / 1..max_segments, and ``status`` () int32); labels on the grid of
         the previous image. A status other than OK counts as no measurement. The point
-        counts ``N_i`` of eq. (4.1) are taken from ``labels`` (``sizes`` counts inliers,
-        which may differ), so ``sizes`` and ``num_segments`` are not read.
+        counts ``N_i`` of eq. (4.1) are taken from ``labels``.
       disp: (n, 2) float32 ``uv_cur - uv_prev`` of each grid point, pixels.
       flow_valid: (n,) bool; cells with invalid flow carry no measurement.
-      params: ``min_match_corr``, ``max_age`` (frames), ``id_retention`` (frames); floats or
-        traced arrays.
+      params: ``min_match_corr``, ``max_age`` (frames), ``id_retention`` (frames),
+        ``evidence_decay``, ``evidence_clamp``; floats or traced arrays.
       cfg, grid: static.
-      consistent: optional (max_segments,) bool per spatial label 1..S: whether the
-        segment follows the camera motion predicted from the previous frame (see
-        :func:`_prefer_consistent_background`); None keeps the thesis's matching alone.
-      follows: optional (n,) bool, with ``consistent``: each point itself follows the
-        predicted camera motion; such a cell is not "entered" by a moving object even when
-        its segment as a whole moves, and only such a cell is "vacated" at once by an
-        object seen elsewhere (see ``_update_models``).
-      seg_err: optional ``(err, tau2)``: (max_segments, n) squared residuals of every point
-        under each segment's motion (large for unused segments) and (n,) squared inlier
-        thresholds; lets a cell keep an object that still fits it (see ``_update_models``).
-      held: optional (n,) int32, a moving identifier per point whose points still move as
-        one rigid body apart from the background (``pipeline.held_objects``; 0 = none):
-        where the matching gives such a point the background, it is measured as the held
-        identifier instead, and the identifier counts as seen.
+      segment_ids: optional (max_segments,) int32, the identifiers already given to the
+        segments (:func:`identify`, :func:`choose_background`); None matches them here.
+      explained: optional (max_segments,) bool, the segments whose points the background
+        motion explains; they are measured as identifier 1.
+      evidence_delta: optional (n,) float32 log-likelihood ratios (moving over static) of
+        this frame's measurement of each cell (see :func:`update_evidence`); None leaves
+        the evidence as it is.
 
     Returns:
       ``(state, out)``: the state compensated to the current image's grid, and a
       :class:`TemporalOut` on the previous image's grid (the grid of ``seg.labels``).
     """
     s = cfg.max_segments
-    labels = jnp.asarray(seg.labels, jnp.int32)
-    seg_ok = jnp.asarray(seg.status) == Status.OK
-    measured = seg_ok & flow_valid & (labels > 0) & (labels <= s)
-    labels = jnp.where(measured, labels, 0)
+    labels = measured_labels(seg, flow_valid, cfg=cfg)
+    measured = labels > 0
 
     # 4.1: identifiers for the segments
-    segment_ids, n_seg = _assign_identifiers(state, labels, params, cfg=cfg)
-    if consistent is not None:
-        segment_ids = _prefer_consistent_background(segment_ids, n_seg, consistent)
-        segment_ids = _consistent_segments_join_background(segment_ids, n_seg, consistent)
-    matched = jnp.where(measured, segment_ids[jnp.clip(labels - 1, 0, s - 1)], 0)
+    if segment_ids is None:
+        segment_ids = identify(state, labels, params, cfg=cfg)
     seen = jnp.any(jax.nn.one_hot(segment_ids - 1, cfg.max_ids, dtype=bool), axis=0)
-    if held is not None:
-        hold = measured & (held > STATIC_ID) & (matched == STATIC_ID)
-        matched = jnp.where(hold, held, matched)
-        seen = seen | jnp.any(jax.nn.one_hot(jnp.where(hold, held, 0) - 1, cfg.max_ids,
-                                             dtype=bool), axis=0)
+    if explained is not None:
+        segment_ids = jnp.where(explained & (segment_ids > 0), STATIC_ID, segment_ids)
+    matched = jnp.where(measured, segment_ids[jnp.clip(labels - 1, 0, s - 1)], 0)
     obs_count = state.obs_count + seen.astype(jnp.int32)
     last_seen = jnp.where(seen, state.frame, state.last_seen)
 
     # 4.2.1: update the grid models with the matched label as measurement
-    if consistent is None:
-        moving = jnp.zeros_like(measured)
-    else:
-        moving = measured & ~consistent[jnp.clip(labels - 1, 0, s - 1)]
-        if follows is not None:
-            moving = moving & ~follows
-    fits = None
-    if seg_err is not None:
-        # per identifier and cell: a segment with that identifier explains the cell's point
-        # better than the segment now holding it does
-        err, tau2 = seg_err
-        own = own_segment_err(err, labels)
-        better = measured[None, :] & (err < own[None, :]) & (err <= tau2[None, :])  # (S, n)
-        of_id = jax.nn.one_hot(segment_ids - 1, cfg.max_ids, dtype=bool)  # (S, max_ids)
-        fits = jnp.any(of_id[:, :, None] & better[:, None, :], axis=0)  # (max_ids, n)
-    app_p, app_a, cand_p, cand_a, ids = _update_models(
-        state, matched, seen, moving, params.max_age, params.id_retention, cfg=cfg,
-        fits=fits, follows=follows,
-    )
+    app_p, app_a, cand_p, cand_a, ids = _update_models(state, matched, params.max_age, cfg=cfg)
+    evidence = state.evidence
+    if evidence_delta is not None:
+        evidence = update_evidence(evidence, evidence_delta, flow_valid, params)
 
     # the window keeps this frame's identifier map; unmeasured cells keep the grid's label
     id_map = jnp.where(matched > 0, matched, ids)
     history = jnp.concatenate([id_map[None], state.history[:-1]], axis=0)
     history_valid = jnp.concatenate([jnp.ones((1,), bool), state.history_valid[:-1]])
 
-    updated = TemporalState(
+    updated = state._replace(
         app_prob=app_p,
         app_age=app_a,
         cand_prob=cand_p,
         cand_age=cand_a,
         ids=ids,
+        evidence=evidence,
         history=history,
         history_valid=history_valid,
         obs_count=obs_count,
@@ -607,7 +574,8 @@ def update_temporal(
         frame=state.frame + 1,
         initialised=state.initialised | jnp.any(seen),
     )
-    out = TemporalOut(ids=ids, matched=matched.astype(jnp.int32), segment_ids=segment_ids)
+    out = TemporalOut(ids=ids, matched=matched.astype(jnp.int32), segment_ids=segment_ids,
+                      evidence=evidence)
 
     # 4.2.2: carry the models to the current image's grid for the next step
     new_state = _compensate_state(updated, disp, flow_valid, cfg=cfg, grid=grid)

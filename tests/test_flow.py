@@ -520,6 +520,7 @@ def reference_flow(b0, d0, b1, d1, cam, cfg) -> GridFlow:
         uv_cur=np.where(keep, uv1, uv0).astype(np.float32),
         valid=ok,
         status=np.int32(Status.OK),
+        focal=np.float32(cam.focal),
     )
 
 

@@ -9,7 +9,7 @@ import time
 # Kept in step with jaxvo.synth.SCENARIOS (checked by the tests); listed here so that
 # ``--help`` does not import JAX.
 SCENARIO_NAMES = ("fixed_camera_1", "fixed_camera_2", "handheld_fast", "handheld_slow",
-                  "close_approach", "static")
+                  "close_approach", "static", "three_boxes", "enter_leave", "stop_start")
 
 
 def add_arguments(parser: argparse.ArgumentParser) -> None:

@@ -1,0 +1,340 @@
+"""jaxvo on the development and validation splits (``bench/splits.py``), side by side.
+
+For every case: ATE and RPE against ground truth and the best OpenCV peer's ATE on the same
+frames; moving recall / precision / F at the grid points where exact masks exist; on the
+static real frames the share of grid cells reported moving and of pixels in the plug-in
+masks; on the TUM walking clip the share of the image the masks flag outside the annotated
+people (``bench/annotations``); the pairs skipped and the background re-acquisitions. With
+``--plugin`` each OpenCV peer runs again with jaxvo's dynamic pixels masked out (thesis
+Fig. 5.8) and the report gives its ATE over the peer's own.
+
+The grid flow of each case and the peers' trajectories do not depend on jaxvo's device
+stages: they are computed once and cached under ``--cache`` (default ``results/cache``),
+so a change to the method re-runs in about a minute.
+
+Run: ``.venv/bin/python bench/bench_robustness.py [--split dev|val|all] [--only CASE ...]
+[--plugin] [--out results/]``. Writes ``robustness.md`` and ``robustness.json``.
+"""
+
+from __future__ import annotations
+
+import argparse
+import datetime
+import hashlib
+import json
+import sys
+import time
+from pathlib import Path
+
+import jax
+import jax.numpy as jnp
+import numpy as np
+
+sys.path.insert(0, str(Path(__file__).resolve().parent))
+from _common import machine  # noqa: E402
+from splits import Case, available, cases  # noqa: E402
+
+from jaxvo.config import Config, Params, grid_shape, params_as_arrays  # noqa: E402
+from jaxvo.evaluation import trajectory_scores  # noqa: E402
+from jaxvo.flow import GridFlow, flows_for_sequence  # noqa: E402
+from jaxvo.io import Trajectory  # noqa: E402
+from jaxvo.masks import dynamic_pixels, moving_at_grid  # noqa: E402
+from jaxvo.metrics import SegmentationScores  # noqa: E402
+from jaxvo.peers import OPENCV_PEERS, run_peer  # noqa: E402
+from jaxvo.pipeline import init_pipeline, jit_step  # noqa: E402
+from jaxvo.plugin import iter_dynamic_masks  # noqa: E402
+from jaxvo.status import Status  # noqa: E402
+
+CFG = Config()
+
+
+def log(msg: str) -> None:
+    print(f"[{time.strftime('%H:%M:%S')}] {msg}", flush=True)
+
+
+# ------------------------------------------------------------------------------- caching
+
+
+def _flow_key(cfg: Config) -> str:
+    """A short hash of the settings the host flow depends on (the flow section of Config)."""
+    fields = {k: v for k, v in vars(cfg).items() if k in _FLOW_FIELDS}
+    return hashlib.sha1(json.dumps(fields, sort_keys=True).encode()).hexdigest()[:10]
+
+
+_FLOW_FIELDS = ("cell", "lk_window", "lk_levels", "lk_fast_px", "patch", "lk_iters", "lk_eps",
+                "fb_max", "min_similarity", "depth_min", "depth_max", "depth_jump",
+                "fill_radius", "fill_min_valid", "depth_smooth")
+
+
+def prepare(case: Case, cache: Path, cfg: Config) -> dict:
+    """Flows, timestamps, ground truth and grid truth of a case, from the cache or computed
+    (the flows in one file, keyed by the flow settings; the moving truth in another)."""
+    path = cache / f"{case.name}__{_flow_key(cfg)}.npz"
+    truth = cache / f"{case.name}__truth{cfg.cell}.npz"
+    seq = None
+    if path.is_file():
+        z = np.load(path, allow_pickle=False)
+        data = {k: z[k] for k in z.files if k != "grid_gt"}
+    else:
+        log(f"{case.name}: building the sequence and its flow (cached in {path})")
+        seq = case.build()
+        flows = flows_for_sequence(seq, cfg)
+        data = {f"flow_{k}": np.asarray(v) for k, v in flows._asdict().items()}
+        data["timestamps"] = np.asarray(seq.timestamps, np.float64)
+        data["size"] = np.array([seq.height, seq.width])
+        gt = seq.groundtruth
+        if gt is not None and len(gt) == len(seq):
+            data["gt_poses"] = np.asarray(gt.poses, np.float64)
+        cache.mkdir(parents=True, exist_ok=True)
+        np.savez_compressed(path, **data)
+        if "gt_poses" in data:  # the peers alone, once (they do not depend on jaxvo)
+            peers_alone(case, cache, seq)
+    if case.kind in ("synthetic", "composite"):
+        if not truth.is_file():
+            seq = seq if seq is not None else case.build()
+            log(f"{case.name}: the moving truth of every grid cell (cached in {truth})")
+            np.savez_compressed(truth, grid_gt=np.stack(
+                [moving_grid_truth(seq, k, cfg.cell) for k in range(len(seq))]))
+        data["grid_gt"] = np.load(truth)["grid_gt"]
+    return data
+
+
+# An object moves in a frame pair when a corner of its box moves by more than this (metres):
+# a stopped object that the method calls static is right (thesis section 5.2 counts it so).
+_STOPPED = 1e-3
+
+
+def moving_grid_truth(seq, k: int, cell: int) -> np.ndarray:
+    """(n,) bool grid cells of image ``k`` on an object that moves between images ``k`` and
+    ``k + 1`` (the last image: ``k - 1`` and ``k``), from the exact masks and object poses."""
+    mask = seq[k].mask
+    objects = getattr(seq, "object_trajectories", None)
+    if not objects:
+        return moving_at_grid(mask, cell)
+    a, b = (k, k + 1) if k + 1 < len(seq) else (k - 1, k)
+    halves = [np.asarray(o.size) / 2 for o in seq.scenario.objects]
+    moving_ids = []
+    for oid, traj in objects.items():
+        corners = np.array(np.meshgrid([-1, 1], [-1, 1], [-1, 1])).reshape(3, -1).T * halves[oid - 1]
+        pa = corners @ traj.poses[a][:3, :3].T + traj.poses[a][:3, 3]
+        pb = corners @ traj.poses[b][:3, :3].T + traj.poses[b][:3, 3]
+        if np.max(np.linalg.norm(pa - pb, axis=1)) > _STOPPED:
+            moving_ids.append(oid)
+    from jaxvo.masks import ids_at_grid
+
+    return np.isin(ids_at_grid(mask, cell), moving_ids)
+
+
+def peers_alone(case: Case, cache: Path, seq=None) -> dict:
+    """ATE of each OpenCV peer alone on the case (cached); {} without ground truth."""
+    path = cache / f"{case.name}__peers.json"
+    if path.is_file():
+        return json.loads(path.read_text())
+    seq = seq if seq is not None else case.build()
+    if seq.groundtruth is None:
+        return {}
+    out = {}
+    for kind in OPENCV_PEERS:
+        log(f"{case.name}: peer {kind}")
+        run = run_peer(seq, kind)
+        out[kind] = trajectory_scores(seq.groundtruth, run.trajectory)
+        out[kind]["ms_per_frame"] = run.ms_per_frame
+    path.write_text(json.dumps(out, indent=1))
+    return out
+
+
+# ----------------------------------------------------------------------------------- run
+
+
+def run_jaxvo(data: dict, params: Params, cfg: Config, seed: int):
+    """The streaming step over the cached flows (compiled once for every 640x480 case):
+    the same per-frame keys as ``run_scan``, so the same result."""
+    h, w = (int(x) for x in data["size"])
+    grid = grid_shape(h, w, cfg.cell)
+    T0 = data.get("gt_poses", np.eye(4)[None])[0]
+    state = init_pipeline(cfg=cfg, grid=grid, T_w_c0=T0, params=params)
+    key = jax.random.key(seed)
+    p = params_as_arrays(params)
+    flows = GridFlow(*(data[f"flow_{k}"] for k in GridFlow._fields))
+    outs = []
+    t0 = time.perf_counter()
+    for k in range(len(flows.valid)):
+        flow = GridFlow(*(jnp.asarray(a[k]) for a in flows))
+        state, out = jit_step(state, flow, key, p, cfg=cfg, grid=grid)
+        outs.append(out)
+    outs = jax.tree.map(lambda *xs: np.stack([np.asarray(x) for x in xs]), *outs)
+    seconds = time.perf_counter() - t0
+    poses = np.concatenate([np.asarray(T0, np.float64)[None], outs.T_w_c.astype(np.float64)])
+    return Trajectory(data["timestamps"], poses), outs, np.asarray(state.temporal.ids), seconds
+
+
+def score(case: Case, data: dict, traj, outs, final_ids, cache: Path, cfg: Config) -> dict:
+    h, w = (int(x) for x in data["size"])
+    res: dict = {"case": case.name, "split": case.split, "kind": case.kind,
+                 "pairs": int(len(outs.status))}
+    status = np.asarray(outs.status)
+    res["skipped"] = {Status(int(c)).reason: int(np.sum(status == c))
+                      for c in np.unique(status) if c != Status.OK}
+    res["skipped_no_static"] = int(np.sum(status == Status.NO_STATIC))
+    if hasattr(outs, "reacquired"):
+        res["reacquired"] = int(np.sum(np.asarray(outs.reacquired)))
+    moving = np.asarray(outs.moving)
+    res["moving_cells_pct"] = 100.0 * float(moving.mean())
+    masks = list(iter_dynamic_masks(outs, h, w, cfg.cell, final_ids=final_ids))
+    res["dynamic_pixels_pct"] = 100.0 * float(np.mean([m.mean() for m in masks]))
+    res["dynamic_pixels_pct_max"] = 100.0 * float(np.max([m.mean() for m in masks]))
+    if "gt_poses" in data:
+        gt = Trajectory(data["timestamps"], data["gt_poses"])
+        res.update(trajectory_scores(gt, traj))
+        peers = peers_alone(case, cache)
+        if peers:
+            best = min(peers, key=lambda k: peers[k]["ate_rmse_m"])
+            res["best_peer"] = best
+            res["best_peer_ate_m"] = peers[best]["ate_rmse_m"]
+            res["ate_over_best_peer"] = res["ate_rmse_m"] / max(peers[best]["ate_rmse_m"], 1e-12)
+    if "grid_gt" in data:
+        s = SegmentationScores()
+        for k in range(len(moving)):
+            s.add(moving[k], data["grid_gt"][k])
+        res.update({f"moving_{k}": v for k, v in s.as_dict().items()
+                    if k in ("recall", "precision", "f_measure")})
+    if case.kind == "people":
+        res.update(people_scores(case, masks, h, w, cfg))
+    return res
+
+
+def people_scores(case: Case, masks, h: int, w: int, cfg: Config) -> dict:
+    """Share of the image flagged dynamic more than one cell away from the annotated people
+    (a flagged cell that straddles a person's outline is not counted against it)."""
+    try:
+        from people_masks import people_masks
+    except ImportError:
+        return {"people": "no annotation module (bench/people_masks.py)"}
+    import cv2
+
+    from jaxvo.io import data_root
+
+    people = people_masks(data_root() / case.source)
+    grow = np.ones((2 * cfg.cell + 1, 2 * cfg.cell + 1), np.uint8)
+    outside, inside = [], []
+    for k, m in enumerate(masks):
+        p = people[k]
+        near = cv2.dilate(p.astype(np.uint8), grow).astype(bool)
+        outside.append(float(np.mean(m & ~near)))
+        inside.append(float(np.sum(m & p) / max(np.sum(p), 1)))
+    return {"dynamic_outside_people_pct": 100.0 * float(np.mean(outside)),
+            "dynamic_outside_people_pct_max": 100.0 * float(np.max(outside)),
+            "people_covered_pct": 100.0 * float(np.mean(inside))}
+
+
+def plugin(case: Case, outs, final_ids, data: dict, cfg: Config) -> dict:
+    """Each OpenCV peer with jaxvo's dynamic pixels masked out, ATE over the peer alone."""
+    if "gt_poses" not in data:
+        return {}
+    seq = case.build()
+    h, w = seq.height, seq.width
+    masks = list(iter_dynamic_masks(outs, h, w, cfg.cell, final_ids=final_ids))
+    out = {}
+    for kind in OPENCV_PEERS:
+        run = run_peer(seq, kind, keep=lambda i: ~masks[i])
+        out[kind] = trajectory_scores(seq.groundtruth, run.trajectory)["ate_rmse_m"]
+    return out
+
+
+# -------------------------------------------------------------------------------- report
+
+
+def _fmt(x, spec=".3f"):
+    return "-" if x is None else format(x, spec)
+
+
+def table(rows: list[dict]) -> str:
+    head = ("| case | split | ATE mm | best peer mm | ratio | RPE mm/frame | F | recall | "
+            "precision | moving cells % | mask px % (max) | skipped (no static) | "
+            "re-acq |\n|" + "---|" * 13)
+    lines = [head]
+    for r in rows:
+        ate = r.get("ate_rmse_m")
+        peer = r.get("best_peer_ate_m")
+        lines.append(
+            f"| {r['case']} | {r['split']} | {_fmt(ate and 1e3 * ate, '.1f')} | "
+            f"{_fmt(peer and 1e3 * peer, '.1f')} | {_fmt(r.get('ate_over_best_peer'), '.2f')} | "
+            f"{_fmt(r.get('rpe_trans_m_per_frame') and 1e3 * r['rpe_trans_m_per_frame'], '.2f')} | "
+            f"{_fmt(r.get('moving_f_measure'))} | {_fmt(r.get('moving_recall'))} | "
+            f"{_fmt(r.get('moving_precision'))} | {r['moving_cells_pct']:.2f} | "
+            f"{r['dynamic_pixels_pct']:.2f} ({r['dynamic_pixels_pct_max']:.1f}) | "
+            f"{sum(r['skipped'].values())} ({r['skipped_no_static']}) | "
+            f"{r.get('reacquired', '-')} |")
+    return "\n".join(lines)
+
+
+def main(argv=None) -> int:
+    ap = argparse.ArgumentParser(description=__doc__.split("\n\n")[0])
+    ap.add_argument("--split", choices=("dev", "val", "all"), default="all")
+    ap.add_argument("--only", nargs="*", help="case names")
+    ap.add_argument("--plugin", action="store_true", help="also each peer with jaxvo's masks")
+    ap.add_argument("--seed", type=int, default=0)
+    ap.add_argument("--set", nargs="*", default=[], metavar="NAME=VALUE",
+                    help="Params values to run with (a study of one configuration)")
+    ap.add_argument("--cache", type=Path, default=Path("results/cache"))
+    ap.add_argument("--out", type=Path, default=Path("results"))
+    args = ap.parse_args(argv)
+
+    todo = [c for c in cases() if (args.split == "all" or c.split == args.split)
+            and (not args.only or c.name in args.only)]
+    rows, skipped = [], {}
+    for case in todo:
+        why = available(case)
+        if why:
+            skipped[case.name] = why
+            log(f"{case.name}: skipped ({why})")
+            continue
+        data = prepare(case, args.cache, CFG)
+        params = Params()._replace(**{k: float(v) for k, v in
+                                      (a.split("=", 1) for a in args.set)})
+        traj, outs, final_ids, seconds = run_jaxvo(data, params, CFG, args.seed)
+        row = score(case, data, traj, outs, final_ids, args.cache, CFG)
+        row["jaxvo_seconds"] = seconds
+        if args.plugin and case.kind in ("static", "composite"):
+            masked = plugin(case, outs, final_ids, data, CFG)
+            alone = peers_alone(case, args.cache)
+            row["plugin_ate_over_alone"] = {k: masked[k] / max(alone[k]["ate_rmse_m"], 1e-12)
+                                            for k in masked}
+        rows.append(row)
+        log(f"{case.name}: " + ", ".join(
+            f"{k} {v:.4g}" for k, v in row.items()
+            if isinstance(v, float) and k in ("ate_rmse_m", "ate_over_best_peer",
+                                              "moving_f_measure", "moving_cells_pct",
+                                              "dynamic_pixels_pct",
+                                              "dynamic_outside_people_pct")))
+    args.out.mkdir(parents=True, exist_ok=True)
+    meta = {"date": datetime.datetime.now().isoformat(timespec="seconds"), "machine": machine(),
+            "skipped_cases": skipped}
+    (args.out / "robustness.json").write_text(json.dumps({"meta": meta, "rows": rows}, indent=1))
+    md = [f"# jaxvo on the development and validation splits\n\n{meta['date']}; "
+          f"{meta['machine']['cpu_model']}; jax {meta['machine']['jax']}\n",
+          "## Development split (tuned on)\n", table([r for r in rows if r["split"] == "dev"]),
+          "\n## Validation split (never tuned on)\n",
+          table([r for r in rows if r["split"] == "val"])]
+    people = [r for r in rows if "dynamic_outside_people_pct" in r]
+    for r in people:
+        md.append(f"\n{r['case']}: masks outside the people {r['dynamic_outside_people_pct']:.2f} % "
+                  f"of the image on average (worst frame {r['dynamic_outside_people_pct_max']:.1f} %); "
+                  f"people covered {r['people_covered_pct']:.1f} %")
+    plug = [r for r in rows if "plugin_ate_over_alone" in r]
+    if plug:
+        md.append("\n## Plug-in: each peer's ATE with jaxvo's mask over its ATE alone\n")
+        kinds = list(OPENCV_PEERS)
+        md.append("| case | " + " | ".join(kinds) + " |\n|---|" + "---|" * len(kinds))
+        for r in plug:
+            md.append(f"| {r['case']} | " + " | ".join(
+                f"{r['plugin_ate_over_alone'][k]:.3f}" for k in kinds) + " |")
+    for name, why in skipped.items():
+        md.append(f"\n{name}: skipped, {why}")
+    (args.out / "robustness.md").write_text("\n".join(md) + "\n")
+    print("\n".join(md))
+    return 0
+
+
+if __name__ == "__main__":
+    raise SystemExit(main())

@@ -1,0 +1,83 @@
+"""The development and validation splits: what jaxvo is tuned on, and what it is judged on.
+
+Every rule and constant of the method is chosen on the **development** split only; the
+**validation** split is run to report, never to choose. Real frames are split by time: the
+development split uses frames 0-149 of the shared 7-Scenes sequence, the validation split
+frames 150-299 and the TUM walking clip, which no development case reads.
+
+| split | case | what it is |
+| --- | --- | --- |
+| dev | ``synth_<scenario>`` | the built-in synthetic scenes, seed 0, 90 frames |
+| dev | ``comp_<scenario>_dev`` | boxes composited into 7-Scenes frames 0-149, seed 0 |
+| dev | ``static_dev_every<k>`` | 7-Scenes frames 0-149 at every k-th frame: nothing moves |
+| val | ``comp_<scenario>_val`` | boxes composited into 7-Scenes frames 150-299, seed 1 |
+| val | ``static_val_every<k>`` | 7-Scenes frames 150-299 at every k-th frame |
+| val | ``tum_walking`` | the TUM fr3 walking clip: two people, no ground truth |
+
+The composites' scenarios are the failure cases of issue 18: three boxes covering about half
+the view (``three_boxes``), boxes entering and leaving the view (``enter_leave``), a box
+that stops and starts again (``stop_start``), and the two earlier ones (``handheld_slow``,
+``fixed_camera_2``).
+"""
+
+from __future__ import annotations
+
+from collections.abc import Callable
+from typing import NamedTuple
+
+from jaxvo.io import InMemorySequence, data_root, open_sequence
+from jaxvo.synth import composite_sequence, make_sequence
+
+SEVEN_SCENES = "7scenes_static_0000_0299"
+TUM_WALKING = "tum_fr3_walking_halfsphere_50"
+SYNTHETIC = ("fixed_camera_1", "fixed_camera_2", "handheld_fast", "handheld_slow",
+             "close_approach", "static")
+COMPOSITES = ("three_boxes", "enter_leave", "stop_start", "handheld_slow", "fixed_camera_2")
+HALF = 150  # 7-Scenes frames per split
+
+
+class Case(NamedTuple):
+    name: str
+    split: str  # "dev" or "val"
+    kind: str  # "synthetic", "composite", "static", "people"
+    source: str | None  # real folder it reads under the data root, None for synthetic
+    build: Callable[[], InMemorySequence]
+
+
+def _static(start: int, step: int):
+    def build():
+        seq = InMemorySequence(open_sequence(data_root() / SEVEN_SCENES), start=start,
+                               frames=-(-HALF // step), step=step)
+        seq.name = f"{SEVEN_SCENES}_{start:04d}_{start + HALF - 1:04d}_every{step}"
+        return seq
+    return build
+
+
+def _composite(scenario: str, start: int, seed: int):
+    return lambda: InMemorySequence(composite_sequence(
+        data_root() / SEVEN_SCENES, scenario, start=start, frames=HALF, seed=seed))
+
+
+def cases() -> list[Case]:
+    """Every case of both splits, development first."""
+    out = [Case(f"synth_{s}", "dev", "synthetic", None,
+                lambda s=s: InMemorySequence(make_sequence(s, frames=90, seed=0)))
+           for s in SYNTHETIC]
+    for split, start, seed in (("dev", 0, 0), ("val", HALF, 1)):
+        out += [Case(f"comp_{s}_{split}", split, "composite", SEVEN_SCENES,
+                     _composite(s, start, seed)) for s in COMPOSITES]
+        out += [Case(f"static_{split}_every{k}", split, "static", SEVEN_SCENES, _static(start, k))
+                for k in (1, 2, 4)]
+    out.append(Case("tum_walking", "val", "people", TUM_WALKING,
+                    lambda: InMemorySequence(open_sequence(data_root() / TUM_WALKING))))
+    return out
+
+
+def available(case: Case) -> str | None:
+    """None when the case can run here, else why not."""
+    if case.source is None:
+        return None
+    path = data_root() / case.source
+    if not (path / "associations.txt").is_file() and not (path / "rgb.txt").is_file():
+        return f"{case.source} not found at {path} (set JAXVO_DATA to the shared data folder)"
+    return None
