@@ -142,12 +142,8 @@ def update_noise(scale: NoiseScale, r, valid, focal, pts_prev, pts_cur, rate, *,
 
     noise = point_noise(pts_prev, pts_cur, focal, scale)
     lat2, ray2 = components(r, noise)
-    import os
-    q = float(os.environ.get("JV_NQ", "0.25"))
-    c2 = {0.25: _CHI2_2_Q25, 0.5: 1.38629}[q]
-    c1 = {0.25: _CHI2_1_Q25, 0.5: 0.45494}[q]
-    m_lat = masked_quantile(lat2 * noise.w_lat, valid, q) / c2
-    m_ray = masked_quantile(ray2 * noise.w_ray, valid, q) / c1
+    m_lat = masked_quantile(lat2 * noise.w_lat, valid, _QUARTILE) / _CHI2_2_Q25
+    m_ray = masked_quantile(ray2 * noise.w_ray, valid, _QUARTILE) / _CHI2_1_Q25
     enough = jnp.sum(valid) >= 12
 
     def step(value, ratio2, low, high):

@@ -69,7 +69,6 @@ class _Points(NamedTuple):
     valid: jax.Array  # (n,) bool
     thr: jax.Array  # () float32 inlier test: chi2_3(confidence), noise units
     tie: jax.Array  # () float32 two motions explain a point alike: chi2_1(confidence)
-    six: jax.Array  # () float32 two motions are one over a set of points: chi2_6(confidence)
 
 
 class _SearchState(NamedTuple):
@@ -303,8 +302,7 @@ def _cluster_refine(start, active, pts: _Points, *, cfg):
     def trip(motions, _):
         _, _, own = assign(motions)
         refit, ok = jax.vmap(lambda w: fit_rigid_cols(pts.src, pts.dst, w))(
-            own.astype(jnp.float32)
-        )
+            own.astype(jnp.float32))
         return jnp.where((ok & active)[:, None, None], refit, motions), None
 
     motions, _ = lax.scan(trip, start, None, length=cfg.cluster_refine_iters)
@@ -368,10 +366,6 @@ def _same_motion(pred_a, own_a, pred_b, pts: _Points, eps):
 
     gap = jax.vmap(lambda pa: jax.vmap(lambda pb: mahalanobis(pa - pb, pts.noise))(pred_b))(
         pred_a)  # (A, B, n)
-    import os
-    if os.environ.get("JV_SAME", "count") == "group":
-        total = jnp.sum(jnp.where(own_a[:, None, :], gap, 0.0), axis=2)
-        return total <= pts.six
     close = jnp.sum(own_a[:, None, :] & (gap <= 0.25 * pts.thr), axis=2)
     return close > (1.0 - eps) * jnp.sum(own_a, axis=1)[:, None]
 
@@ -427,7 +421,7 @@ def frame_points(pts_prev, pts_cur, valid, params, *, focal, scale=None) -> _Poi
     scale = init_noise(params) if scale is None else scale
     noise = point_noise(src, dst, jnp.asarray(focal, jnp.float32), scale)
     return _Points(src, dst, noise, valid, chi2_quantile(3, params.confidence),
-                   chi2_quantile(1, params.confidence), chi2_quantile(6, params.confidence))
+                   chi2_quantile(1, params.confidence))
 
 
 def segment(key, pts_prev, pts_cur, valid, params, *, cfg, grid, focal=525.0, scale=None,

@@ -273,8 +273,7 @@ def choose_background(state: TemporalState, segment_ids, support, params: Params
     present = segment_ids > 0
     add = jnp.zeros((m,), jnp.float32).at[jnp.clip(segment_ids - 1, 0, m - 1)].add(
         jnp.where(present, support, 0.0))
-    import os
-    score = float(os.environ.get("JV_BGD", "0.9")) * state.bg_score + add
+    score = params.evidence_decay * state.bg_score + add
     seg_score = jnp.where(present, score[jnp.clip(segment_ids - 1, 0, m - 1)], -1.0)
     any_id = jnp.any(present & (support > 0))
     pick = jnp.where(any_id, jnp.argmax(jnp.where(support > 0, seg_score, -1.0)),
@@ -390,105 +389,91 @@ def _update_models(state: TemporalState, meas, max_age, *, cfg: Config):
 # --------------------------------------------------------------------------------------
 
 
-def compensation_weights(disp, flow_valid, *, cfg: Config, grid: tuple[int, int], ids=None):
-    """Where each current cell's model comes from: thesis eqs. (4.8), (4.9).
-
-    Current cell ``i`` looks back to ``p_i - d_i`` (``d_i`` = displacement at cell ``i``).
-    A cell without valid flow takes the mean displacement of the valid cells of its
-    identifier in ``ids``, else the median displacement of all valid cells. (The median
-    alone moved an object's unmeasured cells with the background, leaving its label behind
-    wherever depth is missing: composite 7-Scenes scene, moving F 0.70 -> 0.80.)
-
-    A cell-sized square
-    centred there overlaps at most four previous cells; the overlap areas, normalised to sum
-    1 over the cells inside the grid, are the bilinear weights. A source centre outside the
-    area the grid covers leaves the cell empty.
-
-    Args:
-      disp: (n, 2) float32 ``uv_cur - uv_prev`` per grid point, pixels (x, y).
-      flow_valid: (n,) bool.
-      cfg, grid: static; ``cfg.cell`` is the cell size in pixels.
-      ids: optional (n,) int32 identifier per cell (0 = none) on the same grid.
-
-    Returns:
-      ``(idx (n, 4) int32 previous cells, w (n, 4) float32 weights, nearest (n,) int32
-      cell of largest overlap, inside (n,) bool)``; weights are 0 where ``inside`` is False.
-    """
-    rows, cols = grid
-    n = rows * cols
+def _fill_displacement(disp, flow_valid, ids, *, cfg: Config):
+    """(n, 2) displacement of every cell, pixels: its own where its flow is valid, else the
+    mean of its identifier's valid cells, else the median of all valid cells."""
     ok = flow_valid & jnp.all(jnp.isfinite(disp), axis=1)
     d_safe = jnp.where(ok[:, None], disp, 0.0)
     med = jnp.stack([masked_median(d_safe[:, i], ok, precision_bits=12) for i in (0, 1)])
     fill = jnp.broadcast_to(med, d_safe.shape)
-    if ids is not None:
-        id_1h = jax.nn.one_hot(ids - 1, cfg.max_ids, dtype=jnp.float32) * ok[:, None]
-        count = id_1h.sum(axis=0)
-        mean = (id_1h.T @ d_safe) / jnp.maximum(count, 1.0)[:, None]
-        slot = jnp.clip(ids - 1, 0, cfg.max_ids - 1)
-        own = (ids > 0) & (count[slot] > 0)
-        fill = jnp.where(own[:, None], mean[slot], fill)
-    d = jnp.where(ok[:, None], d_safe, fill) / cfg.cell
+    id_1h = jax.nn.one_hot(ids - 1, cfg.max_ids, dtype=jnp.float32) * ok[:, None]
+    count = id_1h.sum(axis=0)
+    mean = (id_1h.T @ d_safe) / jnp.maximum(count, 1.0)[:, None]
+    slot = jnp.clip(ids - 1, 0, cfg.max_ids - 1)
+    own = (ids > 0) & (count[slot] > 0)
+    fill = jnp.where(own[:, None], mean[slot], fill)
+    return jnp.where(ok[:, None], d_safe, fill)
 
-    r = (jnp.arange(n) // cols).astype(jnp.float32)
-    c = (jnp.arange(n) % cols).astype(jnp.float32)
-    sr = r - d[:, 1]
-    sc = c - d[:, 0]
-    inside = (sr >= -0.5) & (sr < rows - 0.5) & (sc >= -0.5) & (sc < cols - 0.5)
-    sr = jnp.clip(sr, -1.0, rows)
-    sc = jnp.clip(sc, -1.0, cols)
 
-    r0 = jnp.floor(sr)
-    c0 = jnp.floor(sc)
-    fr = sr - r0
-    fc = sc - c0
+def splat_weights(disp, flow_valid, ids, *, cfg: Config, grid: tuple[int, int]):
+    """Where each previous cell's model goes: thesis eqs. (4.6)-(4.9) with the flow read
+    forward.
+
+    Previous cell ``j`` moves to ``p_j + d_j`` (its own displacement, or its identifier's
+    mean where its flow is invalid, see :func:`_fill_displacement`); a cell-sized square
+    there overlaps at most four current cells, with the overlap areas as weights. Each
+    current cell then averages what lands on it, weighted by overlap (eqs. 4.6-4.9); a cell
+    nothing lands on (newly uncovered, or new in view) is empty. Read forward, a moving
+    object's model moves with the object: looking back from each current cell with the
+    displacement measured at the same previous cell gave the cells an object had just
+    entered the background's model (its leading edge lagged by a frame or more).
+
+    Returns ``(dst (n, 4) int32 current cells, w (n, 4) float32 overlap, 0 outside the grid)``.
+    """
+    rows, cols = grid
+    n = rows * cols
+    d = _fill_displacement(disp, flow_valid, ids, cfg=cfg) / cfg.cell
+    r = (jnp.arange(n) // cols).astype(jnp.float32) + d[:, 1]
+    c = (jnp.arange(n) % cols).astype(jnp.float32) + d[:, 0]
+    r = jnp.clip(r, -1.0, rows)
+    c = jnp.clip(c, -1.0, cols)
+    r0, c0 = jnp.floor(r), jnp.floor(c)
+    fr, fc = r - r0, c - c0
     rr = jnp.stack([r0, r0, r0 + 1, r0 + 1], axis=1).astype(jnp.int32)
     cc = jnp.stack([c0, c0 + 1, c0, c0 + 1], axis=1).astype(jnp.int32)
     w = jnp.stack([(1 - fr) * (1 - fc), (1 - fr) * fc, fr * (1 - fc), fr * fc], axis=1)
     in_grid = (rr >= 0) & (rr < rows) & (cc >= 0) & (cc < cols)
-    w = jnp.where(in_grid, w, 0.0)
-    wsum = w.sum(axis=1, keepdims=True)
-    w = jnp.where(inside[:, None] & (wsum > 0), w / jnp.where(wsum > 0, wsum, 1.0), 0.0)
-    idx = jnp.clip(rr, 0, rows - 1) * cols + jnp.clip(cc, 0, cols - 1)
-
-    rn = jnp.clip(jnp.floor(sr + 0.5), 0, rows - 1).astype(jnp.int32)
-    cn = jnp.clip(jnp.floor(sc + 0.5), 0, cols - 1).astype(jnp.int32)
-    nearest = rn * cols + cn
-    return idx.astype(jnp.int32), w.astype(jnp.float32), nearest, inside
+    w = jnp.where(in_grid, w, 0.0).astype(jnp.float32)
+    dst = jnp.clip(rr, 0, rows - 1) * cols + jnp.clip(cc, 0, cols - 1)
+    return dst.astype(jnp.int32), w
 
 
-def compensate_models(prob, age, idx, w):
-    """thesis eqs. (4.6), (4.7): area-weighted interpolation of probability vectors and ages.
+def _splat(values, dst, w, total):
+    """Overlap-weighted average of ``values`` (n, ...) landing on each cell (0 where nothing
+    lands)."""
+    n = values.shape[0]
+    ww = w.reshape((n, 4) + (1,) * (values.ndim - 1))
+    acc = jnp.zeros_like(values).at[dst.reshape(-1)].add(
+        (ww * values[:, None]).reshape((n * 4,) + values.shape[1:]))
+    t = total.reshape((n,) + (1,) * (values.ndim - 1))
+    return jnp.where(t > 0, acc / jnp.where(t > 0, t, 1.0), 0.0)
 
-    Args:
-      prob: (n, M) float32; age: (n,) float32; idx, w: (n, 4) from
-        :func:`compensation_weights`.
 
-    Returns:
-      ``(prob (n, M), age (n,))`` on the current grid; cells with all-zero weights are empty.
-    """
-    new_prob = jnp.einsum("nk,nkm->nm", w, prob[idx])
-    new_age = jnp.sum(w * age[idx], axis=1)
-    return new_prob, new_age
+def _splat_labels(labels, dst, w, num: int):
+    """Categorical maps (..., n) int32 moved forward: each cell takes the label of most
+    overlap landing on it (0: none)."""
+    n = labels.shape[-1]
+    onehot = jax.nn.one_hot(labels - 1, num, dtype=jnp.float32)  # (..., n, num)
+    acc = jnp.zeros(labels.shape + (num,), jnp.float32)
+    contrib = w[..., None] * onehot[..., :, None, :]  # (..., n, 4, num)
+    acc = acc.at[..., dst.reshape(-1), :].add(contrib.reshape(labels.shape[:-1] + (n * 4, num)))
+    best = jnp.argmax(acc, axis=-1)
+    return jnp.where(jnp.max(acc, axis=-1) > 0, best + 1, 0).astype(jnp.int32)
 
 
 def _compensate_state(state: TemporalState, disp, flow_valid, *, cfg: Config, grid):
-    idx, w, nearest, inside = compensation_weights(disp, flow_valid, cfg=cfg, grid=grid,
-                                                   ids=state.ids)
-    app_p, app_a = compensate_models(state.app_prob, state.app_age, idx, w)
-    cand_p, cand_a = compensate_models(state.cand_prob, state.cand_age, idx, w)
-    # evidence as the models: interpolated; a cell from outside the old view has none
-    evidence = jnp.sum(w * state.evidence[idx], axis=1)
-    # label maps are categorical: nearest neighbour instead of interpolation
-    ids = jnp.where(inside, state.ids[nearest], 0)
-    history = jnp.where(inside[None, :], state.history[:, nearest], 0)
+    """The state carried forward to the current image's grid (section 4.2.2)."""
+    dst, w = splat_weights(disp, flow_valid, state.ids, cfg=cfg, grid=grid)
+    n = state.ids.shape[0]
+    total = jnp.zeros((n,), jnp.float32).at[dst.reshape(-1)].add(w.reshape(-1))
     return state._replace(
-        app_prob=app_p,
-        app_age=app_a,
-        cand_prob=cand_p,
-        cand_age=cand_a,
-        ids=ids,
-        evidence=evidence,
-        history=history,
+        app_prob=_splat(state.app_prob, dst, w, total),
+        app_age=_splat(state.app_age, dst, w, total),
+        cand_prob=_splat(state.cand_prob, dst, w, total),
+        cand_age=_splat(state.cand_age, dst, w, total),
+        evidence=_splat(state.evidence, dst, w, total),
+        ids=_splat_labels(state.ids, dst, w, cfg.max_ids),
+        history=_splat_labels(state.history, dst, w, cfg.max_ids),
     )
 
 
