@@ -234,9 +234,9 @@ def step(state: PipelineState, flow, key, params: Params, *, cfg: Config, grid,
         segment_ids=segment_ids, explained=explained & ok, evidence_delta=delta,
     )
 
-    # 5. the sensor noise, from the residuals under the ego-motion
+    # 5. the sensor noise, from the residuals of the points the ego-motion was fitted to
     used = inliers & ok
-    noise = update_noise(state.noise, transfer(T_cur_prev, pts.src) - pts.dst, valid & ok,
+    noise = update_noise(state.noise, transfer(T_cur_prev, pts.src) - pts.dst, (use > 0) & ok,
                          flow.focal, pts.src, pts.dst, params.noise_rate, floor=NOISE_FLOOR,
                          ceiling=NOISE_CEILING)
 
