@@ -41,7 +41,7 @@ from jaxvo.io import Trajectory  # noqa: E402
 from jaxvo.masks import dynamic_pixels, moving_at_grid  # noqa: E402
 from jaxvo.metrics import SegmentationScores  # noqa: E402
 from jaxvo.peers import OPENCV_PEERS, run_peer  # noqa: E402
-from jaxvo.pipeline import init_pipeline, jit_step  # noqa: E402
+from jaxvo.pipeline import final_moving, init_pipeline, jit_step  # noqa: E402
 from jaxvo.plugin import iter_dynamic_masks  # noqa: E402
 from jaxvo.status import Status  # noqa: E402
 
@@ -165,7 +165,7 @@ def run_jaxvo(data: dict, params: Params, cfg: Config, seed: int):
     outs = jax.tree.map(lambda *xs: np.stack([np.asarray(x) for x in xs]), *outs)
     seconds = time.perf_counter() - t0
     poses = np.concatenate([np.asarray(T0, np.float64)[None], outs.T_w_c.astype(np.float64)])
-    return Trajectory(data["timestamps"], poses), outs, np.asarray(state.temporal.ids), seconds
+    return Trajectory(data["timestamps"], poses), outs, np.asarray(final_moving(state, p)), seconds
 
 
 def score(case: Case, data: dict, traj, outs, final_ids, cache: Path, cfg: Config) -> dict:
@@ -270,7 +270,7 @@ def table(rows: list[dict]) -> str:
 
 def main(argv=None) -> int:
     ap = argparse.ArgumentParser(description=__doc__.split("\n\n")[0])
-    ap.add_argument("--split", choices=("dev", "val", "all"), default="all")
+    ap.add_argument("--split", choices=("dev", "val", "fresh", "all"), default="all")
     ap.add_argument("--only", nargs="*", help="case names")
     ap.add_argument("--plugin", action="store_true", help="also each peer with jaxvo's masks")
     ap.add_argument("--seed", type=int, default=0)
@@ -315,7 +315,9 @@ def main(argv=None) -> int:
           f"{meta['machine']['cpu_model']}; jax {meta['machine']['jax']}\n",
           "## Development split (tuned on)\n", table([r for r in rows if r["split"] == "dev"]),
           "\n## Validation split (never tuned on)\n",
-          table([r for r in rows if r["split"] == "val"])]
+          table([r for r in rows if r["split"] == "val"]),
+          "\n## Fresh cases (run once after the last change)\n",
+          table([r for r in rows if r["split"] == "fresh"])]
     people = [r for r in rows if "dynamic_outside_people_pct" in r]
     for r in people:
         md.append(f"\n{r['case']}: masks outside the people {r['dynamic_outside_people_pct']:.2f} % "

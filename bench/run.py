@@ -43,7 +43,7 @@ from jaxvo.io import Trajectory, data_root, first_pose, open_sequence, write_tra
 from jaxvo.masks import overlay_panel
 from jaxvo.metrics import SegmentationScores, ate
 from jaxvo.peers import OPEN3D_PEERS, available_peers, run_peer
-from jaxvo.pipeline import StepOutput, frame_key, run_scan, static_weights
+from jaxvo.pipeline import StepOutput, final_moving, frame_key, run_scan
 from jaxvo.plugin import dynamic_masks
 from jaxvo.spatial import segment
 from jaxvo.status import Status
@@ -194,7 +194,7 @@ def run_jaxvo(seq: CachedSequence, cfg: Config, seed: int, repeats: int):
         final, outs = jax.block_until_ready(scan(flows_dev, key, params, T0j))
         times.append(time.perf_counter() - t0)
     outs = StepOutput(*(np.asarray(x) for x in outs))
-    final_ids = np.asarray(final.temporal.ids)
+    final_ids = np.asarray(final_moving(final, params))
     rss_after_scan = peak_rss_mib()
     stage_ms, stage_compile = time_stages(flows_dev, key, params, cfg, grid)
     poses = np.concatenate([np.asarray(T0, np.float64)[None], outs.T_w_c.astype(np.float64)])

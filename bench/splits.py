@@ -13,6 +13,7 @@ frames 150-299 and the TUM walking clip, which no development case reads.
 | val | ``comp_<scenario>_val`` | boxes composited into 7-Scenes frames 150-299, seed 1 |
 | val | ``static_val_every<k>`` | 7-Scenes frames 150-299 at every k-th frame |
 | val | ``tum_walking`` | the TUM fr3 walking clip: two people, no ground truth |
+| fresh | ``comp_<scenario>_fresh``, ``synth_<scenario>_fresh`` | the composites on frames 150-299 and the synthetic scenes at seed 3: run once, after the last change, to check the validation split was not tuned on by looking at it |
 
 The composites' scenarios are the failure cases of issue 18: three boxes covering about half
 the view (``three_boxes``), boxes entering and leaving the view (``enter_leave``), a box
@@ -70,6 +71,11 @@ def cases() -> list[Case]:
                 for k in (1, 2, 4)]
     out.append(Case("tum_walking", "val", "people", TUM_WALKING,
                     lambda: InMemorySequence(open_sequence(data_root() / TUM_WALKING))))
+    out += [Case(f"comp_{s}_fresh", "fresh", "composite", SEVEN_SCENES, _composite(s, HALF, 3))
+            for s in COMPOSITES]
+    out += [Case(f"synth_{s}_fresh", "fresh", "synthetic", None,
+                 lambda s=s: InMemorySequence(make_sequence(s, frames=90, seed=3)))
+            for s in SYNTHETIC]
     return out
 
 

@@ -57,7 +57,7 @@ def moving_at_grid(mask: np.ndarray, cell: int) -> np.ndarray:
     return ids_at_grid(mask, cell) > 0
 
 
-def dynamic_pixels(moving: np.ndarray, height: int, width: int, cell: int, *, grow: int = 1):
+def dynamic_pixels(moving: np.ndarray, height: int, width: int, cell: int, *, grow: int = 0):
     """Pixels to ignore for ego-motion: moving cells, grown by ``grow`` cells so that object
     borders between grid points are covered too.
 

@@ -72,6 +72,7 @@ class StepOutput(NamedTuple):
     status: jax.Array  # () int32 Status code, OK or why the motion was carried
     ids: jax.Array  # (n,) int32 temporal identifiers: 0 unknown, 1 static, >1 moving objects
     moving: jax.Array  # (n,) bool points reported as moving (evidence over time)
+    dynamic: jax.Array  # (n,) bool cells of the plug-in mask: moving, and their unmeasured neighbours
     static: jax.Array  # (n,) bool, points the ego-motion used (static, valid, inlier)
     labels: jax.Array  # (n,) int32 spatial segments of this pair (0 = none)
     hyp_labels: jax.Array  # (n,) int32 best raw hypothesis per point, before clustering
@@ -93,19 +94,20 @@ def belief_weights(prior, params: Params):
 
 
 def background_support(d2_seg, sizes, weights, z, d2_pred, have_last, thr):
-    """(S,) float32 each segment's support as the background in this frame (0 unused).
+    """Each segment's support as the background in this frame, and its consistency with
+    the camera's predicted motion: ``(support (S,), consistency (S,))``, 0 where unused.
 
     The background is the motion consistent with the camera's predicted motion (the
-    previous ego-motion) and supported by the most surface: the support of a segment's
-    motion is the surface its explained points stand for, each weighted by how much earlier
-    frames say it is background (:func:`belief_weights`), times ``_UNPREDICTED + f``, ``f``
-    the share of those points the predicted motion explains too (1 before any ego-motion).
-    A grid point at depth z stands for ``(z / f)^2`` square metres of surface, so the room
-    behind a person or a box covering half the view (nearer, and at one depth) still has
-    more surface than they have. Points are counted where the motion explains them (not
-    only its own segment's), so a piece of the background split off by noise adds to the
-    motion that explains it. The temporal stage accumulates the support per identifier
-    (:func:`jaxvo.temporal.choose_background`).
+    previous ego-motion) and supported by the most surface. The support of a segment's
+    motion is the surface its explained points stand for, each weighted by how much
+    earlier frames say it is background (:func:`belief_weights`): a grid point at depth z
+    stands for ``(z / f)^2`` square metres, so the room behind a person or a box covering
+    half the view (nearer, and at one depth) still has more surface than they have. Points
+    count where the motion explains them (not only its own segment's), so a piece of the
+    background split off by noise adds to the motion that explains it. The consistency is
+    ``_UNPREDICTED + f``, ``f`` the share of that surface the predicted motion explains too
+    (1 before any ego-motion). The temporal stage accumulates the support per identifier
+    and weighs it by the consistency (:func:`jaxvo.temporal.choose_background`).
 
     Args:
       d2_seg: (S, n) normalised residuals of every point under each segment's motion;
@@ -118,7 +120,8 @@ def background_support(d2_seg, sizes, weights, z, d2_pred, have_last, thr):
     follows = jnp.sum(surface * (d2_pred <= thr)[None, :], axis=1)
     total = jnp.sum(surface, axis=1)
     f = jnp.where(have_last, follows / jnp.maximum(total, 1e-12), 1.0)
-    return jnp.where(sizes > 0, (_UNPREDICTED + f) * total, 0.0)
+    used = sizes > 0
+    return jnp.where(used, total, 0.0), jnp.where(used, _UNPREDICTED + f, 0.0)
 
 
 def explained_segments(seg, d2, valid, thr, *, cfg: Config):
@@ -200,10 +203,10 @@ def step(state: PipelineState, flow, key, params: Params, *, cfg: Config, grid,
     belief = jnp.where(valid, belief_weights(prior, params), 0.0)
     labels = measured_labels(seg, valid, cfg=cfg)
     segment_ids = identify(state.temporal, labels, params, cfg=cfg)
-    support = background_support(d2_seg, seg.sizes, belief, z, d2_pred, state.have_last,
-                                 pts.thr)
+    support, consistency = background_support(d2_seg, seg.sizes, belief, z, d2_pred,
+                                              state.have_last, pts.thr)
     temporal, segment_ids, bg, reacquired = choose_background(
-        state.temporal, segment_ids, support, params)
+        state.temporal, segment_ids, support, consistency, params)
 
     # 3. ego-motion: re-weighted from the background segment's motion over every point,
     # each weighted by its belief, less those in a segment that moves unlike the
@@ -240,12 +243,15 @@ def step(state: PipelineState, flow, key, params: Params, *, cfg: Config, grid,
                          flow.focal, pts.src, pts.dst, params.noise_rate, floor=NOISE_FLOOR,
                          ceiling=NOISE_CEILING)
 
+    moving = tout.evidence > _moving_logodds(params)
     out = StepOutput(
         T_w_c=T_w_c,
         T_cur_prev=T_cur_prev,
         status=status,
         ids=tout.ids,
-        moving=tout.evidence > _moving_logodds(params),
+        moving=moving,
+        dynamic=grow_moving(moving, ~valid & (tout.evidence > -_moving_logodds(params)),
+                            grid=grid, steps=1),
         static=used,
         labels=seg.labels,
         hyp_labels=seg.hyp_labels,
@@ -259,6 +265,33 @@ def step(state: PipelineState, flow, key, params: Params, *, cfg: Config, grid,
     T_last = jnp.where(ok, T_cur_prev, state.T_last)
     have_last = state.have_last | ok
     return PipelineState(temporal, T_w_c, state.frame + 1, T_last, have_last, noise), out
+
+
+def grow_moving(moving, open_cells, *, grid, steps: int):
+    """(n,) bool ``moving`` grown ``steps`` times into 8-connected ``open_cells`` (n,) bool.
+
+    A cell without a measurement this frame (no valid flow: an object's edge, a blurred or
+    textureless part, a depth hole) that is not established background takes the state of
+    its measured neighbourhood: it is reported moving when it touches a moving cell.
+    Measured cells and established background bound the growth.
+    """
+    rows, cols = grid
+    m = moving.reshape(rows, cols)
+    o = open_cells.reshape(rows, cols)
+    for _ in range(steps):
+        p = jnp.pad(m, 1)
+        near = jnp.zeros_like(m)
+        for dr in (0, 1, 2):
+            for dc in (0, 1, 2):
+                near = near | p[dr:dr + rows, dc:dc + cols]
+        m = m | (near & o)
+    return m.reshape(-1)
+
+
+def final_moving(state: PipelineState, params: Params):
+    """(n,) bool the cells of the last image reported moving: the final state's evidence,
+    already carried forward onto that image's grid."""
+    return state.temporal.evidence > _moving_logodds(params)
 
 
 def _moving_logodds(params: Params):

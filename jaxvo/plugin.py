@@ -33,8 +33,8 @@ def _ids_of(result) -> np.ndarray:
     """``(T, n)`` moving flags (or identifiers) from a ``SequenceResult``, a stacked
     ``StepOutput`` or an array."""
     outputs = getattr(result, "outputs", result)  # SequenceResult -> its StepOutput
-    # StepOutput -> its moving points (identifiers for outputs that carry only those)
-    ids = getattr(outputs, "moving", getattr(outputs, "ids", outputs))
+    # StepOutput -> its mask cells (moving points and their unmeasured neighbours)
+    ids = getattr(outputs, "dynamic", getattr(outputs, "moving", getattr(outputs, "ids", outputs)))
     ids = np.asarray(ids)
     if ids.ndim == 1:
         ids = ids[None]
@@ -44,7 +44,7 @@ def _ids_of(result) -> np.ndarray:
 
 
 def iter_dynamic_masks(
-    result, height: int, width: int, cell: int, *, final_ids=None, grow: int = 1
+    result, height: int, width: int, cell: int, *, final_ids=None, grow: int = 0
 ) -> Iterator[np.ndarray]:
     """One ``(height, width)`` bool mask per image of the sequence, lazily, in frame order.
 
@@ -78,7 +78,7 @@ def iter_dynamic_masks(
 
 
 def dynamic_masks(
-    result, height: int, width: int, cell: int, *, final_ids=None, grow: int = 1
+    result, height: int, width: int, cell: int, *, final_ids=None, grow: int = 0
 ) -> np.ndarray:
     """Dynamic pixels of every image of a run: ``(T + 1, height, width)`` bool, True = ignore.
 

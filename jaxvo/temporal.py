@@ -253,18 +253,25 @@ def identify(state: TemporalState, labels, params: Params, *, cfg: Config):
     return _assign_identifiers(state, labels, params, cfg=cfg)[0]
 
 
-def choose_background(state: TemporalState, segment_ids, support, params: Params):
-    """The background of this frame: the identifier with the most support as the
-    background, accumulated over frames; it becomes identifier 1.
+def choose_background(state: TemporalState, segment_ids, support, consistency, params: Params):
+    """The background of this frame: the identifier with the most support as the background
+    accumulated over frames, weighted by how well its segment moves as the camera was
+    predicted to; it becomes identifier 1.
 
-    ``support`` (S,) is each segment's support this frame (see
+    ``support`` (S,) is each segment's support this frame (the surface it explains, see
     :func:`jaxvo.pipeline.background_support`); each identifier's accumulated score decays
     by ``params.evidence_decay`` a frame and adds the support of the segment carrying it.
-    The background is the identifier present now with the highest score (the segment of
-    most support when no segment has an identifier). When that is not identifier 1, the two
-    identifiers swap everywhere in the state (the background is re-acquired in this frame,
-    never lost): a wrong choice on a frame where an object dominates is outvoted as the
-    background keeps its support over the next frames.
+    ``consistency`` (S,) weighs each segment by this frame's evidence (the predicted
+    camera motion, :func:`jaxvo.pipeline.background_support`): the history says which
+    identifier has been the background, the prediction whether its segment still moves as
+    the background does, and the choice takes their product. Without the product, the
+    history alone kept the background on an object that a first frame had merged with it
+    (``three_boxes`` composite, frames 150-299: the box, once split off, kept identifier 1
+    and the camera followed it for 130 frames).
+    The background is the segment present now with the highest weighted score (the segment
+    of most weighted support when no segment has an identifier). When its identifier is not
+    1, the two identifiers swap everywhere in the state (the background is re-acquired in
+    this frame, never lost).
 
     Returns ``(state, segment_ids, background () int32 spatial label 1..S or 0,
     reacquired () bool)``.
@@ -275,9 +282,9 @@ def choose_background(state: TemporalState, segment_ids, support, params: Params
         jnp.where(present, support, 0.0))
     score = params.evidence_decay * state.bg_score + add
     seg_score = jnp.where(present, score[jnp.clip(segment_ids - 1, 0, m - 1)], -1.0)
+    weighted = jnp.where(support > 0, seg_score * consistency, -1.0)
     any_id = jnp.any(present & (support > 0))
-    pick = jnp.where(any_id, jnp.argmax(jnp.where(support > 0, seg_score, -1.0)),
-                     jnp.argmax(support))
+    pick = jnp.where(any_id, jnp.argmax(weighted), jnp.argmax(support * consistency))
     has = jnp.any(support > 0)
     background = jnp.where(has, pick + 1, 0).astype(jnp.int32)
     bg_id = jnp.where(has & present[pick], segment_ids[pick], STATIC_ID)

@@ -212,7 +212,7 @@ def run(args: argparse.Namespace) -> int:
             ids = grid_to_pixels(r.ids, h, w, cfg.cell).astype(np.uint8)
             write_image(folders["--masks"] / name, ids)
         if args.dynamic_masks:  # jaxvo.plugin: step k labels image k
-            last_dyn = mask_png(dynamic_pixels(r.output.moving, h, w, cfg.cell))
+            last_dyn = mask_png(dynamic_pixels(r.output.dynamic, h, w, cfg.cell))
             write_image(folders["--dynamic-masks"] / name, last_dyn)
         if args.overlays:
             panel = overlay_panel(prev_frame.bgr, r.output, cfg.cell)
