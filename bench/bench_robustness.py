@@ -31,19 +31,19 @@ import jax.numpy as jnp
 import numpy as np
 
 sys.path.insert(0, str(Path(__file__).resolve().parent))
-from _common import machine  # noqa: E402
-from splits import Case, available, cases  # noqa: E402
+from _common import machine
+from splits import Case, available, cases
 
-from jaxvo.config import Config, Params, grid_shape, params_as_arrays  # noqa: E402
-from jaxvo.evaluation import trajectory_scores  # noqa: E402
-from jaxvo.flow import GridFlow, flows_for_sequence  # noqa: E402
-from jaxvo.io import Trajectory  # noqa: E402
-from jaxvo.masks import dynamic_pixels, moving_at_grid  # noqa: E402
-from jaxvo.metrics import SegmentationScores  # noqa: E402
-from jaxvo.peers import OPENCV_PEERS, run_peer  # noqa: E402
-from jaxvo.pipeline import final_moving, init_pipeline, jit_step  # noqa: E402
-from jaxvo.plugin import iter_dynamic_masks  # noqa: E402
-from jaxvo.status import Status  # noqa: E402
+from jaxvo.config import Config, Params, grid_shape, params_as_arrays
+from jaxvo.evaluation import trajectory_scores
+from jaxvo.flow import GridFlow, flows_for_sequence
+from jaxvo.io import Trajectory
+from jaxvo.masks import moving_at_grid
+from jaxvo.metrics import SegmentationScores
+from jaxvo.peers import OPENCV_PEERS, run_peer
+from jaxvo.pipeline import final_moving, init_pipeline, jit_step
+from jaxvo.plugin import iter_dynamic_masks
+from jaxvo.status import Status
 
 CFG = Config()
 
@@ -171,7 +171,7 @@ def run_jaxvo(data: dict, params: Params, cfg: Config, seed: int):
 def score(case: Case, data: dict, traj, outs, final_ids, cache: Path, cfg: Config) -> dict:
     h, w = (int(x) for x in data["size"])
     res: dict = {"case": case.name, "split": case.split, "kind": case.kind,
-                 "pairs": int(len(outs.status))}
+                 "pairs": len(outs.status)}
     status = np.asarray(outs.status)
     res["skipped"] = {Status(int(c)).reason: int(np.sum(status == c))
                       for c in np.unique(status) if c != Status.OK}
@@ -311,8 +311,8 @@ def main(argv=None) -> int:
     meta = {"date": datetime.datetime.now().isoformat(timespec="seconds"), "machine": machine(),
             "skipped_cases": skipped}
     (args.out / "robustness.json").write_text(json.dumps({"meta": meta, "rows": rows}, indent=1))
-    md = [f"# jaxvo on the development and validation splits\n\n{meta['date']}; "
-          f"{meta['machine']['cpu_model']}; jax {meta['machine']['jax']}\n",
+    md = [(f"# jaxvo on the development and validation splits\n\n{meta['date']}; "
+           f"{meta['machine']['cpu_model']}; jax {meta['machine']['jax']}\n"),
           "## Development split (tuned on)\n", table([r for r in rows if r["split"] == "dev"]),
           "\n## Validation split (never tuned on)\n",
           table([r for r in rows if r["split"] == "val"]),

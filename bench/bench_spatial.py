@@ -11,9 +11,6 @@ Reports, on synthetic frames (camera motion plus two or three rigidly moving blo
 * the default stop rules on real frames too (the grid flow of the first pairs of each real
   sequence under the data root, when present): real depth noise leaves more points outside
   every hypothesis, so the search there runs more trips than on the synthetic frames;
-* the same frames as the whole-sequence scan segments them (``segment_frames``: several
-  frames per vmapped call, the search stopping once every frame of a call is done), per
-  frame, for the default stop on synthetic and real frames;
 * the batched rigid fit (Horn quaternion by repeated squaring) against a ``jnp.linalg.svd``
   Kabsch of the same fits, timed interleaved in the same run, as a ratio;
 * the machine, JAX version and device.
@@ -37,9 +34,8 @@ sys.path.insert(0, str(Path(__file__).resolve().parent))
 from _common import load_average, machine, real_present
 
 from jaxvo.config import Config, Params, grid_shape, params_as_arrays
-from jaxvo.flow import GridFlow, flows_for_sequence
+from jaxvo.flow import flows_for_sequence
 from jaxvo.io import InMemorySequence, data_root, open_sequence
-from jaxvo.pipeline import segment_frames
 from jaxvo.procrustes import fit_rigid
 from jaxvo.spatial import segment
 
@@ -167,34 +163,6 @@ def bench_fits(num, points, reps, seed=1):
     }
 
 
-def time_batched(frames, params, cfg, grid, reps):
-    """First-call seconds and steady per-frame seconds of the spatial stage as the
-    whole-sequence scan runs it (:func:`jaxvo.pipeline.segment_frames`: several frames per
-    vmapped call, the search stopping once all of a call's frames are done)."""
-    n = len(frames)
-    flows = GridFlow(
-        pts_prev=jnp.stack([f[0] for f in frames]),
-        pts_cur=jnp.stack([f[1] for f in frames]),
-        uv_prev=jnp.zeros((n, frames[0][0].shape[0], 2), jnp.float32),
-        uv_cur=jnp.zeros((n, frames[0][0].shape[0], 2), jnp.float32),
-        valid=jnp.stack([jnp.asarray(f[2]) for f in frames]),
-        status=jnp.zeros((n,), jnp.int32),
-        focal=jnp.full((n,), 525.0, jnp.float32),
-    )
-    fn = jax.jit(lambda fl, keys, p: segment_frames(fl, keys, p, cfg=cfg, grid=grid))
-    key = jax.random.key(0)
-    t0 = time.perf_counter()
-    jax.block_until_ready(fn(flows, jax.random.split(key, n), params))
-    first = time.perf_counter() - t0
-    runs = []
-    for rep in range(reps):
-        keys = jax.random.split(jax.random.fold_in(key, rep + 1), n)
-        t0 = time.perf_counter()
-        jax.block_until_ready(fn(flows, keys, params))
-        runs.append((time.perf_counter() - t0) / n)
-    return first, np.asarray(runs)
-
-
 def _summary(times):
     q1, med, q3 = np.percentile(times * 1e3, [25, 50, 75])
     return {"median_ms": med, "q1_ms": q1, "q3_ms": q3, "min_ms": float(times.min() * 1e3)}
@@ -246,10 +214,6 @@ def main(argv=None):
         result[mode]["segments_found"] = {
             str(k): int(v) for k, v in result[mode]["segments_found"].items()
         }
-        if mode != "all_H_trips":
-            first, per_frame = time_batched(mode_frames, params, cfg, grid, args.reps + 2)
-            result[mode + "_batched"] = {"first_call_s": first, **_summary(per_frame),
-                                         "calls_timed": len(per_frame)}
     result["procrustes"] = bench_fits(args.fits, cfg.sample_size, reps=30)
     result["load_average_end"] = load_average()
 
@@ -261,13 +225,6 @@ def main(argv=None):
             f" (q1 {r['q1_ms']:.2f}, q3 {r['q3_ms']:.2f}, min {r['min_ms']:.2f}) per frame;"
             f" segments {r['segments_found']} ({len(mode_frames)} frames)"
         )
-        if mode + "_batched" in result:
-            r = result[mode + "_batched"]
-            print(
-                f"  {'  as in scan':13s} compile {r['first_call_s']:.1f} s; steady median"
-                f" {r['median_ms']:.2f} ms per frame over {r['calls_timed']} passes"
-                " (several frames per vmapped call, jaxvo.pipeline.segment_frames)"
-            )
     p = result["procrustes"]
     print(
         f"procrustes, {p['fits']} fits of {p['points_per_fit']} points: Horn {p['horn_ms']:.2f} ms,"

@@ -98,12 +98,14 @@ class Params(NamedTuple):
     cluster_min_samples: float = 1.0  # DBSCAN core-point threshold (count, incl. itself)
     min_segment_points: float = 12.0  # N_threshold of Algorithm 2, grid points
 
-    # sensor noise (jaxvo.noise): the values a sequence starts from, those of a real
-    # structured-light sensor after depth refinement (7-Scenes frames 0-149 against ground
-    # truth: 0.75 px, 1.5e-3 z^2; bench/calibrate_noise.py); the pipeline calibrates both
-    # online from the background's residuals, moving log(value) by noise_rate a frame
+    # sensor noise (jaxvo.noise): the values a sequence starts from, a little above the real
+    # development frames' noise measured against ground truth (7-Scenes frames 0-149: 0.75
+    # px across the ray, 0.9-1.3e-3 z^2 a depth reading along it; bench/calibrate_noise.py):
+    # a start below the noise splits the background into regional segments, a start above
+    # it only merges slow motions for the first frames. The pipeline calibrates both online
+    # from the background's residuals, moving log(value) by noise_rate a frame
     pixel_sigma: float = 0.75  # tracker noise across the viewing ray, pixels per axis
-    depth_coeff: float = 1.5e-3  # depth noise along the ray over z^2, 1/m
+    depth_coeff: float = 1.5e-3  # depth noise along the ray over z^2, a reading, 1/m
     noise_rate: float = 0.2
 
     # temporal segmentation

@@ -19,9 +19,9 @@ millimetre thresholds tuned per scene.
 The two scales are not constants of a sensor: the tracker's noise grows with motion blur,
 the depth noise after :func:`jaxvo.flow.refine_depth` depends on the sensor's spatial
 correlation, and colour-to-depth misregistration adds to both. Measured against ground
-truth on the development split (``bench/calibrate_noise.py``): synthetic frames 0.05 px and
-``0.42e-3 z^2``; real 7-Scenes frames 0.75 px and ``1.5e-3 z^2``, at every 4th frame 1.45
-px and ``2.3e-3 z^2``. So the pipeline calibrates both online from the residuals of the
+truth on the development split (``bench/calibrate_noise.py``, a depth reading): synthetic
+frames 0.05 px and ``0.3e-3 z^2``; real 7-Scenes frames 0.75 px and ``0.9-1.3e-3 z^2``, at
+every 4th frame 0.9-1.6 px and ``1.2-2.0e-3 z^2``. So the pipeline calibrates both online from the residuals of the
 background under its own ego-motion (:func:`update_noise`), starting from a real sensor's
 values (:class:`jaxvo.config.Params`), and every test uses the calibrated model.
 """

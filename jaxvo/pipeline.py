@@ -24,11 +24,10 @@ import jax.numpy as jnp
 from jaxvo.config import Config, Params
 from jaxvo.egomotion import estimate_egomotion
 from jaxvo.geometry import invert_pose
-from jaxvo.noise import NoiseScale, chi2_quantile, init_noise, residuals, transfer, update_noise
+from jaxvo.noise import NoiseScale, init_noise, residuals, transfer, update_noise
 from jaxvo.spatial import frame_points, segment
 from jaxvo.status import Status, first_failure
 from jaxvo.temporal import (
-    STATIC_ID,
     TemporalState,
     choose_background,
     identify,
