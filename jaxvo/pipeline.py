@@ -24,7 +24,7 @@ import jax.numpy as jnp
 from jaxvo.config import Config, Params
 from jaxvo.egomotion import estimate_egomotion
 from jaxvo.geometry import invert_pose
-from jaxvo.noise import NoiseScale, init_noise, residuals, transfer, update_noise
+from jaxvo.noise import NoiseScale, init_noise, residuals, residuals_many, transfer, update_noise
 from jaxvo.spatial import frame_points, segment
 from jaxvo.status import Status, first_failure
 from jaxvo.temporal import (
@@ -41,8 +41,8 @@ from jaxvo.temporal import (
 # 4e-3 z^2 (three times a Kinect's raw depth noise) is not one the method can work with;
 # without the ceiling, frames whose ego-motion followed an object measured the background's
 # residuals as noise, and the model grew until every motion merged (to 4 px, 5e-3 z^2).
-NOISE_FLOOR = NoiseScale(jnp.float32(0.1), jnp.float32(3e-4))
-NOISE_CEILING = NoiseScale(jnp.float32(2.0), jnp.float32(4e-3))
+NOISE_FLOOR = NoiseScale(0.1, 3e-4)  # plain floats: a JAX array here would start the
+NOISE_CEILING = NoiseScale(2.0, 4e-3)  # backend at import (jax.distributed needs it unstarted)
 # The weight of a point whose evidence has not yet established it as background or as
 # moving (new in view, or its evidence faded) against one established as background.
 _UNESTABLISHED = 0.1
@@ -194,8 +194,8 @@ def step(state: PipelineState, flow, key, params: Params, *, cfg: Config, grid,
     # 2. identifiers (Algorithm 3) and the background: the segment whose motion explains
     # the most surface that earlier frames established as background
     T_pred = jnp.where(state.have_last, state.T_last, jnp.eye(4, dtype=jnp.float32))
-    d2_all = jax.vmap(lambda T: residuals(T, pts.src, pts.dst, pts.noise)[0])(
-        jnp.concatenate([T_pred[None], seg.motions]))
+    d2_all = residuals_many(jnp.concatenate([T_pred[None], seg.motions]), pts.src, pts.dst,
+                            pts.noise)[0]
     d2_pred, d2_seg = d2_all[0], d2_all[1:]
     z = jnp.maximum(pts.src[2], pts.dst[2])
     prior = state.temporal.evidence

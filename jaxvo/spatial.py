@@ -37,7 +37,7 @@ import jax.numpy as jnp
 from jax import lax
 
 from jaxvo.cluster import dbscan, jaccard_distance, overlaps
-from jaxvo.noise import PointNoise, chi2_quantile, residuals
+from jaxvo.noise import PointNoise, chi2_quantile, residuals, residuals_many, transfer_many
 from jaxvo.procrustes import fit_rigid_cols
 from jaxvo.status import Status
 
@@ -293,7 +293,7 @@ def _cluster_refine(start, active, pts: _Points, *, cfg):
     """
 
     def assign(motions):
-        d2 = jax.vmap(lambda t: _res(t, pts)[0])(motions)
+        d2 = residuals_many(motions, pts.src, pts.dst, pts.noise)[0]
         inl = active[:, None] & pts.valid[None, :] & (d2 <= pts.thr)
         best, has = _assign(d2, inl, active, pts.tie, by_fit=True)
         own = (jnp.arange(motions.shape[0])[:, None] == best[None, :]) & has[None, :]
@@ -308,11 +308,6 @@ def _cluster_refine(start, active, pts: _Points, *, cfg):
     motions, _ = lax.scan(trip, start, None, length=cfg.cluster_refine_iters)
     d2, inl, own = assign(motions)
     return motions, jnp.where(active[:, None], d2, _FAR), inl, own
-
-
-def _apply(T, pts):
-    """Pose (4, 4) applied to (3, n) column points."""
-    return T[:3, :3] @ pts + T[:3, 3:4]
 
 
 def _assign(d2, inliers, keep, tie, *, by_fit=False):
@@ -353,24 +348,25 @@ def _assign(d2, inliers, keep, tie, *, by_fit=False):
     return best, jnp.any(cand, axis=0)
 
 
-def _same_motion(pred_a, own_a, pred_b, pts: _Points, eps):
+def _same_motion(motions_a, own_a, motions_b, pts: _Points, eps):
     """(A, B) bool: motion ``b`` moves more than ``1 - eps`` of ``a``'s own points to where
     motion ``a`` does, within a quarter of the inlier test: the same motion found twice.
 
     Comparing the motions where ``a``'s points are (not inlier-set overlap) keeps a small
     object whose motion differs from the camera's by less than the noise at depth.
-    ``pred_a`` (A, 3, n) and ``pred_b`` (B, 3, n) are the points moved by each motion;
-    ``own_a`` (A, n) bool.
+    ``motions_a`` (A, 4, 4), ``motions_b`` (B, 4, 4); ``own_a`` (A, n) bool. The gap
+    ``T_a p - T_b p`` is ``(T_a - T_b) p``: all pairs at once.
     """
     from jaxvo.noise import mahalanobis
 
-    gap = jax.vmap(lambda pa: jax.vmap(lambda pb: mahalanobis(pa - pb, pts.noise))(pred_b))(
-        pred_a)  # (A, B, n)
+    a, b = motions_a.shape[0], motions_b.shape[0]
+    diff = (motions_a[:, None] - motions_b[None, :]).reshape(a * b, 4, 4)
+    gap = mahalanobis(transfer_many(diff, pts.src), pts.noise).reshape(a, b, -1)
     close = jnp.sum(own_a[:, None, :] & (gap <= 0.25 * pts.thr), axis=2)
     return close > (1.0 - eps) * jnp.sum(own_a, axis=1)[:, None]
 
 
-def _leftover_segment(motions, d2_c, inl_c, keep, left, pred, pts: _Points, params):
+def _leftover_segment(motions, d2_c, inl_c, keep, left, pts: _Points, params):
     """One more segment from the valid points no kept segment explains, when they move
     together and unlike every kept segment.
 
@@ -391,8 +387,7 @@ def _leftover_segment(motions, d2_c, inl_c, keep, left, pred, pts: _Points, para
         motion, ok = fit_rigid_cols(pts.src, pts.dst, inl.astype(jnp.float32))
         d2 = _res(motion, pts)[0]
         inl = left & (d2 <= pts.thr) & ok
-    again = _same_motion(_apply(motion, pts.src)[None], inl[None], pred, pts,
-                         params.cluster_eps)[0]
+    again = _same_motion(motion[None], inl[None], motions, pts, params.cluster_eps)[0]
     slot = jnp.argmin(keep)  # the first free slot
     add = ~jnp.all(keep) & (jnp.sum(inl) > params.min_segment_points) & ~jnp.any(keep & again)
     at = add & (jnp.arange(keep.shape[0]) == slot)
@@ -519,8 +514,7 @@ def segment(key, pts_prev, pts_cur, valid, params, *, cfg, grid, focal=525.0, sc
     big_enough = jnp.any(members, axis=1) & (n_c > params.min_segment_points)
 
     # Merge: the same motion found twice (cluster k duplicates a larger kept cluster j).
-    pred = jax.vmap(lambda t: _apply(t, pts.src))(motions)  # (C, 3, n)
-    same = _same_motion(pred, own_c, pred, pts, params.cluster_eps)  # (k, j)
+    same = _same_motion(motions, own_c, motions, pts, params.cluster_eps)  # (k, j)
     # ... and k's motion explains most of j's own points: a near object's motion can move
     # the far wall's points to within the wall's wide noise of where the wall's motion
     # does, but the wall's motion does not explain the object (fixed_camera_2)
@@ -540,7 +534,7 @@ def segment(key, pts_prev, pts_cur, valid, params, *, cfg, grid, focal=525.0, sc
     keep = keep & (_counts(best, has, n_slots) > params.min_segment_points)
     best, has = _assign(d2_c, inl_c, keep, pts.tie)
     motions, d2_c, inl_c, keep, slot, new = _leftover_segment(
-        motions, d2_c, inl_c, keep, valid & ~has, pred, pts, params
+        motions, d2_c, inl_c, keep, valid & ~has, pts, params
     )
     best = jnp.where(new, slot, best)
     has = (has | new) & valid
