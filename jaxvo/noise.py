@@ -70,7 +70,7 @@ def point_noise(pts_prev, pts_cur, focal, scale: NoiseScale) -> PointNoise:
       scale: the calibrated :class:`NoiseScale`.
     """
     z0, z1 = pts_prev[2], pts_cur[2]
-    norm = jnp.sqrt(jnp.sum(pts_cur * pts_cur, axis=0))
+    norm = jnp.sqrt(pts_cur[0] * pts_cur[0] + pts_cur[1] * pts_cur[1] + pts_cur[2] * pts_cur[2])
     ray = pts_cur / jnp.maximum(norm, _FLOOR)
     var_lat = (scale.pixel_sigma / focal) ** 2 * z1 * z1
     var_ray = scale.depth_coeff ** 2 * (z0 ** 4 + z1 ** 4)
