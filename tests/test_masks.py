@@ -30,6 +30,8 @@ def test_dynamic_pixels_accepts_flags_or_ids_and_grows_by_cells():
     assert exact.sum() == CELL * CELL and exact[20, 20]
     grown = dynamic_pixels(ids, H, W, CELL, grow=1)
     assert grown[0, 0] and grown.sum() > exact.sum()
+    # by default the mask follows the cells exactly (the plug-in's masks grow nothing)
+    np.testing.assert_array_equal(dynamic_pixels(ids, H, W, CELL), exact)
 
 
 def test_overlay_and_label_image_shapes():

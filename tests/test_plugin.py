@@ -77,10 +77,15 @@ def test_grow_dilates_by_whole_cells():
     np.testing.assert_array_equal(masks[0], expected)
 
 
-def test_iterator_matches_array_and_accepts_a_real_step_output():
+def test_iterator_matches_array_and_a_real_step_output_gives_its_dynamic_cells():
+    """A ``StepOutput``'s masks are its ``dynamic`` cells (the moving cells and their
+    unmeasured neighbours, jaxvo.pipeline.grow_moving), not its identifiers or its
+    ``moving`` flags; by default nothing more is grown."""
+    from jaxvo.noise import NoiseScale
     from jaxvo.pipeline import StepOutput
 
     ids = ids_with_moving([[(0, 2)], [(2, 0), (2, 1)]])
+    dynamic = ids_with_moving([[(0, 2), (0, 3)], [(2, 0), (2, 1), (1, 1)]]) >= 2
     n = ROWS * COLS
     zeros_i, zeros_b = np.zeros((2, n), np.int32), np.zeros((2, n), bool)
     out = StepOutput(
@@ -89,14 +94,21 @@ def test_iterator_matches_array_and_accepts_a_real_step_output():
         status=np.zeros(2, np.int32),
         ids=ids,
         moving=ids >= 2,
+        dynamic=dynamic,
         static=zeros_b,
         labels=zeros_i,
         hyp_labels=zeros_i,
         matched=zeros_i,
         num_segments=np.zeros(2, np.int32),
+        evidence=np.zeros((2, n), np.float32),
+        background=np.ones(2, np.int32),
+        reacquired=np.zeros(2, bool),
+        noise=NoiseScale(np.full(2, 0.75, np.float32), np.full(2, 1.5e-3, np.float32)),
     )
     lazy = list(iter_dynamic_masks(out, H, W, CELL))
-    np.testing.assert_array_equal(np.stack(lazy), dynamic_masks(ids, H, W, CELL))
+    np.testing.assert_array_equal(np.stack(lazy), dynamic_masks(dynamic, H, W, CELL))
+    np.testing.assert_array_equal(lazy[1], reference_mask([(2, 0), (2, 1), (1, 1)]))
+    assert not np.array_equal(lazy[0], dynamic_masks(ids, H, W, CELL)[0])
 
 
 def test_wrong_grid_is_refused():

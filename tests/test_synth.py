@@ -142,7 +142,15 @@ def test_mask_is_exactly_where_a_moving_object_is_nearest():
     np.testing.assert_allclose(f.depth[v.ravel(), u.ravel()], near, rtol=0, atol=2e-5)
 
 
+# the scenes built for the failures of issue 18: their objects leave the view by design
+_LEAVE_VIEW = {"enter_leave", "three_boxes"}
+
+
 def test_objects_move_more_than_a_pixel_per_frame_mostly():
+    """Every object's centre moves more than a pixel a frame (median over 90 frames) and
+    stays in view in more than 80 % of them, but where a scene is made to leave the view:
+    ``three_boxes`` keeps each box in view more than half the time, and ``enter_leave``'s
+    boxes are in view and out of it in turn."""
     for name, sc in synth.SCENARIOS.items():
         if not sc.objects:
             continue
@@ -156,7 +164,29 @@ def test_objects_move_more_than_a_pixel_per_frame_mostly():
             step = np.linalg.norm(np.diff(px, axis=0), axis=1)
             assert np.median(step) > 1.0, (name, k, np.median(step))
             in_view = (px[:, 0] > 0) & (px[:, 0] < 640) & (px[:, 1] > 0) & (px[:, 1] < 480)
-            assert in_view.mean() > 0.8, (name, k, in_view.mean())
+            if name == "enter_leave":
+                assert 0.2 < in_view.mean() < 0.9, (name, k, in_view.mean())
+            elif name in _LEAVE_VIEW:
+                assert in_view.mean() > 0.5, (name, k, in_view.mean())
+            else:
+                assert in_view.mean() > 0.8, (name, k, in_view.mean())
+
+
+def test_an_object_stands_still_during_its_stops():
+    """``stop_start``'s first box holds its world pose exactly through each stop (1.0-2.3 s
+    and 3.3-4.3 s from the first frame) and moves between them; the other box never stops."""
+    seq = synth.make_sequence("stop_start", frames=150, seed=0)
+    t = seq.timestamps - seq.timestamps[0]
+    for k, moves_always in ((1, False), (2, True)):
+        poses = seq.object_trajectories[k].poses
+        moved = np.abs(np.diff(poses, axis=0)).max(axis=(1, 2)) > 1e-9
+        # a step from frame i to i + 1 lies inside a stop when both instants do
+        inside = np.zeros(len(t) - 1, bool)
+        if not moves_always:
+            for a, b in synth.SCENARIOS["stop_start"].objects[0].stops:
+                inside |= (t[:-1] >= a) & (t[1:] <= b)
+            assert inside.sum() >= 50
+        np.testing.assert_array_equal(moved, ~inside, err_msg=str(k))
 
 
 def test_sensor_effects():
