@@ -228,9 +228,34 @@ def tiny(tmp_path_factory):
 
 
 def digests(out: Path) -> dict[tuple, str]:
+    return {k: r["digest"] for k, r in _rows(out).items()}
+
+
+def _rows(out: Path) -> dict[tuple, dict]:
     rows = json.loads((out / "results.json").read_text()) if (out / "results.json").is_file() \
         else list(study.read_runs(out / study.RUNS_FILE).values())
-    return {(r["sequence"], r["lam"], r["seed"]): r["digest"] for r in rows}
+    return {(r["sequence"], r["lam"], r["seed"]): r for r in rows}
+
+
+# Scores that a study sharded over several devices or processes must reproduce. Within the
+# last float32 bits, not bit for bit: XLA's CPU backend compiles the ego-motion's
+# reprojection refinement a little differently in a program partitioned over several
+# devices (the same program on 2 and on 4 devices agrees bit for bit; with the fusion
+# emitters off, 1 against 4 does too), and the poses differ by about 1e-7 m from the first
+# pair on.
+_SCORES = ("ate_rmse_m", "rpe_trans_m_per_frame", "rpe_rot_deg_per_frame", "moving_recall",
+           "moving_precision", "moving_f_measure", "skipped_pairs")
+
+
+def assert_same_scores(out: Path, reference: Path) -> None:
+    a, b = _rows(out), _rows(reference)
+    assert a.keys() == b.keys()
+    for key in a:
+        for name in _SCORES:
+            if name in b[key]:
+                # tolerance: 1e-3 relative, 1e-7 absolute: float32 rounding of the poses grows
+                # over the pairs (measured: ATE 0.438087 against 0.438144 mm, 1.3e-4)
+                assert a[key][name] == pytest.approx(b[key][name], rel=1e-3, abs=1e-7), (key, name)
 
 
 def test_a_study_run_matches_run_study_called_directly(tiny):
@@ -268,7 +293,7 @@ def _cli(*args) -> list[str]:
     return [sys.executable, "-m", "jaxvo.cli", "study", *map(str, args)]
 
 
-def test_four_devices_give_the_same_bits_as_one(tiny):
+def test_four_devices_give_the_same_scores_as_one(tiny):
     _, path, root, _ = tiny
     out = root / "four"
     done = subprocess.run(
@@ -279,7 +304,7 @@ def test_four_devices_give_the_same_bits_as_one(tiny):
     summary = json.loads(done.stdout)
     assert summary["devices"] == 4 and summary["runs"] == 6
     assert summary["flow_seconds"] == 0.0  # the flow came from the shared cache
-    assert digests(out) == digests(root / "one")
+    assert_same_scores(out, root / "one")
 
 
 def _free_port() -> int:
@@ -319,7 +344,7 @@ def test_importing_jaxvo_leaves_jax_distributed_possible():
     assert done.returncode == 0, done.stderr[-2000:]
 
 
-def test_two_processes_give_the_same_bits_as_one(tiny):
+def test_two_processes_give_the_same_scores_as_one(tiny):
     _, path, root, _ = tiny
     out = root / "two"
     codes, outs = _two_processes(path, out, root)
@@ -330,7 +355,7 @@ def test_two_processes_give_the_same_bits_as_one(tiny):
     summary = json.loads(printed[0])
     assert summary["devices"] == 2 and summary["processes"] == 2
     assert printed[1] == ""  # only the first process reports
-    assert digests(out) == digests(root / "one")
+    assert_same_scores(out, root / "one")
 
     # a fault the first process finds stops both, each with one line
     codes, outs = _two_processes(path, out, root)
