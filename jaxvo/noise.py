@@ -129,7 +129,8 @@ def residuals(T, src, dst, noise: PointNoise):
 
 def chi2_quantile(dof, p):
     """The ``p`` quantile of chi-square with ``dof`` degrees of freedom, Wilson and Hilferty's
-    cube-root normal approximation (within 0.5 % for ``dof >= 3`` and ``p`` in 0.9-0.9999;
+    cube-root normal approximation (for 3 degrees of freedom within 0.6 % at p = 0.9, 0.3 %
+    at 0.99, 1.75 % at 0.999, 3.5 % at 0.9999; closer with more degrees of freedom;
     ``p`` may be traced, so a study can sweep the confidence)."""
     k = jnp.asarray(dof, jnp.float32)
     z = jax.scipy.special.ndtri(jnp.asarray(p, jnp.float32))
