@@ -10,12 +10,14 @@ import sys
 from pathlib import Path
 
 import jax
+import numpy as np
 import pytest
 
 from jaxvo import __version__
 from jaxvo.cli import build_parser, main
 from jaxvo.compile_cache import ENV, choose_compile_cache, setup_compile_cache
 from jaxvo.errors import InputError
+from jaxvo.io import read_trajectory
 
 VERSIONED = f"jaxvo-{__version__}_jax-{jax.__version__}"
 
@@ -147,3 +149,30 @@ def test_processes_share_the_folder_and_an_entry_cut_short_is_compiled_again(tmp
     assert [n["from_cache"] for n in notes] == [False]  # compiled again...
     assert "persistent compilation cache" not in err  # ...without reading the empty entry
     assert entry.stat().st_size > 0  # and stored
+
+
+def test_jaxvo_run_compiles_once_then_loads_the_step_with_the_same_poses(tmp_path):
+    """Two runs of ``jaxvo run`` on a 3-frame synthetic sequence with a fresh cache folder:
+    the first says it compiles the step, the second loads it without a word and estimates
+    the same poses."""
+    from jaxvo.synth import make_sequence, write_sequence
+
+    seq_dir = tmp_path / "seq"
+    write_sequence(make_sequence("handheld_slow", frames=3, seed=0), seq_dir)
+    env = dict(os.environ, JAX_PLATFORMS="cpu")
+    runs = []
+    for k in range(2):
+        out = tmp_path / f"t{k}.txt"
+        proc = subprocess.run(
+            [sys.executable, "-m", "jaxvo.cli", "run", str(seq_dir), "--out", str(out),
+             "--json", "--compile-cache", str(tmp_path / "cache"),
+             "--hypotheses", "2", "--cell", "32"],  # a smaller step: 5 s to compile, not 8
+            capture_output=True, text=True, env=env, timeout=600, check=False)
+        assert proc.returncode == 0, proc.stderr[-2000:]
+        runs.append((json.loads(proc.stdout), proc.stderr, read_trajectory(out)))
+    (cold, cold_err, cold_traj), (warm, warm_err, warm_traj) = runs
+    assert "jaxvo: compiling the per-frame step (first run with these settings" in cold_err
+    assert [c["from_cache"] for c in cold["compile"]] == [False]
+    assert "compiling" not in warm_err
+    assert [c["from_cache"] for c in warm["compile"]] == [True]
+    np.testing.assert_array_equal(warm_traj.poses, cold_traj.poses)  # bit for bit
