@@ -21,9 +21,9 @@ from jaxvo.io import read_trajectory
 
 VERSIONED = f"jaxvo-{__version__}_jax-{jax.__version__}"
 
-# A child that compiles a program of 120 unrolled operations (about 1 s to compile, 0.02-0.03
-# s to load from the cache here) with the cache given as its first argument, saying so when
-# it compiles for 0.5 s; it prints its compile notes as JSON.
+# A child that compiles a program of 250 unrolled operations (about 2 s to compile, 0.05 s to
+# load from the cache here) with the cache given as its first argument, saying so when it
+# compiles for 0.5 s; it prints its compile notes as JSON.
 CHILD = """
 import json, sys
 import jax, jax.numpy as jnp
@@ -32,7 +32,7 @@ setup_compile_cache(sys.argv[1])
 
 @jax.jit
 def program(x):
-    for k in range(120):
+    for k in range(250):
         x = jnp.sin(x @ x + k)
     return x
 
@@ -59,7 +59,8 @@ def run_child(cache: str) -> tuple[list[dict], str]:
 
 
 def entries(folder: Path) -> list[Path]:
-    return sorted(folder.glob("*-cache"))
+    """The cache entries of the child's program (JAX names them after the function)."""
+    return sorted(folder.glob("jit_program-*-cache"))
 
 
 # --- where the cache goes -------------------------------------------------------------------
