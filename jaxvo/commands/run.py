@@ -82,7 +82,8 @@ def add_arguments(p: argparse.ArgumentParser) -> None:
     p.add_argument("--overlays", metavar="DIR",
                    help="write per-frame overlay panels of the labels (PNG, see below)")
     p.add_argument("--json", action="store_true", help="print the summary as JSON")
-    p.add_argument("--quiet", "-q", action="store_true", help="no progress line")
+    p.add_argument("--quiet", "-q", action="store_true",
+                   help="no progress line, and no line saying that the step compiles")
 
 
 def _peak_rss_mib() -> float:
