@@ -9,6 +9,7 @@ model, device) -> ``egomotion`` -> ``pipeline`` (per-frame step, scan, streaming
 """
 
 from jaxvo.camera import PRESETS, Intrinsics, check_intrinsics, preset, read_camera_file
+from jaxvo.compile_cache import setup_compile_cache
 from jaxvo.config import (
     Config,
     Params,
@@ -141,6 +142,7 @@ __all__ = [
     "segment",
     "segmentation_scores",
     "sequence_flows",
+    "setup_compile_cache",
     "step",
     "trajectory_scores",
     "update_temporal",

@@ -21,6 +21,7 @@ import sys
 from collections.abc import Iterator
 
 from jaxvo import __version__
+from jaxvo.compile_cache import add_compile_cache_options, setup_compile_cache
 from jaxvo.errors import InputError
 
 EXIT_OK, EXIT_NOTHING_ESTIMATED, EXIT_BAD_INPUT, EXIT_INTERRUPTED = 0, 1, 2, 130
@@ -44,6 +45,10 @@ COMMANDS: dict[str, tuple[str, str]] = {
 }
 
 
+# The commands that compile XLA programs: they take --compile-cache / --no-compile-cache.
+COMPILING = ("demo", "run", "synth", "study")
+
+
 def build_parser() -> argparse.ArgumentParser:
     parser = argparse.ArgumentParser(
         prog="jaxvo",
@@ -59,6 +64,8 @@ def build_parser() -> argparse.ArgumentParser:
         p = sub.add_parser(name, help=help_text, description=help_text)
         p.set_defaults(_module=module)
         importlib.import_module(module).add_arguments(p)
+        if name in COMPILING:
+            add_compile_cache_options(p)
     return parser
 
 
@@ -129,6 +136,8 @@ def main(argv: list[str] | None = None) -> int:
     parser = build_parser()
     args = parser.parse_args(argv)
     try:
+        if args.command in COMPILING:  # before the command's first compile
+            setup_compile_cache(args.compile_cache)
         return int(importlib.import_module(args._module).run(args) or 0)
     except InputError as exc:
         msg = str(exc)

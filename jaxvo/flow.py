@@ -52,6 +52,7 @@ from typing import NamedTuple
 import cv2
 import numpy as np
 
+from jaxvo.background import READ_AHEAD, read_ahead
 from jaxvo.camera import Intrinsics, backproject, grid_pixels
 from jaxvo.config import Config, Params, grid_shape
 from jaxvo.errors import InputError
@@ -730,6 +731,7 @@ def sequence_flows(
     params: Params | None = None,
     progress: Callable[[int, int], None] | None = None,
     max_dropped: int = MAX_DROPPED,
+    ahead: int = READ_AHEAD,
 ) -> SequenceFlows:
     """Grid flow of every pair of consecutive kept frames of a sequence, for the scan.
 
@@ -745,6 +747,9 @@ def sequence_flows(
         progress: called as ``progress(frames_done, frames_total)`` after each frame after
             the first (``frames_total = len(seq) - 1``).
         max_dropped: most frames dropped in a row (:class:`FrameChain`).
+        ahead: frames read (decoded, rendered) ahead on other threads while the flow of
+            the current pair is computed (:func:`jaxvo.background.read_ahead`); 0 reads
+            each frame when its turn comes.
 
     Returns:
         :class:`SequenceFlows`.
@@ -760,9 +765,9 @@ def sequence_flows(
     flows: list[GridFlow] = []
     frames: list[int] = []
     dropped: dict[int, str] = {}
-    for i in range(n_frames):
+    for i, read in read_ahead(seq.__getitem__, range(n_frames), ahead=ahead):
         try:
-            frame = seq[i]
+            frame = read.result()
         except _READ_ERRORS as exc:
             flow, why = chain.push(None, None, unreadable=str(exc))
         else:

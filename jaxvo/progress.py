@@ -10,14 +10,16 @@ class Progress:
     """``Progress("flow", total)(done, total)`` redraws
     ``flow [#####    ] 120/300 41.2 it/s, 4 s left``.
 
-    On a terminal the line is redrawn in place; otherwise (CI logs, pipes) a line is
-    printed at every tenth of the work, so logs stay short. The time left assumes the
-    rest goes at the average rate so far (a first call that compiles makes it high at
-    first); ``unit`` names what is counted.
+    On a terminal the line is redrawn in place, at most every ``interval`` seconds and when
+    the work is done (a call costs a clock reading otherwise: ``jaxvo run`` calls it every
+    frame, a few milliseconds apart); elsewhere (CI logs, pipes) a line is printed at every
+    tenth of the work, so logs stay short. The time left assumes the rest goes at the
+    average rate so far (a first call that compiles makes it high at first); ``unit`` names
+    what is counted.
     """
 
     def __init__(self, label: str, total: int | None = None, *, stream=None, enabled=True,
-                 unit: str = "it"):
+                 unit: str = "it", interval: float = 0.1):
         self.label = label
         self.total = total
         self.unit = unit
@@ -25,6 +27,8 @@ class Progress:
         self.enabled = enabled
         self.tty = bool(getattr(self.stream, "isatty", lambda: False)())
         self.start = time.perf_counter()
+        self.interval = interval
+        self._drawn = -float("inf")  # when the terminal line was last drawn
         self._last_decile = -1
         self._width = 0  # the longest line drawn: a shorter one is padded over it
 
@@ -32,7 +36,11 @@ class Progress:
         if not self.enabled:
             return
         total = total if total is not None else self.total
-        rate = done / max(time.perf_counter() - self.start, 1e-9)
+        now = time.perf_counter()
+        finished = bool(total) and done >= total
+        if self.tty and not finished and now - self._drawn < self.interval:
+            return
+        rate = done / max(now - self.start, 1e-9)
         if total:
             frac = min(max(done / total, 0.0), 1.0)
             bar = "#" * int(24 * frac) + " " * (24 - int(24 * frac))
@@ -43,7 +51,8 @@ class Progress:
         else:
             text, decile = f"{self.label} {done} {rate:.1f} {self.unit}/s", done // 100
         if self.tty:
-            end = "\n" if total and done >= total else ""
+            self._drawn = now
+            end = "\n" if finished else ""
             self._width = max(self._width, len(text))
             self.stream.write("\r" + text.ljust(self._width) + end)
             self.stream.flush()

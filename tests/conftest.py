@@ -2,16 +2,23 @@
 
 Use ``data_root`` for the folder itself, or ``require_data("name", ...)`` for a path under
 it; either skips the test, naming the missing path, when the data is not there (set
-``JAXVO_DATA`` to point elsewhere).
+``JAXVO_DATA`` to point elsewhere). The persistent compile cache is off in the tests.
 """
 
 from __future__ import annotations
 
+import os
 from pathlib import Path
 
 import pytest
 
 from jaxvo.io import data_root as _data_root
+
+# The jaxvo commands keep compiled programs in the user's cache folder by default. The tests
+# (and the `jaxvo run` children they start, which inherit this) must neither write there nor
+# find a warm cache that hides a compile a test waits for; tests of the cache pass their own
+# folder with --compile-cache, which wins over this.
+os.environ["JAXVO_COMPILE_CACHE"] = "off"
 
 
 def _require(*parts: str) -> Path:

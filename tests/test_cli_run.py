@@ -110,3 +110,31 @@ def test_interrupted_run_keeps_every_pose_computed(seq_dir, tmp_path, capsys, mo
     est = read_trajectory(traj)
     assert len(est) == 5 and summary["poses_written"] == 5
     assert len(list(masks.glob("*.png"))) == 4  # one label mask per frame pair
+
+
+def test_an_image_that_cannot_be_written_mid_run_is_one_line_and_exit_2(
+        seq_dir, tmp_path, capsys, monkeypatch):
+    """Masks are written on a background thread: a write that fails there (a full disk)
+    still ends the run with one line naming the file, and the poses so far are kept."""
+    import jaxvo.io
+
+    real_write = jaxvo.io.write_image
+    calls = {"n": 0}
+
+    def write_image(path, image):
+        calls["n"] += 1
+        if calls["n"] == 3:
+            raise OSError(28, "No space left on device", str(path))
+        real_write(path, image)
+
+    monkeypatch.setattr(jaxvo.io, "write_image", write_image)
+    traj = tmp_path / "traj.txt"
+    rc = main(["run", str(seq_dir), "--out", str(traj), "--masks", str(tmp_path / "m"), "-q"])
+    err = capsys.readouterr().err.strip().splitlines()
+    assert rc == 2 and len(err) == 1
+    assert err[0].startswith("jaxvo: error: ") and "No space left on device" in err[0]
+    assert ".png" in err[0]
+    # the run stops at the next frame after the failure, or at the end: the poses it
+    # computed are kept, and no mask after the failed one is written
+    assert len(read_trajectory(traj)) >= 3
+    assert len(list((tmp_path / "m").glob("*.png"))) == 2

@@ -396,6 +396,11 @@ def test_flows_for_sequence_drops_an_unreadable_frame_and_pairs_across_it(tex0):
     # the stacked flow alone, as before
     np.testing.assert_array_equal(flows_for_sequence(_Seq(tex0, 5, bad=(2,)), CFG).valid,
                                   flows.valid)
+    # frames read ahead on other threads (the default) or each in its turn: the same bits
+    inline = sequence_flows(_Seq(tex0, 5, bad=(2,)), CFG, ahead=0)
+    assert inline.dropped == res.dropped
+    for a, b in zip(inline.flows, flows, strict=True):
+        np.testing.assert_array_equal(a, b)
 
 
 def test_a_black_frame_is_dropped_and_the_next_pairs_with_the_last_good_one(tex0):

@@ -42,3 +42,32 @@ def test_overlay_and_label_image_shapes():
     assert (out[0, 0] == 100).all()  # unknown cells untouched
     assert (out[0, 40] != 100).any()  # moving cells tinted
     assert label_image(ids, H, W, CELL).shape == (H, W, 3)
+
+
+def test_overlay_blends_each_pixel_with_its_cells_colour():
+    """Against the blend written out pixel by pixel in float64 (the colour and weight per
+    cell are computed once per cell now, in float32): within 1 grey level."""
+    from jaxvo.masks import _PALETTE
+
+    rng = np.random.default_rng(0)
+    bgr = rng.integers(0, 256, (H, W, 3), np.uint8)
+    ids = rng.integers(0, 14, 12)
+    got = overlay(bgr, ids, CELL, alpha=0.45).astype(int)
+    for y in range(0, H, 7):
+        for x in range(0, W, 5):
+            cell = ids[min(y // CELL, 2) * 4 + min(x // CELL, 3)]
+            colour = _PALETTE[0 if cell <= 0 else (cell - 1) % 9 + 1].astype(np.float64)
+            a = 0.45 if cell >= 2 else 0.45 * 0.35 if cell == 1 else 0.0
+            want = np.clip(bgr[y, x] * (1 - a) + colour * a, 0, 255).astype(int)
+            assert np.abs(got[y, x] - want).max() <= 1, (y, x)
+
+
+def test_label_image_and_colour_blocks_match_the_palette_per_pixel():
+    from jaxvo.masks import palette
+
+    ids = np.arange(-1, 11)
+    np.testing.assert_array_equal(label_image(ids, H, W, CELL),
+                                  palette(grid_to_pixels(ids, H, W, CELL)))
+    colours = grid_to_pixels(palette(ids), H, W, CELL)  # (n, 3) blocks keep their 3
+    assert colours.shape == (H, W, 3)
+    np.testing.assert_array_equal(colours[49, 69], palette(ids)[11])

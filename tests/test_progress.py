@@ -34,3 +34,21 @@ def test_a_note_is_a_line_of_its_own():
     assert out.getvalue().splitlines()[-1] == "seq: flow from the cache"
     Progress("study", 10, stream=out, enabled=False).note("hidden")
     assert "hidden" not in out.getvalue()
+
+
+class _Terminal(io.StringIO):
+    def isatty(self):
+        return True
+
+
+def test_a_terminal_line_is_redrawn_at_most_every_interval_and_when_done(monkeypatch):
+    """``jaxvo run`` calls it every frame: 300 calls 1 ms apart draw 4 times, not 300."""
+    clock = iter(0.001 * k for k in range(400))
+    monkeypatch.setattr(progress_mod.time, "perf_counter", lambda: next(clock))
+    out = _Terminal()
+    p = Progress("jaxvo run", 300, stream=out, interval=0.1)
+    for done in range(1, 301):
+        p(done)
+    draws = out.getvalue().split("\r")[1:]
+    assert len(draws) == 4  # at 1, 101 and 201 ms, and the last
+    assert draws[-1].rstrip().endswith("300/300 1000.0 it/s")

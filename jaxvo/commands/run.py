@@ -1,8 +1,12 @@
 """``jaxvo run SEQ_DIR --out traj.txt``: odometry over a recorded TUM-layout sequence.
 
 Frames are processed one at a time by the streaming odometry (pipelined: a frame's device
-step runs while the next frame is read and its flow computed) and every pose is written to
-the trajectory file as soon as it is known, so an interrupted run keeps what it computed.
+step runs while the next frame's flow is computed) and every pose is written to the
+trajectory file as soon as it is known, so an interrupted run keeps what it computed. The
+next frames are read and decoded on other threads meanwhile, and masks and overlays are
+encoded and written on another (:mod:`jaxvo.background`), so neither waits on the other.
+The per-frame step is compiled on the first run on a machine and loaded from the persistent
+compile cache afterwards (:mod:`jaxvo.compile_cache`); the terminal says when it compiles.
 """
 
 from __future__ import annotations
@@ -78,7 +82,8 @@ def add_arguments(p: argparse.ArgumentParser) -> None:
     p.add_argument("--overlays", metavar="DIR",
                    help="write per-frame overlay panels of the labels (PNG, see below)")
     p.add_argument("--json", action="store_true", help="print the summary as JSON")
-    p.add_argument("--quiet", "-q", action="store_true", help="no progress line")
+    p.add_argument("--quiet", "-q", action="store_true",
+                   help="no progress line, and no line saying that the step compiles")
 
 
 def _peak_rss_mib() -> float:
@@ -122,12 +127,16 @@ def _input_files(seq_dir: Path) -> tuple[Path, ...]:
 
 
 def run(args: argparse.Namespace) -> int:
+    import contextlib
+    import itertools
     import time
     from collections import Counter
 
     import numpy as np
 
+    from jaxvo.background import BackgroundWriter, read_ahead
     from jaxvo.cli import EXIT_INTERRUPTED, EXIT_NOTHING_ESTIMATED, interrupt_at_safe_points
+    from jaxvo.compile_cache import announce_compile
     from jaxvo.config import check_config
     from jaxvo.errors import InputError
     from jaxvo.io import (
@@ -158,11 +167,15 @@ def run(args: argparse.Namespace) -> int:
     check_config(cfg, height=seq.height, width=seq.width, names=_CONFIG_OPTIONS)
     warnings = list(seq.warnings)
 
+    # frames are read and decoded ahead on a small thread pool, beside the flow and the step
+    reads = read_ahead(seq.__getitem__, range(n))
     # the first readable frame: its depth tells a wrong depth scale, its time the start pose
     first = None
-    for i in range(n):
+    early = []  # (index, future) taken before the loop: unreadable frames, then the first
+    for i, fut in reads:
+        early.append((i, fut))
         try:
-            first = seq[i]
+            first = fut.result()
             break
         except InputError:
             continue
@@ -186,13 +199,29 @@ def run(args: argparse.Namespace) -> int:
     pairs_ok = 0
     recent: dict[int, object] = {}  # submitted frames whose results are not out yet
     anchor = None  # the last kept frame: the next pair's labels lie on its image
-    last_dyn = None
+    last_moving = None  # the last pair's mask cells, for the last frame's dynamic mask
     first_unreadable = ""  # the first unreadable frame's error, for the summary
     interrupted = False
 
+    def write_images(frame, r, moving) -> None:
+        """The images of a pair whose labels lie on ``frame``'s image, named by its time as
+        TUM names its images; ``r`` None: the dynamic mask ``moving`` alone. Runs on the
+        writer thread: encoding PNGs is most of what a frame's output costs."""
+        h, w = frame.depth.shape
+        name = f"{frame.timestamp:.6f}.png"
+        if args.masks and r is not None:
+            ids = grid_to_pixels(r.ids, h, w, cfg.cell).astype(np.uint8)
+            write_image(folders["--masks"] / name, ids)
+        if args.dynamic_masks:  # jaxvo.plugin: step k labels image k
+            write_image(folders["--dynamic-masks"] / name,
+                        mask_png(dynamic_pixels(moving, h, w, cfg.cell)))
+        if args.overlays and r is not None:
+            write_image(folders["--overlays"] / name, overlay_panel(frame.bgr, r.output, cfg.cell))
+
     def record(r) -> None:
-        """Write one finished frame: its pose, and its pair's masks and overlay."""
-        nonlocal written, pairs_ok, anchor, last_dyn
+        """One finished frame: its pose now (a line, flushed: a second Ctrl-C, which ends
+        the process at once, loses none), its pair's images on the writer thread."""
+        nonlocal written, pairs_ok, anchor, last_moving
         frame = recent.pop(r.index)
         if r.dropped is not None:
             dropped[r.dropped] += 1
@@ -206,27 +235,24 @@ def run(args: argparse.Namespace) -> int:
             pairs_ok += 1
         else:
             skipped[r.status.reason] += 1
-        h, w = prev_frame.depth.shape
-        name = f"{prev_frame.timestamp:.6f}.png"  # as TUM names its images
-        if args.masks:
-            ids = grid_to_pixels(r.ids, h, w, cfg.cell).astype(np.uint8)
-            write_image(folders["--masks"] / name, ids)
-        if args.dynamic_masks:  # jaxvo.plugin: step k labels image k
-            last_dyn = mask_png(dynamic_pixels(r.output.dynamic, h, w, cfg.cell))
-            write_image(folders["--dynamic-masks"] / name, last_dyn)
-        if args.overlays:
-            panel = overlay_panel(prev_frame.bgr, r.output, cfg.cell)
-            write_image(folders["--overlays"] / name, panel)
+        last_moving = r.output.dynamic
+        if folders:
+            images.submit(write_images, prev_frame, r, last_moving)
 
+    # leaving this block, also by Ctrl-C, closes the reader, then writes every image queued
     with (TrajectoryWriter(out, comment=f"jaxvo run {args.sequence}") as writer,
-          interrupt_at_safe_points() as stop):
+          interrupt_at_safe_points() as stop,
+          BackgroundWriter() as images,
+          contextlib.closing(reads),
+          announce_compile("the per-frame step", stream=None if args.quiet else sys.stderr)
+          as compiling):
         try:
             submitted = 0
-            for i in range(n):
+            for i, fut in itertools.chain(early, reads):
                 stop()  # Ctrl-C is taken here, between frames, never inside a compile
                 t0 = time.perf_counter()
                 try:
-                    frame = first if i == first.index else seq[i]
+                    frame = fut.result()
                 except InputError as exc:  # unreadable frame: drop it, keep going
                     dropped["unreadable frame"] += 1
                     first_unreadable = first_unreadable or str(exc)
@@ -246,9 +272,9 @@ def run(args: argparse.Namespace) -> int:
         r = odo.flush()  # the last frame's result (also after an interruption)
         if r is not None:
             record(r)
-    if args.dynamic_masks and last_dyn is not None and anchor is not None:
-        # the last kept frame has no pair of its own: it takes the last label map
-        write_image(folders["--dynamic-masks"] / f"{anchor.timestamp:.6f}.png", last_dyn)
+        if args.dynamic_masks and last_moving is not None and anchor is not None:
+            # the last kept frame has no pair of its own: it takes the last label map
+            images.submit(write_images, anchor, None, last_moving)
     progress.close()
 
     steady = times[2:] if len(times) > 3 else times[1:]
@@ -263,6 +289,9 @@ def run(args: argparse.Namespace) -> int:
         "trajectory": str(out),
         "frames_per_second": round(fps, 2),
         "first_frame_pair_seconds": round(times[1], 3) if len(times) > 1 else None,
+        # the step's compile (or its load from the persistent compile cache), seconds
+        "compile": [{"seconds": round(c.seconds, 3), "from_cache": c.from_cache}
+                    for c in compiling],
         "pairs_ok": pairs_ok,
         "skipped": dict(skipped),
         "dropped": {(f"{k} (first: {first_unreadable})" if k == "unreadable frame" else k): v
@@ -304,9 +333,11 @@ def run(args: argparse.Namespace) -> int:
 def _print_summary(summary: dict, n: int, interrupted: bool) -> None:
     print(f"jaxvo run: {summary['poses_written']} poses -> {summary['trajectory']}"
           + (" (interrupted)" if interrupted else ""))
+    compiles = summary["compile"]
+    how = ("the step loaded from the compile cache" if compiles and all(
+        c["from_cache"] for c in compiles) else "compile included")
     print(f"  speed      {summary['frames_per_second']:.1f} frames/s steady state, reading and "
-          f"writing included (first pair {summary['first_frame_pair_seconds']} s, compile "
-          "included)")
+          f"writing included (first pair {summary['first_frame_pair_seconds']} s, {how})")
     print(f"  camera     {summary['camera']}")
     print(f"  start pose {summary['start_pose']}")
     listed = summary["frames_listed"]

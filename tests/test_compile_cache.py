@@ -1,0 +1,179 @@
+"""The persistent compile cache: where it goes (option > environment > JAX's > default),
+that it is said when a program compiles and not when it comes from the cache, and that
+several processes can share it. Each compile is checked in a child process: JAX opens its
+cache once per process, and the tests' own process keeps it off (conftest)."""
+
+import json
+import os
+import subprocess
+import sys
+from pathlib import Path
+
+import jax
+import numpy as np
+import pytest
+
+from jaxvo import __version__
+from jaxvo.cli import build_parser, main
+from jaxvo.compile_cache import ENV, choose_compile_cache, setup_compile_cache
+from jaxvo.errors import InputError
+from jaxvo.io import read_trajectory
+
+VERSIONED = f"jaxvo-{__version__}_jax-{jax.__version__}"
+
+# A child that compiles a program of N unrolled operations (250: about 2 s to compile, 0.05 s
+# to load from the cache here) with the cache given as its first argument, saying so when it
+# compiles for 0.5 s; it prints its compile notes as JSON.
+CHILD = """
+import json, sys
+import jax, jax.numpy as jnp
+from jaxvo.compile_cache import announce_compile, setup_compile_cache
+setup_compile_cache(sys.argv[1])
+
+@jax.jit
+def program(x):
+    for k in range(int(sys.argv[2])):
+        x = jnp.sin(x @ x + k)
+    return x
+
+with announce_compile("a test program", stream=sys.stderr, after=0.5) as notes:
+    program(jax.numpy.ones((4, 4))).block_until_ready()
+print(json.dumps([n._asdict() for n in notes]))
+"""
+
+
+def start_child(cache: str, ops: int = 250) -> subprocess.Popen:
+    env = dict(os.environ, JAX_PLATFORMS="cpu")
+    return subprocess.Popen([sys.executable, "-c", CHILD, cache, str(ops)],
+                            stdout=subprocess.PIPE, stderr=subprocess.PIPE, text=True, env=env)
+
+
+def finish(proc: subprocess.Popen) -> tuple[list[dict], str]:
+    out, err = proc.communicate(timeout=300)
+    assert proc.returncode == 0, err[-2000:]
+    return json.loads(out.splitlines()[-1]), err
+
+
+def run_child(cache: str, ops: int = 250) -> tuple[list[dict], str]:
+    return finish(start_child(cache, ops))
+
+
+def entries(folder: Path) -> list[Path]:
+    """The cache entries of the child's program (JAX names them after the function)."""
+    return sorted(folder.glob("jit_program-*-cache"))
+
+
+# --- where the cache goes -------------------------------------------------------------------
+
+
+def test_the_option_wins_over_the_environment_which_wins_over_the_defaults(tmp_path):
+    env = {ENV: str(tmp_path / "env"), "JAX_COMPILATION_CACHE_DIR": str(tmp_path / "jax"),
+           "XDG_CACHE_HOME": str(tmp_path / "xdg"), "HOME": str(tmp_path / "home")}
+    assert choose_compile_cache(tmp_path / "opt", environ=env) == (
+        tmp_path / "opt" / VERSIONED, "--compile-cache")
+    assert choose_compile_cache("off", environ=env) == (None, "--no-compile-cache")
+    assert choose_compile_cache(None, environ=env) == (tmp_path / "env" / VERSIONED, ENV)
+    assert choose_compile_cache(None, environ={**env, ENV: "OFF"}).folder is None
+    del env[ENV]
+    # JAX's own setting is the user's cache: used as it is, no subfolder
+    assert choose_compile_cache(None, environ=env) == (tmp_path / "jax",
+                                                       "JAX_COMPILATION_CACHE_DIR")
+    del env["JAX_COMPILATION_CACHE_DIR"]
+    assert choose_compile_cache(None, environ=env) == (
+        tmp_path / "xdg" / "jaxvo" / "xla" / VERSIONED, "default")
+    del env["XDG_CACHE_HOME"]
+    assert choose_compile_cache(None, environ=env).folder == (
+        tmp_path / "home" / ".cache" / "jaxvo" / "xla" / VERSIONED)
+    assert choose_compile_cache(None, environ={**env, ENV: ""}).source == "default"
+
+
+def test_the_options_are_on_the_commands_that_compile(capsys):
+    parser = build_parser()
+    assert parser.parse_args(["run", "s", "--out", "t", "--no-compile-cache"]).compile_cache == "off"
+    assert parser.parse_args(["study", "spec.toml", "--out", "o", "--compile-cache", "d"]
+                             ).compile_cache == "d"
+    assert parser.parse_args(["synth", "handheld_slow", "o"]).compile_cache is None
+    with pytest.raises(SystemExit) as err:  # one or the other
+        parser.parse_args(["run", "s", "--out", "t", "--compile-cache", "d", "--no-compile-cache"])
+    assert err.value.code == 2
+    with pytest.raises(SystemExit):  # eval compiles nothing
+        parser.parse_args(["eval", "ate", "a.txt", "b.txt", "--no-compile-cache"])
+    capsys.readouterr()
+
+
+def test_a_folder_that_cannot_be_written_is_an_error_if_given_else_a_warning(tmp_path, capsys):
+    a_file = tmp_path / "file"
+    a_file.write_text("")
+    for option, environ in ((str(a_file), {}), (None, {ENV: str(a_file)})):
+        with pytest.raises(InputError, match=r"compile cache .* cannot write there"):
+            setup_compile_cache(option, environ=environ)
+    rc = main(["run", str(tmp_path), "--out", str(tmp_path / "t.txt"), "--compile-cache",
+               str(a_file)])
+    assert rc == 2 and capsys.readouterr().err.count("\n") == 1  # one line
+    # the default folder (a read-only home): the run goes on without the cache, said once
+    choice = setup_compile_cache(None, environ={"XDG_CACHE_HOME": str(a_file)})
+    assert choice.folder is None
+    assert "running without it" in capsys.readouterr().err
+
+
+# --- compiling, loading, sharing ------------------------------------------------------------
+
+
+def test_compiling_is_said_with_its_time_and_a_cached_program_is_loaded_silently(tmp_path):
+    notes, err = run_child(str(tmp_path))
+    assert [n["from_cache"] for n in notes] == [False]
+    assert ("jaxvo: compiling a test program (first run with these settings on this machine; "
+            "cached for the next) ... ") in err and err.rstrip().endswith(" s")
+    assert len(entries(tmp_path / VERSIONED)) == 1
+
+    notes, err = run_child(str(tmp_path))
+    assert [n["from_cache"] for n in notes] == [True] and "compiling" not in err
+
+    notes, err = run_child("off")
+    assert [n["from_cache"] for n in notes] == [False]
+    assert "compiling a test program (the compile cache is off) ... " in err
+
+
+def test_processes_share_the_folder_and_an_entry_cut_short_is_compiled_again(tmp_path):
+    folder = tmp_path / VERSIONED
+    # a quicker program (every program is stored, however quick to compile)
+    both = [start_child(str(tmp_path), ops=40) for _ in range(2)]  # cold, at the same time
+    for proc in both:
+        _, err = finish(proc)
+        assert "persistent compilation cache" not in err  # no read or write error
+    [entry] = entries(folder)
+    assert entry.stat().st_size > 0
+    # bounded, hence locked: JAX keeps each entry's access time only then
+    assert Path(str(entry)[: -len("cache")] + "atime").is_file()
+
+    entry.write_bytes(b"")  # a process killed between creating the entry and writing it
+    _, err = run_child(str(tmp_path), ops=40)
+    assert "persistent compilation cache" not in err  # not read: compiled again...
+    assert entry.stat().st_size > 0  # ...and stored
+
+
+def test_jaxvo_run_compiles_once_then_loads_the_step_with_the_same_poses(tmp_path):
+    """Two runs of ``jaxvo run`` on a 3-frame synthetic sequence with a fresh cache folder:
+    the first says it compiles the step, the second loads it without a word and estimates
+    the same poses."""
+    from jaxvo.synth import make_sequence, write_sequence
+
+    seq_dir = tmp_path / "seq"
+    write_sequence(make_sequence("handheld_slow", frames=3, seed=0), seq_dir)
+    env = dict(os.environ, JAX_PLATFORMS="cpu")
+    runs = []
+    for k in range(2):
+        out = tmp_path / f"t{k}.txt"
+        proc = subprocess.run(
+            [sys.executable, "-m", "jaxvo.cli", "run", str(seq_dir), "--out", str(out),
+             "--json", "--compile-cache", str(tmp_path / "cache"),
+             "--hypotheses", "2", "--cell", "32"],  # a smaller step: 5 s to compile, not 8
+            capture_output=True, text=True, env=env, timeout=600, check=False)
+        assert proc.returncode == 0, proc.stderr[-2000:]
+        runs.append((json.loads(proc.stdout), proc.stderr, read_trajectory(out)))
+    (cold, cold_err, cold_traj), (warm, warm_err, warm_traj) = runs
+    assert "jaxvo: compiling the per-frame step (first run with these settings" in cold_err
+    assert [c["from_cache"] for c in cold["compile"]] == [False]
+    assert "compiling" not in warm_err
+    assert [c["from_cache"] for c in warm["compile"]] == [True]
+    np.testing.assert_array_equal(warm_traj.poses, cold_traj.poses)  # bit for bit
