@@ -31,6 +31,8 @@ def test_run_writes_every_pose_masks_and_a_summary(seq_dir, tmp_path, capsys):
     # the folder has ground truth: the summary scores the run (metres, not NaN); measured
     # 0.087 mm on this sequence (2-core CPU), bounded at about 3x that
     assert 0.0 <= summary["ate_rmse_m"] < 0.0003
+    # the background keeps identifier 1 throughout (the summary counts re-acquisitions)
+    assert summary["background_reacquired"] == 0
     pngs = sorted(dyn.glob("*.png"))
     assert pngs and set(np.unique(cv2.imread(str(pngs[0]), cv2.IMREAD_UNCHANGED))) <= {0, 255}
 

@@ -200,6 +200,7 @@ def run(args: argparse.Namespace) -> int:
     recent: dict[int, object] = {}  # submitted frames whose results are not out yet
     anchor = None  # the last kept frame: the next pair's labels lie on its image
     last_moving = None  # the last pair's mask cells, for the last frame's dynamic mask
+    reacquired = 0  # pairs in which the background took its identifier back
     first_unreadable = ""  # the first unreadable frame's error, for the summary
     interrupted = False
 
@@ -221,7 +222,7 @@ def run(args: argparse.Namespace) -> int:
     def record(r) -> None:
         """One finished frame: its pose now (a line, flushed: a second Ctrl-C, which ends
         the process at once, loses none), its pair's images on the writer thread."""
-        nonlocal written, pairs_ok, anchor, last_moving
+        nonlocal written, pairs_ok, anchor, last_moving, reacquired
         frame = recent.pop(r.index)
         if r.dropped is not None:
             dropped[r.dropped] += 1
@@ -235,6 +236,7 @@ def run(args: argparse.Namespace) -> int:
             pairs_ok += 1
         else:
             skipped[r.status.reason] += 1
+        reacquired += int(r.output.reacquired)
         last_moving = r.output.dynamic
         if folders:
             images.submit(write_images, prev_frame, r, last_moving)
@@ -294,6 +296,7 @@ def run(args: argparse.Namespace) -> int:
                     for c in compiling],
         "pairs_ok": pairs_ok,
         "skipped": dict(skipped),
+        "background_reacquired": reacquired,
         "dropped": {(f"{k} (first: {first_unreadable})" if k == "unreadable frame" else k): v
                     for k, v in dropped.items()},
         "warnings": warnings,
@@ -347,9 +350,11 @@ def _print_summary(summary: dict, n: int, interrupted: bool) -> None:
         total = sum(counts.values())
         what = unit if total != 1 else unit[:-1]  # "1 frame", "2 frame pairs"
         print(f"  {label:<10} {total} {what}" + (" (no pose)" if label == "dropped" and total
-                                                  else " (pose carried)" if total else ""))
+                                                  else " (the last motion carried)" if total else ""))
         for reason, count in sorted(counts.items(), key=lambda kv: -kv[1]):
             print(f"    {count:5d}  {reason}")
+    print(f"  background re-acquired in {summary['background_reacquired']} frame pairs (the "
+          "segment the evidence gave the background had another identifier)")
     print(f"  memory     {summary['peak_rss_mib']:.0f} MiB peak resident")
     for w in summary["warnings"]:
         print(f"  warning    {w}")
