@@ -425,3 +425,84 @@ def test_wrong_shapes_are_caught_at_the_call():
     with pytest.raises(AssertionError):
         update_window(state, jax.tree.map(jnp.asarray, f), jnp.asarray(T),
                       jnp.asarray(f.valid[:-1]), NOISE, PARAMS, cfg=cfg, grid=GRID)
+
+
+# ------------------------------------------------------------------ in the pipeline
+
+
+@pytest.fixture(scope="module")
+def short_sequence():
+    from jaxvo.synth import make_sequence
+
+    return make_sequence("handheld_slow", frames=10, seed=3)
+
+
+def test_scan_streaming_and_study_agree_with_the_window(short_sequence):
+    from jaxvo.config import grid_shape
+    from jaxvo.flow import flows_for_sequence
+    from jaxvo.odometry import Odometry, run_sequence
+    from jaxvo.pipeline import batch_params, run_study
+
+    seq = short_sequence
+    cfg = cfg_with(4)
+    res = run_sequence(seq, cfg=cfg, seed=7)
+    odo = Odometry(seq.intrinsics, cfg=cfg, seed=7, T_w_c0=res.trajectory.poses[0])
+    left = []
+    for frame in seq:
+        r = odo.process(frame.bgr, frame.depth, frame.timestamp)
+        if r.left is not None:
+            left.append(r.left)
+    # streaming and scan: the same bits, final poses and immediate ones (the first frame's
+    # pose is the start pose, float64 in the scan's trajectory, float32 in the stream's)
+    np.testing.assert_array_equal(odo.refined_trajectory.poses[1:], res.trajectory.poses[1:])
+    np.testing.assert_array_equal(odo.trajectory.poses[1:], res.immediate.poses[1:])
+    # frames leave in order, each with its final pose
+    assert [t for t, _ in left] == list(res.trajectory.timestamps[:len(left)])
+    np.testing.assert_array_equal(np.array([T for _, T in left])[1:],
+                                  res.trajectory.poses[1:len(left)])
+    assert len(left) == len(seq) - cfg.window
+    # the study's vmapped call: within float32 rounding (5e-6 m measured, as without a window)
+    grid = grid_shape(seq.height, seq.width, cfg.cell)
+    flows = flows_for_sequence(seq, cfg)
+    keys = jnp.stack([jax.random.key(7), jax.random.key(8)])
+    outs = run_study(flows, keys, batch_params(Params(), size=2),
+                     jnp.asarray(res.trajectory.poses[0], jnp.float32), cfg=cfg, grid=grid)
+    study = np.asarray(window_trajectory(jax.tree.map(lambda x: x[0], outs.window)))
+    np.testing.assert_allclose(study[1:], res.trajectory.poses[1:], atol=1e-4)
+
+
+def test_without_the_window_the_step_is_unchanged(short_sequence):
+    from jaxvo.odometry import run_sequence
+
+    res = run_sequence(short_sequence, cfg=Config(), seed=7)
+    assert res.outputs.window is None and res.immediate is None
+
+
+def test_jaxvo_run_writes_each_pose_when_its_frame_leaves_the_window(short_sequence, tmp_path,
+                                                                     capsys):
+    from jaxvo.cli import main
+    from jaxvo.io import open_sequence, read_trajectory
+    from jaxvo.odometry import run_sequence
+    from jaxvo.synth import write_sequence
+
+    write_sequence(short_sequence, tmp_path / "seq")
+    code = main(["run", str(tmp_path / "seq"), "--out", str(tmp_path / "t.txt"), "--window",
+                 "4", "-q"])
+    assert code == 0
+    printed = capsys.readouterr().out
+    assert "window     4 frames refined together" in printed
+    written = read_trajectory(tmp_path / "t.txt")
+    # the same folder: its ground truth (the start pose) as written to the file
+    ref = run_sequence(open_sequence(tmp_path / "seq"), cfg=cfg_with(4), seed=0)
+    # tolerance: the file's 6 decimals (and the frames' timestamps to the microsecond)
+    np.testing.assert_allclose(written.poses, ref.trajectory.poses, atol=2e-6)
+    np.testing.assert_allclose(written.timestamps, ref.trajectory.timestamps, atol=1e-6)
+
+
+@pytest.mark.parametrize("window", ["1", "-2"])
+def test_jaxvo_run_rejects_a_window_no_run_can_use(window, tmp_path, capsys):
+    from jaxvo.cli import main
+
+    code = main(["run", str(tmp_path), "--out", str(tmp_path / "t.txt"), "--window", window])
+    assert code == 2
+    assert "--window" in capsys.readouterr().err
