@@ -145,24 +145,29 @@ def position_errors(T_est, T_true):
 # ------------------------------------------------------------------------------ tracks
 
 
-@pytest.mark.parametrize("planes", [SLANTED, ROOM], ids=["slanted plane", "room"])
-def test_tracks_chain_to_the_true_pixel_and_depth_over_eight_pairs(planes):
-    poses = trajectory(9, seed=2)
-    uv0 = grid_uv()
-    start = uv0[seed_index(GRID)]
+def chain_from_the_seeds(poses, planes):
+    """The seeds of the first image chained through every pair of ``poses``: their last
+    positions (m, 2), observations (m, 3), whether they stayed alive (m,), and the true
+    points in the last camera (m, 3)."""
+    start = grid_uv()[seed_index(GRID)]
     P = rays(start) * cast(poses[0], start, planes)[:, None]  # true points, camera 0
     uv = jnp.asarray(start, jnp.float32)
     alive = np.ones(len(start), bool)
     chain = jax.jit(functools.partial(chain_tracks, grid=GRID))
-    for k in range(8):
+    for k in range(len(poses) - 1):
         flow, _ = pair_flow(poses[k], poses[k + 1], planes)
         uv, Q, ok = chain(uv, jax.tree.map(jnp.asarray, flow), jnp.asarray(flow.valid))
         alive &= np.asarray(ok)
-    T = np.linalg.inv(poses[8]) @ poses[0]
-    truth = P @ T[:3, :3].T + T[:3, 3]
-    px = np.linalg.norm(np.asarray(uv) - project(truth), axis=1)[alive]
-    rel_z = (np.abs(np.asarray(Q)[:, 2] - truth[:, 2]) / truth[:, 2])[alive]
-    assert alive.mean() > 0.5  # most tracks stay in view and off the room's creases
+    T = np.linalg.inv(poses[-1]) @ poses[0]
+    return np.asarray(uv), np.asarray(Q), alive, P @ T[:3, :3].T + T[:3, 3]
+
+
+@pytest.mark.parametrize("planes", [SLANTED, ROOM], ids=["slanted plane", "room"])
+def test_tracks_chain_to_the_true_pixel_and_depth_over_eight_pairs(planes):
+    uv, Q, alive, truth = chain_from_the_seeds(trajectory(9, seed=2), planes)
+    px = np.linalg.norm(uv - project(truth), axis=1)[alive]
+    rel_z = (np.abs(Q[:, 2] - truth[:, 2]) / truth[:, 2])[alive]
+    assert alive.mean() > 0.5  # most tracks stay in view
     if planes is SLANTED:
         # tolerance: 0.02 px and 1e-4 of the depth. On a plane the chained pixel is exact
         # up to bilinear interpolation of a homography's flow, 1/z exactly interpolated
@@ -175,19 +180,8 @@ def test_tracks_chain_to_the_true_pixel_and_depth_over_eight_pairs(planes):
 
 
 def test_tracks_do_not_interpolate_across_a_depth_edge():
-    poses = trajectory(5, seed=12, step_t=0.02)
-    start = grid_uv()[seed_index(GRID)]
-    P = rays(start) * cast(poses[0], start, STEP)[:, None]
-    uv = jnp.asarray(start, jnp.float32)
-    alive = np.ones(len(start), bool)
-    chain = jax.jit(functools.partial(chain_tracks, grid=GRID))
-    for k in range(4):
-        flow, _ = pair_flow(poses[k], poses[k + 1], STEP)
-        uv, Q, ok = chain(uv, jax.tree.map(jnp.asarray, flow), jnp.asarray(flow.valid))
-        alive &= np.asarray(ok)
-    T = np.linalg.inv(poses[4]) @ poses[0]
-    truth = P @ T[:3, :3].T + T[:3, 3]
-    rel_z = np.abs(np.asarray(Q)[:, 2] - truth[:, 2]) / truth[:, 2]
+    _, Q, alive, truth = chain_from_the_seeds(trajectory(5, seed=12, step_t=0.02), STEP)
+    rel_z = np.abs(Q[:, 2] - truth[:, 2]) / truth[:, 2]
     assert alive.sum() > 150
     # tolerance: 1e-4 of the depth (both sides are planes); a track interpolated across
     # the edge would be off by up to half the 1 m step
