@@ -500,3 +500,28 @@ def test_jaxvo_run_rejects_a_window_no_run_can_use(window, tmp_path, capsys):
     code = main(["run", str(tmp_path), "--out", str(tmp_path / "t.txt"), "--window", window])
     assert code == 2
     assert "--window" in capsys.readouterr().err
+
+
+def test_a_study_with_the_window_scores_the_final_poses(tmp_path):
+    from jaxvo import study
+    from jaxvo.evaluation import trajectory_scores
+    from jaxvo.io import Trajectory
+    from jaxvo.pipeline import batch_params, run_study
+
+    (tmp_path / "spec.toml").write_text(
+        'name = "w"\nseeds = [0]\nbatch = 1\n[[sequences]]\nscene = "handheld_fast"\n'
+        'frames = 8\n[fixed]\ncell = 32\nnum_hypotheses = 4\nwindow = 3\n')
+    spec = study.load_spec(tmp_path / "spec.toml")
+    res = study.run_spec(spec, tmp_path / "out", flow_cache=tmp_path / "flows")
+    cfg = dataclasses.replace(Config(cell=32, num_hypotheses=4), window=3)
+    data, _ = study.sequence_data(spec.sequences[0], cfg, tmp_path / "flows")
+    out = run_study(jax.tree.map(jnp.asarray, data.flows), jax.random.key(0)[None],
+                    batch_params(Params(), size=1), jnp.asarray(data.T_w_c0, jnp.float32),
+                    cfg=cfg, grid=(15, 20))
+    final = np.asarray(window_trajectory(jax.tree.map(lambda x: x[0], out.window)), np.float64)
+    final[0] = data.T_w_c0
+    ref = trajectory_scores(data.groundtruth, Trajectory(data.timestamps, final))
+    assert res.rows[0]["ate_rmse_m"] == pytest.approx(ref["ate_rmse_m"], rel=0, abs=0)
+    # the final poses are not the immediate ones: the row could tell them apart
+    immediate = np.concatenate([data.T_w_c0[None], np.asarray(out.T_w_c[0], np.float64)])
+    assert not np.array_equal(immediate[1:], final[1:])
