@@ -21,8 +21,8 @@ from pathlib import Path
 import numpy as np
 
 sys.path.insert(0, str(Path(__file__).resolve().parent))
-from bench_robustness import CFG, prepare  # noqa: E402
-from splits import available, cases  # noqa: E402
+from bench_robustness import CFG, prepare
+from splits import available, cases
 
 _BANDS = ((0.5, 1.0), (1.0, 1.5), (1.5, 2.0), (2.0, 2.5), (2.5, 3.0), (3.0, 4.0))
 

@@ -68,6 +68,14 @@ from jaxvo.synth import (
     write_sequence,
 )
 from jaxvo.temporal import TemporalOut, TemporalState, init_temporal, update_temporal
+from jaxvo.window import (
+    WindowOut,
+    WindowState,
+    init_window,
+    levenberg_marquardt,
+    update_window,
+    window_trajectory,
+)
 
 __version__ = "0.1.0"
 
@@ -106,6 +114,9 @@ __all__ = [
     "TemporalState",
     "Trajectory",
     "TumSequence",
+    # sliding-window refinement
+    "WindowOut",
+    "WindowState",
     "align_umeyama",
     "associate",
     "ate",
@@ -123,8 +134,10 @@ __all__ = [
     "grid_shape",
     "init_pipeline",
     "init_temporal",
+    "init_window",
     "iter_dynamic_masks",
     "jit_step",
+    "levenberg_marquardt",
     "load_spec",
     "make_sequence",
     "open_sequence",
@@ -146,6 +159,8 @@ __all__ = [
     "step",
     "trajectory_scores",
     "update_temporal",
+    "update_window",
+    "window_trajectory",
     "write_report",
     "write_sequence",
     "write_trajectory",

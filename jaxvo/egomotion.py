@@ -15,6 +15,7 @@ lies along the viewing ray and biases the isotropic 3D fit.
 
 from __future__ import annotations
 
+import chex
 import jax
 import jax.numpy as jnp
 
@@ -133,6 +134,9 @@ def estimate_egomotion(pts_prev, pts_cur, weights, params: Params, *, cfg: Confi
       inliers: (n,) bool, points the final fit explains within the inlier test at the
         frame's scale.
     """
+    chex.assert_rank([pts_prev, pts_cur], 2)
+    chex.assert_equal_shape([pts_prev, pts_cur])
+    chex.assert_shape(weights, (pts_prev.shape[0],))
     # columns (3, n): every coordinate a contiguous vector, which XLA's CPU backend
     # vectorises far better than (n, 3) rows (see procrustes.fit_rigid_cols)
     src, dst = pts_prev.T, pts_cur.T

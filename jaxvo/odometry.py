@@ -35,6 +35,7 @@ from jaxvo.flow import (
 from jaxvo.io import Trajectory, pose_at
 from jaxvo.pipeline import StepOutput, init_pipeline, jit_step, run_scan
 from jaxvo.status import Status
+from jaxvo.window import window_trajectory
 
 
 class FrameResult(NamedTuple):
@@ -48,6 +49,9 @@ class FrameResult(NamedTuple):
     static: np.ndarray  # (n,) bool grid points used for the ego-motion
     output: StepOutput | None  # every per-step output (None on the first or a dropped frame)
     dropped: str | None = None  # why the frame was dropped (it has no pose), None if kept
+    # with Config.window: the frame that left the window with this step, as (timestamp,
+    # (4, 4) float64 final camera-to-world pose); None when none left
+    left: tuple[float, np.ndarray] | None = None
 
 
 class Odometry:
@@ -61,6 +65,13 @@ class Odometry:
     dropped: it gets no pose (``FrameResult.dropped`` says why; ``T_w_c`` repeats the last
     kept pose) and is left out of :attr:`trajectory`, and the next frame pairs with the last
     good one (:class:`jaxvo.flow.FrameChain`).
+
+    With ``cfg.window`` K > 0 the last K frames' poses are refined together
+    (:mod:`jaxvo.window`): ``FrameResult.T_w_c`` is then the newest frame's pose after one
+    refinement, and a frame's final pose comes out when it leaves the window, K frames
+    later (``FrameResult.left``). :attr:`trajectory` holds the immediate poses,
+    :attr:`refined_trajectory` the final ones and, for the frames still in the window,
+    their latest refined poses.
 
     Example::
 
@@ -118,12 +129,30 @@ class Odometry:
         self._pending = None  # a frame dispatched by submit() whose result is not out yet
         self.timestamps: list[float] = []
         self.poses: list[np.ndarray] = []
+        self._final: list[np.ndarray] = []  # final poses of the frames that left the window
+        self._window: tuple[np.ndarray, np.ndarray] | None = None  # last (frame_id, T_w_c)
 
     @property
     def trajectory(self) -> Trajectory:
-        """Every pose so far (camera-to-world), dropped frames left out."""
+        """Every pose so far (camera-to-world), dropped frames left out: each as it was
+        when its frame was processed (with ``cfg.window``, refined once)."""
         return Trajectory(np.asarray(self.timestamps, np.float64),
                           np.asarray(self.poses).reshape(-1, 4, 4))
+
+    @property
+    def refined_trajectory(self) -> Trajectory:
+        """With ``cfg.window``: every pose so far, final for the frames that left the
+        window and the latest refined for those still in it (the same as
+        :attr:`trajectory` without a window)."""
+        if self._window is None:
+            return self.trajectory
+        poses = list(self._final) + [None] * (len(self.poses) - len(self._final))
+        for frame, T in zip(*self._window):
+            if len(self._final) <= frame < len(poses):
+                poses[frame] = T
+        poses = [self.poses[i] if T is None else T for i, T in enumerate(poses)]
+        return Trajectory(np.asarray(self.timestamps, np.float64),
+                          np.asarray(poses).reshape(-1, 4, 4))
 
     def process(self, bgr: np.ndarray, depth: np.ndarray, timestamp: float | None = None):
         """Feed one frame and get its result.
@@ -212,7 +241,17 @@ class Odometry:
             return FrameResult(index, t, T, status, np.zeros(n, np.int32), np.zeros(n, bool),
                                None, dropped)
         out = jax.tree.map(np.asarray, out)
-        return FrameResult(index, t, T, Status(int(out.status)), out.ids, out.static, out)
+        left = None
+        if out.window is not None:
+            # window frame f is the f-th pose of this trajectory (dropped frames never
+            # reach the device), so frames leave in the order they came
+            w = out.window
+            self._window = (w.frame_id, w.T_w_c.astype(np.float64))
+            if w.left_id >= 0:
+                self._final.append(w.T_w_left.astype(np.float64))
+                left = (self.timestamps[int(w.left_id)], self._final[-1])
+        return FrameResult(index, t, T, Status(int(out.status)), out.ids, out.static, out,
+                           left=left)
 
 
 def _frame_arrays(bgr, depth, K: Intrinsics) -> tuple[np.ndarray, np.ndarray]:
@@ -290,6 +329,9 @@ class SequenceResult(NamedTuple):
     frames: np.ndarray
     dropped: dict[int, str]  # index of each dropped frame -> why
     start_pose: str  # where the first pose came from, in words
+    # with Config.window: each frame's pose as the step gave it (``trajectory`` then holds
+    # the final poses, each from when its frame left the window); None without a window
+    immediate: Trajectory | None = None
 
 
 def run_sequence(
@@ -304,7 +346,9 @@ def run_sequence(
     """Flow for every frame pair on the host, then one jit-compiled ``lax.scan``.
 
     Frames that cannot be used are dropped and the next frame pairs with the last good one
-    (:func:`jaxvo.flow.sequence_flows`); the trajectory holds the kept frames.
+    (:func:`jaxvo.flow.sequence_flows`); the trajectory holds the kept frames. With
+    ``cfg.window`` it holds each frame's final pose (when it left the window, or where the
+    window ended), and ``SequenceResult.immediate`` the poses as each step gave them.
 
     Args:
       seq: a sequence per docs/architecture.md.
@@ -344,8 +388,13 @@ def run_sequence(
     scan_s = time.perf_counter() - t0
 
     poses = np.concatenate([T0[None], outs.T_w_c.astype(np.float64)])
+    immediate = None
+    if outs.window is not None:
+        immediate = Trajectory(stamps, poses)
+        poses = np.asarray(window_trajectory(outs.window), np.float64)
+        poses[0] = T0  # float64, as without the window
     return SequenceResult(Trajectory(stamps, poses), outs, chain.flows, flow_s, scan_s, grid,
-                          chain.frames, chain.dropped, start)
+                          chain.frames, chain.dropped, start, immediate)
 
 
 def choose_start_pose(

@@ -35,6 +35,7 @@ from jaxvo.temporal import (
     measured_labels,
     update_temporal,
 )
+from jaxvo.window import WindowOut, WindowState, init_window, update_window
 
 # The calibration stays within these: LK is not more precise than about 0.1 px (and a
 # simulator's noise can be far below a real sensor's), and a sensor noisier than 2 px and
@@ -61,6 +62,7 @@ class PipelineState(NamedTuple):
     T_last: jax.Array  # (4, 4) float32, the last accepted ego-motion T_cur_prev
     have_last: jax.Array  # () bool, whether T_last holds an accepted ego-motion yet
     noise: NoiseScale  # the sensor noise calibrated so far (jaxvo.noise)
+    window: WindowState | None = None  # the last cfg.window frames (jaxvo.window), None: off
 
 
 class StepOutput(NamedTuple):
@@ -81,6 +83,9 @@ class StepOutput(NamedTuple):
     background: jax.Array  # () int32 spatial label of the background segment, 0 none
     reacquired: jax.Array  # () bool the background took its identifier back this frame
     noise: NoiseScale  # the calibrated sensor noise after this frame
+    # with cfg.window: the window's refined poses and the pose of the frame that left it
+    # (jaxvo.window.WindowOut); T_w_c above is then the window's newest pose
+    window: WindowOut | None = None
 
 
 def belief_weights(prior, params: Params):
@@ -164,8 +169,10 @@ def init_pipeline(*, cfg: Config, grid: tuple[int, int], T_w_c0=None,
     starting sensor noise of ``params`` (default :class:`Params`)."""
     T0 = jnp.eye(4, dtype=jnp.float32) if T_w_c0 is None else jnp.asarray(T_w_c0, jnp.float32)
     eye = jnp.eye(4, dtype=jnp.float32)
+    window = init_window(cfg=cfg, grid=grid, T_w_c0=T0) if cfg.window else None
     return PipelineState(init_temporal(cfg=cfg, grid=grid), T0, jnp.int32(0), eye,
-                         jnp.bool_(False), init_noise(Params() if params is None else params))
+                         jnp.bool_(False), init_noise(Params() if params is None else params),
+                         window)
 
 
 def step(state: PipelineState, flow, key, params: Params, *, cfg: Config, grid,
@@ -242,6 +249,13 @@ def step(state: PipelineState, flow, key, params: Params, *, cfg: Config, grid,
                          flow.focal, pts.src, pts.dst, params.noise_rate, floor=NOISE_FLOOR,
                          ceiling=NOISE_CEILING)
 
+    # 6. the sliding-window refinement of the recent poses (jaxvo.window, cfg.window > 0)
+    window, wout = state.window, None
+    if cfg.window:
+        window, wout = update_window(state.window, flow, T_cur_prev, used, noise, params,
+                                     cfg=cfg, grid=grid)
+        T_w_c = wout.T_w_c[-1]
+
     moving = tout.evidence > _moving_logodds(params)
     out = StepOutput(
         T_w_c=T_w_c,
@@ -260,10 +274,12 @@ def step(state: PipelineState, flow, key, params: Params, *, cfg: Config, grid,
         background=jnp.where(ok, bg, 0),
         reacquired=reacquired & ok,
         noise=noise,
+        window=wout,
     )
     T_last = jnp.where(ok, T_cur_prev, state.T_last)
     have_last = state.have_last | ok
-    return PipelineState(temporal, T_w_c, state.frame + 1, T_last, have_last, noise), out
+    return PipelineState(temporal, T_w_c, state.frame + 1, T_last, have_last, noise,
+                         window), out
 
 
 def grow_moving(moving, open_cells, *, grid, steps: int):

@@ -15,6 +15,7 @@ One instance per call; ``jax.vmap`` at the call site batches fits.
 
 from __future__ import annotations
 
+import chex
 import jax.numpy as jnp
 from jax import lax
 
@@ -129,6 +130,9 @@ def fit_rigid(src, dst, w):
       ok: () bool, False when fewer than 3 points carry positive weight or either point set
         is coincident or collinear (the rotation is then undetermined).
     """
+    chex.assert_rank([src, dst], 2)
+    chex.assert_equal_shape([src, dst])
+    chex.assert_shape(w, (src.shape[0],))
     return fit_rigid_cols(src.T, dst.T, w)
 
 

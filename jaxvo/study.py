@@ -647,6 +647,7 @@ def _sharded_study(mesh, cfg: Config, grid: tuple[int, int]):
     from jax.sharding import PartitionSpec as P
 
     from jaxvo.pipeline import run_study
+    from jaxvo.window import window_trajectory
 
     if not hasattr(jax, "shard_map"):
         raise InputError(f"jaxvo study needs jax.shard_map (JAX 0.7 or later), this is JAX "
@@ -655,7 +656,10 @@ def _sharded_study(mesh, cfg: Config, grid: tuple[int, int]):
     def local(flows, T_w_c0, seeds, params):
         keys = jax.vmap(jax.random.key)(seeds)
         out = run_study(flows, keys, params, T_w_c0, cfg=cfg, grid=grid)
-        return out.T_w_c, out.moving, out.status
+        T_w_c = out.T_w_c
+        if cfg.window:  # each frame's final pose, from when it left the window
+            T_w_c = jax.vmap(window_trajectory)(out.window)[:, 1:]
+        return T_w_c, out.moving, out.status
 
     # check_vma=False: the hypothesis search's psum over run_study's own vmapped axes
     # inside shard_map fails JAX 0.10's varying-axes check (an AssertionError); the

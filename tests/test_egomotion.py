@@ -1,5 +1,6 @@
 """Ego-motion from static points: accuracy against a known motion, robustness, failures."""
 
+import chex
 import jax
 import jax.numpy as jnp
 import numpy as np
@@ -176,3 +177,21 @@ def test_reprojection_refinement_keeps_an_exact_pose_and_ignores_too_few_points(
     start = jnp.eye(4, dtype=jnp.float32)
     kept = refine_reprojection(start, prev.T, cur.T, few, 3)
     np.testing.assert_array_equal(np.asarray(kept), np.eye(4))
+
+
+class EgomotionVariants(chex.TestCase):
+    @chex.variants(with_jit=True, without_jit=True)
+    def test_known_motion_with_and_without_jit(self):
+        rng = np.random.default_rng(4)
+        prev, cur, T = _scene(rng)
+        cur = cur + rng.normal(scale=0.002, size=cur.shape).astype(np.float32)
+        ego = self.variant(lambda a, b, w: estimate_egomotion(a, b, w, PARAMS, cfg=CFG))
+        T_est, status, _ = ego(prev, cur, np.ones(len(prev), np.float32))
+        assert int(status) == Status.OK
+        # tolerance: 3 mm (noise 2 mm per point), as the jitted test above
+        assert np.abs(np.asarray(T_est)[:3, 3] - T[:3, 3]).max() < 3e-3
+
+    def test_mismatched_shapes_are_caught_at_the_call(self):
+        with pytest.raises(AssertionError):
+            estimate_egomotion(jnp.zeros((10, 3)), jnp.zeros((10, 3)), jnp.ones(9), PARAMS,
+                               cfg=CFG)

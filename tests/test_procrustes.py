@@ -2,6 +2,7 @@
 
 from __future__ import annotations
 
+import chex
 import jax
 import jax.numpy as jnp
 import numpy as np
@@ -148,3 +149,27 @@ def test_column_layout_and_residuals(single_fit):
     res = jax.jit(residuals)
     np.testing.assert_allclose(np.asarray(res(T_rows, src, dst)), ref, rtol=1e-4, atol=1e-9)
     assert np.all(np.isfinite(np.asarray(res(jnp.eye(4), src * 0, dst * 0))))
+
+
+class FitVariants(chex.TestCase):
+    """The public fit with and without jit (the eager path runs the Python-level shape
+    checks and branches on static shapes that jit only traces once)."""
+
+    @chex.variants(with_jit=True, without_jit=True)
+    def test_fit_matches_the_svd_reference(self):
+        rng = np.random.default_rng(11)
+        src = rng.uniform(-0.5, 0.5, (200, 3)) + np.array([0.0, 0.0, 2.0])
+        R = random_rotation(rng)
+        dst = src @ R.T + np.array([0.1, -0.2, 0.05]) + rng.normal(0, 0.003, (200, 3))
+        w = rng.uniform(0.2, 1.0, 200)
+        T, ok = self.variant(fit_rigid)(jnp.asarray(src, jnp.float32),
+                                        jnp.asarray(dst, jnp.float32),
+                                        jnp.asarray(w, jnp.float32))
+        R_ref, t_ref, _ = kabsch(src, dst, w)
+        assert bool(ok)
+        np.testing.assert_allclose(np.asarray(T)[:3, :3], R_ref, atol=ROT_TOL)
+        np.testing.assert_allclose(np.asarray(T)[:3, 3], t_ref, atol=TRANS_TOL)
+
+    def test_mismatched_shapes_are_caught_at_the_call(self):
+        with pytest.raises(AssertionError):
+            fit_rigid(jnp.zeros((10, 3)), jnp.zeros((9, 3)), jnp.ones(10))

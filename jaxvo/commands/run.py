@@ -17,7 +17,7 @@ import sys
 from pathlib import Path
 
 # command-line option -> the Config field it sets (named so in error messages)
-_CONFIG_OPTIONS = {"cell": "--cell", "num_hypotheses": "--hypotheses"}
+_CONFIG_OPTIONS = {"cell": "--cell", "num_hypotheses": "--hypotheses", "window": "--window"}
 
 EPILOG = """\
 examples:
@@ -35,7 +35,9 @@ camera: --camera, else camera.txt, else the folder's name as the TUM and Bonn be
   name their downloads (rgbd_dataset_freiburg3_*, rgbd_bonn_*).
 
 output: the trajectory is camera-to-world in TUM format, one pose per frame kept, written
-  as it is computed. A frame that cannot be used (unreadable, or too few valid flow
+  as it is computed; with --window K, each frame's pose is written when the frame leaves
+  the window of the K most recent frames, refined there, and the last K are written at the
+  end of the run (also after Ctrl-C). A frame that cannot be used (unreadable, or too few valid flow
   vectors with the last good frame: black, saturated, noise) is dropped and gets no pose;
   the next frame pairs with the last good one. Masks and overlays are PNG files named by
   the frame's RGB timestamp (e.g. 1305031102.175304.png, as TUM names its images), one per
@@ -70,6 +72,10 @@ def add_arguments(p: argparse.ArgumentParser) -> None:
                    help="grid cell size in pixels, at least 4 (default 16)")
     p.add_argument("--hypotheses", type=int, default=20,
                    help="motion hypotheses per frame pair, H, at least 1 (default 20)")
+    p.add_argument("--window", type=int, default=0, metavar="K",
+                   help="refine the poses of the K most recent frames together against points "
+                   "tracked through them (0: off, the default; else at least 2): a frame's "
+                   "pose is final, and written, when it leaves the window, K frames later")
     p.add_argument("--start-pose", choices=("gt", "identity"),
                    help="first pose of the trajectory: 'gt' the ground-truth pose of the first "
                    "frame (groundtruth.txt, within --max-diff), or 'identity' (default: gt where "
@@ -114,7 +120,7 @@ def _check_options(args: argparse.Namespace):
     if args.frames is not None and args.frames < 2:
         raise InputError(f"--frames must be at least 2 (odometry needs a pair), got {args.frames}")
     check_seed(args.seed, name="--seed")
-    cfg = Config(cell=args.cell, num_hypotheses=args.hypotheses)
+    cfg = Config(cell=args.cell, num_hypotheses=args.hypotheses, window=args.window)
     check_config(cfg, names=_CONFIG_OPTIONS)
     return cfg
 
@@ -227,8 +233,12 @@ def run(args: argparse.Namespace) -> int:
         if r.dropped is not None:
             dropped[r.dropped] += 1
             return
-        writer.write(r.timestamp, r.T_w_c)
-        written += 1
+        if not cfg.window:
+            writer.write(r.timestamp, r.T_w_c)
+            written += 1
+        elif r.left is not None:  # the frame that left the window: its pose is final
+            writer.write(*r.left)
+            written += 1
         prev_frame, anchor = anchor, frame
         if r.output is None or prev_frame is None:
             return
@@ -274,6 +284,11 @@ def run(args: argparse.Namespace) -> int:
         r = odo.flush()  # the last frame's result (also after an interruption)
         if r is not None:
             record(r)
+        if cfg.window:  # the frames still in the window, with their refined poses
+            final = odo.refined_trajectory
+            for t, T in zip(final.timestamps[written:], final.poses[written:]):
+                writer.write(t, T)
+                written += 1
         if args.dynamic_masks and last_moving is not None and anchor is not None:
             # the last kept frame has no pair of its own: it takes the last label map
             images.submit(write_images, anchor, None, last_moving)
@@ -288,6 +303,7 @@ def run(args: argparse.Namespace) -> int:
         "camera": getattr(seq, "camera_source", "given"),
         "start_pose": start,
         "poses_written": written,
+        "window": cfg.window,
         "trajectory": str(out),
         "frames_per_second": round(fps, 2),
         "first_frame_pair_seconds": round(times[1], 3) if len(times) > 1 else None,
@@ -343,6 +359,9 @@ def _print_summary(summary: dict, n: int, interrupted: bool) -> None:
           f"writing included (first pair {summary['first_frame_pair_seconds']} s, {how})")
     print(f"  camera     {summary['camera']}")
     print(f"  start pose {summary['start_pose']}")
+    if summary["window"]:
+        print(f"  window     {summary['window']} frames refined together; each pose written "
+              "when its frame left the window, the last ones at the end")
     listed = summary["frames_listed"]
     print(f"  frames     {n} processed" + (f" of {listed} listed" if listed != n else ""))
     for label, counts, unit in (("dropped", summary["dropped"], "frames"),
