@@ -35,7 +35,7 @@ import numpy as np
 
 sys.path.insert(0, str(Path(__file__).resolve().parent))
 from _common import SEVEN_SCENES, load_average, machine
-from bench_robustness import peers_alone, prepare
+from bench_robustness import _fmt, peers_alone, prepare
 from splits import Case, available, cases
 
 from jaxvo.config import Config, Params, grid_shape, params_as_arrays
@@ -157,7 +157,7 @@ def memory(K: int) -> dict:
 
 
 def _f(x, spec=".1f"):
-    return "-" if x is None else format(x, spec)
+    return _fmt(x, spec)
 
 
 def table(rows: list[dict]) -> str:
