@@ -14,8 +14,11 @@ Then the same B configurations as one call of ``jaxvo study``'s sharded runner
 (``jax_num_cpu_devices``; on an accelerator, its devices as they are), the first call
 (compile included) apart from the steady state, against the loop of scans above as a ratio.
 
+All of it runs with the XLA flags ``jaxvo study`` sets (the CPU fusion emitters off);
+``--xla-cpu-defaults`` keeps XLA's own, for comparison.
+
 Run: ``.venv/bin/python bench/bench_study.py [--frames 60] [--batch 8] [--devices 1,2,4]
-[--out results/]``
+[--xla-cpu-defaults] [--out results/]``
 """
 
 from __future__ import annotations
@@ -139,9 +142,13 @@ def main(argv=None) -> int:
     ap.add_argument("--devices", default="1,2,4",
                     help="device counts to split the study over (default 1,2,4; '' skips)")
     ap.add_argument("--out", default="results", help="folder for study.json / study.md")
+    ap.add_argument("--xla-cpu-defaults", action="store_true",
+                    help="keep XLA's CPU fusion emitters on (jaxvo study turns them off)")
     ap.add_argument("--worker", action="store_true", help=argparse.SUPPRESS)
     ap.add_argument("--cache", help=argparse.SUPPRESS)
     args = ap.parse_args(argv)
+    if not args.xla_cpu_defaults:  # as jaxvo study runs; the device workers inherit it
+        study.same_bits_on_any_device_count()
     if args.worker:
         return worker(args)
     out = Path(args.out)
@@ -160,18 +167,18 @@ def main(argv=None) -> int:
     one = [jax.tree.map(lambda a, b=b: a[b], params) for b in range(B)]
     print(f"{args.scenario}: {T} frame pairs, B = {B} configurations", flush=True)
 
-    study, study_compile = timed_compile(run_study, flows, keys, params, T0, cfg=cfg, grid=grid)
+    vmapped, study_compile = timed_compile(run_study, flows, keys, params, T0, cfg=cfg, grid=grid)
     scan, scan_compile = timed_compile(run_scan, flows, keys[0], one[0], T0, cfg=cfg, grid=grid)
     print(f"compile: vmapped {study_compile:.1f} s, single scan {scan_compile:.1f} s",
           flush=True)
 
-    outs_v = jax.block_until_ready(study(flows, keys, params, T0))  # warm-up
+    outs_v = jax.block_until_ready(vmapped(flows, keys, params, T0))  # warm-up
     outs_l = [jax.block_until_ready(scan(flows, keys[b], one[b], T0)[1]) for b in range(B)]
     # same configurations, same answers (up to float reassociation under vmap)
     pose_diff = max(float(jnp.max(jnp.abs(outs_v.T_w_c[b][:, :3, 3] - outs_l[b].T_w_c[:, :3, 3])))
                     for b in range(B))
 
-    t_vmap = median_time(lambda: study(flows, keys, params, T0), args.repeats)
+    t_vmap = median_time(lambda: vmapped(flows, keys, params, T0), args.repeats)
     t_loop = median_time(lambda: [scan(flows, keys[b], one[b], T0) for b in range(B)],
                          args.repeats)
     thr_v, thr_l = B * T / t_vmap, B * T / t_loop
@@ -215,13 +222,15 @@ def main(argv=None) -> int:
         "scaling": scaling, "devices": devices,
     }
     (out / "study.json").write_text(json.dumps(res, indent=1))
+    flags = os.environ.get("XLA_FLAGS", "")
+    whose = " (as jaxvo study sets them)" if study.CPU_FLAG in flags else ""
     L = ["# Parameter study: one vmapped call vs a loop of scans", "",
          (f"Sequence: synthetic `{args.scenario}`, {args.frames} frames ({T} pairs), grid "
          f"{grid[0]} x {grid[1]}. B = {B} configurations: seeds {seeds.tolist()}, lambda "
          f"{lam}, max_age {age}. Machine: {info['cpu_model']}, {info['cores']} cores, JAX "
          f"{info['jax']} ({info['jax_backend']}); load average {info['load_average_start']} "
          f"at start, {info['load_average_end']} at end. Medians of {args.repeats} runs, "
-         "compile apart."), "",
+         f"compile apart. XLA_FLAGS: `{flags or 'none'}`{whose}."), "",
          "| | seconds (steady) | config x frames / s | compile [s] |", "|---|---|---|---|",
          f"| vmapped `run_study` | {t_vmap:.2f} | {thr_v:.1f} | {study_compile:.1f} |",
          f"| loop of `run_scan` | {t_loop:.2f} | {thr_l:.1f} | {scan_compile:.1f} |", "",

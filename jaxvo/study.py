@@ -14,8 +14,9 @@ seeds and the plots are written by :mod:`jaxvo.study_report`.
 
 Numbers do not depend on how many devices or processes share the work: each device runs
 the same compiled body on the same ``batch`` consecutive configurations (the
-configurations are padded to a whole number of calls; padding is dropped), and the same
-configuration vmapped in a batch of another size may differ in the last bit.
+configurations are padded to a whole number of calls; padding is dropped), with XLA's CPU
+fusion emitters off (:func:`same_bits_on_any_device_count`); the same configuration
+vmapped in a batch of another size may differ in the last bit.
 
 The spec, in TOML (or the same structure in JSON)::
 
@@ -607,6 +608,25 @@ def default_batch(backend: str) -> int:
     padding and the resume granularity small; an accelerator wants wide calls (64 ran
     40x a loop of scans on an H100, ``docs/report/study_h100_b64.md``)."""
     return 4 if backend == "cpu" else 64
+
+
+# XLA's CPU fusion emitters compile the ego-motion's reprojection refinement a little
+# differently in a program partitioned over several devices than in one over a single
+# device (the poses then differ by about 1e-7 m from the first pair on). With them off the
+# programs agree bit for bit, at the same speed on the 2-core CPU (five paired runs of
+# 8 vmapped configurations of a 60-frame scan, compile included: wall time 1.007x).
+CPU_FLAG = "--xla_cpu_use_fusion_emitters=false"
+
+
+def same_bits_on_any_device_count(environ=None) -> bool:
+    """Turn XLA's CPU fusion emitters off for this process (``XLA_FLAGS``), unless the
+    user's flags already say how they want them. Takes effect only when called before JAX
+    starts its backend; ``jaxvo study`` calls it first. Returns whether the flag is set."""
+    env = os.environ if environ is None else environ
+    flags = env.get("XLA_FLAGS", "")
+    if "xla_cpu_use_fusion_emitters" not in flags:
+        env["XLA_FLAGS"] = f"{flags} {CPU_FLAG}".strip()
+    return CPU_FLAG in env["XLA_FLAGS"]
 
 
 def init_distributed(coordinator: str | None, num_processes: int | None,

@@ -60,6 +60,8 @@ def run(args: argparse.Namespace) -> int:
     from jaxvo import study
     from jaxvo.errors import InputError
 
+    study.same_bits_on_any_device_count()  # before JAX starts its backend
+
     spec = study.load_spec(args.spec, check_folders=False)
     if args.batch is not None and args.batch < 1:
         raise InputError(f"--batch must be at least 1, got {args.batch}")
