@@ -126,12 +126,14 @@ class Params(NamedTuple):
     # moving evidence of a cell (pipeline.evidence_delta, temporal.update_evidence): a
     # point that moves has residuals about evidence_effect times the noise; one frame
     # shifts the log-odds by at most evidence_step; the evidence decays by evidence_decay
-    # a frame and stays within +-evidence_clamp; a cell is reported moving once its
-    # posterior exceeds `confidence`
+    # a frame and stays within +-(logit(confidence) + evidence_margin); a cell is reported
+    # moving once its posterior exceeds `confidence`. The bound follows the confidence:
+    # a fixed bound of 6 (the same at 0.99) left nothing ever reported moving at
+    # confidence 0.999, whose log-odds is 6.9
     evidence_effect: float = 3.0
     evidence_step: float = 3.0
     evidence_decay: float = 0.9
-    evidence_clamp: float = 6.0
+    evidence_margin: float = 1.4
 
     # ego-motion
     min_static_points: float = 12.0  # fewer static points than this: the frame is skipped

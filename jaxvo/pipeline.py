@@ -33,6 +33,7 @@ from jaxvo.temporal import (
     identify,
     init_temporal,
     measured_labels,
+    moving_logodds,
     update_temporal,
 )
 from jaxvo.window import WindowOut, WindowState, init_window, update_window
@@ -93,7 +94,7 @@ def belief_weights(prior, params: Params):
     where its static posterior reaches the confidence (established background),
     ``_UNESTABLISHED`` where it is not yet established either way (new in view, or its
     evidence faded), 0 where it is believed to move."""
-    L = _moving_logodds(params)
+    L = moving_logodds(params)
     return jnp.where(prior <= -L, 1.0, jnp.where(prior <= L, _UNESTABLISHED, 0.0))
 
 
@@ -256,14 +257,14 @@ def step(state: PipelineState, flow, key, params: Params, *, cfg: Config, grid,
                                      cfg=cfg, grid=grid)
         T_w_c = wout.T_w_c[-1]
 
-    moving = tout.evidence > _moving_logodds(params)
+    moving = tout.evidence > moving_logodds(params)
     out = StepOutput(
         T_w_c=T_w_c,
         T_cur_prev=T_cur_prev,
         status=status,
         ids=tout.ids,
         moving=moving,
-        dynamic=grow_moving(moving, ~valid & (tout.evidence > -_moving_logodds(params)),
+        dynamic=grow_moving(moving, ~valid & (tout.evidence > -moving_logodds(params)),
                             grid=grid, steps=1),
         static=used,
         labels=seg.labels,
@@ -306,14 +307,7 @@ def grow_moving(moving, open_cells, *, grid, steps: int):
 def final_moving(state: PipelineState, params: Params):
     """(n,) bool the cells of the last image reported moving: the final state's evidence,
     already carried forward onto that image's grid."""
-    return state.temporal.evidence > _moving_logodds(params)
-
-
-def _moving_logodds(params: Params):
-    """The log-odds above which a cell is reported moving: its posterior exceeds the
-    confidence of the tests (``logit(confidence)``)."""
-    p = jnp.asarray(params.confidence, jnp.float32)
-    return jnp.log(p) - jnp.log1p(-p)
+    return state.temporal.evidence > moving_logodds(params)
 
 
 def frame_key(key, index):

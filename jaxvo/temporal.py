@@ -324,21 +324,30 @@ def _swap_identifiers(state: TemporalState, k):
     )
 
 
+def moving_logodds(params: Params):
+    """The log-odds above which a cell is reported moving: its posterior exceeds the
+    confidence of the tests (``logit(confidence)``)."""
+    p = jnp.asarray(params.confidence, jnp.float32)
+    return jnp.log(p) - jnp.log1p(-p)
+
+
 def update_evidence(evidence, delta, measured, params: Params):
     """One frame of the moving evidence of every cell: a binary Bayes filter in log-odds.
 
     ``evidence`` is the log-odds that the cell moves, relative to the prior; each frame it
     decays by ``params.evidence_decay`` (so old evidence fades and a cell can change its
     mind) and a measured cell adds this frame's log-likelihood ratio ``delta``; the sum is
-    kept within ``+-params.evidence_clamp`` so that a long history cannot outweigh a
-    change for longer than ``clamp / |delta|`` frames.
+    kept within ``+-(logit(confidence) + params.evidence_margin)``, so that a cell can
+    pass the moving test at any confidence and a long history cannot outweigh a change
+    for longer than about ``bound / |delta|`` frames.
 
     Args:
       evidence: (n,) float32 compensated log-odds; delta: (n,) float32 this frame's
         log-likelihood ratios (moving over static); measured: (n,) bool.
     """
     e = params.evidence_decay * evidence + jnp.where(measured, delta, 0.0)
-    return jnp.clip(e, -params.evidence_clamp, params.evidence_clamp).astype(jnp.float32)
+    bound = moving_logodds(params) + params.evidence_margin
+    return jnp.clip(e, -bound, bound).astype(jnp.float32)
 
 
 # --------------------------------------------------------------------------------------
@@ -518,7 +527,7 @@ def update_temporal(
       disp: (n, 2) float32 ``uv_cur - uv_prev`` of each grid point, pixels.
       flow_valid: (n,) bool; cells with invalid flow carry no measurement.
       params: ``min_match_corr``, ``max_age`` (frames), ``id_retention`` (frames),
-        ``evidence_decay``, ``evidence_clamp``; floats or traced arrays.
+        ``evidence_decay``, ``evidence_margin``, ``confidence``; floats or traced arrays.
       cfg, grid: static.
       segment_ids: optional (max_segments,) int32, the identifiers already given to the
         segments (:func:`identify`, :func:`choose_background`); None matches them here.

@@ -238,25 +238,6 @@ def _rows(out: Path) -> dict[tuple, dict]:
     return {(r["sequence"], r["lam"], r["seed"]): r for r in rows}
 
 
-# Scores that the same study run another way must reproduce within the last float32 bits:
-# this pytest process compiles with XLA's CPU fusion emitters on, `jaxvo study` turns them
-# off (study.same_bits_on_any_device_count), and the poses differ by about 1e-7 m from the
-# first pair on.
-_SCORES = ("ate_rmse_m", "rpe_trans_m_per_frame", "rpe_rot_deg_per_frame", "moving_recall",
-           "moving_precision", "moving_f_measure", "skipped_pairs")
-
-
-def assert_same_scores(out: Path, reference: Path) -> None:
-    a, b = _rows(out), _rows(reference)
-    assert a.keys() == b.keys()
-    for key in a:
-        for name in _SCORES:
-            if name in b[key]:
-                # tolerance: 1e-3 relative, 1e-7 absolute: float32 rounding of the poses grows
-                # over the pairs (measured: ATE 0.438087 against 0.438144 mm, 1.3e-4)
-                assert a[key][name] == pytest.approx(b[key][name], rel=1e-3, abs=1e-7), (key, name)
-
-
 def test_a_study_run_matches_run_study_called_directly(tiny):
     spec, _, root, res = tiny
     assert res.total == res.ran == len(res.rows) == 6 and res.devices == 1
@@ -317,8 +298,9 @@ def test_four_devices_give_the_same_bits_as_one(tiny, one_device):
     assert summary["flow_seconds"] == 0.0  # the flow came from the shared cache
     assert digests(out) == digests(one_device)
     assert len(set(digests(out).values())) >= 4  # the runs differ
-    # and the in-process run (fusion emitters on) within float32 rounding
-    assert_same_scores(out, root / "one")
+    # (this pytest process compiles with XLA's CPU fusion emitters on, so its own run of
+    # the study, `tiny`, is another program: its scores agree to float32 rounding only
+    # while no segmentation decision flips, which a test cannot promise)
 
 
 def test_the_study_turns_the_cpu_fusion_emitters_off_unless_the_user_chose():

@@ -641,10 +641,12 @@ def test_the_swap_relabels_every_map_model_and_count_consistently():
 
 
 def test_evidence_decays_adds_the_measured_delta_and_is_clamped():
-    """Against a float64 loop: each frame ``clip(decay * e + delta [measured], +-clamp)``;
-    an unmeasured cell only decays, whatever its delta."""
+    """Against a float64 loop: each frame ``clip(decay * e + delta [measured], +-bound)``
+    with ``bound = logit(confidence) + margin``; an unmeasured cell only decays, whatever
+    its delta."""
     rng = np.random.default_rng(10)
-    prm = params(evidence_decay=0.8, evidence_clamp=6.0)
+    # logit(0.99) = 4.59512, so the bound is 6.0 (to float32 rounding)
+    prm = params(evidence_decay=0.8, evidence_margin=6.0 - np.log(99.0), confidence=0.99)
     e = jnp.asarray(rng.uniform(-6, 6, N), jnp.float32)
     want = np.asarray(e, np.float64)
     measured = rng.random(N) < 0.5
@@ -664,7 +666,27 @@ def test_evidence_decays_adds_the_measured_delta_and_is_clamped():
     e = jnp.zeros(N, jnp.float32)
     for _ in range(20):
         e = _evidence(e, jnp.full((N,), 3.0, jnp.float32), jnp.ones(N, bool), prm)
-    assert np.all(np.asarray(e) == np.float32(6.0))
+    np.testing.assert_allclose(np.asarray(e), 6.0, rtol=1e-6)
+
+
+def test_the_evidence_bound_lets_a_steady_motion_pass_the_test_at_any_confidence():
+    """The bound follows the confidence: with a fixed bound of 6 a cell could never pass
+    the moving test at confidence 0.999 (log-odds 6.9); with the bound at logit + margin
+    a cell pushed every frame passes it at 0.9, 0.99, 0.999 and 0.9999."""
+    from jaxvo.temporal import moving_logodds
+
+    for conf in (0.9, 0.99, 0.999, 0.9999):
+        prm = params(evidence_decay=0.9, confidence=conf)
+        e = jnp.zeros(N, jnp.float32)
+        for _ in range(40):
+            e = _evidence(e, jnp.full((N,), 3.0, jnp.float32), jnp.ones(N, bool), prm)
+        assert np.all(np.asarray(e) > float(moving_logodds(prm))), conf
+        # and a cell that stops loses the flag within a few frames of static evidence
+        for frames in range(1, 20):
+            e = _evidence(e, jnp.full((N,), -3.0, jnp.float32), jnp.ones(N, bool), prm)
+            if np.all(np.asarray(e) <= float(moving_logodds(prm))):
+                break
+        assert frames <= 2, (conf, frames)
 
 
 def test_update_temporal_adds_the_evidence_of_cells_with_flow_and_carries_it():
