@@ -31,7 +31,7 @@ import jax.numpy as jnp
 import numpy as np
 
 sys.path.insert(0, str(Path(__file__).resolve().parent))
-from _common import machine
+from _common import machine, markdown_table
 from splits import Case, available, cases
 
 from jaxvo.config import Config, Params, grid_shape, params_as_arrays
@@ -249,23 +249,20 @@ def _fmt(x, spec=".3f"):
 
 
 def table(rows: list[dict]) -> str:
-    head = ("| case | split | ATE mm | best peer mm | ratio | RPE mm/frame | F | recall | "
-            "precision | moving cells % | mask px % (max) | skipped (no static) | "
-            "re-acq |\n|" + "---|" * 13)
-    lines = [head]
+    head = ["case", "split", "ATE mm", "best peer mm", "ratio", "RPE mm/frame", "F", "recall",
+            "precision", "moving cells %", "mask px % (max)", "skipped (no static)", "re-acq"]
+    cells = []
     for r in rows:
-        ate = r.get("ate_rmse_m")
-        peer = r.get("best_peer_ate_m")
-        lines.append(
-            f"| {r['case']} | {r['split']} | {_fmt(ate and 1e3 * ate, '.1f')} | "
-            f"{_fmt(peer and 1e3 * peer, '.1f')} | {_fmt(r.get('ate_over_best_peer'), '.2f')} | "
-            f"{_fmt(r.get('rpe_trans_m_per_frame') and 1e3 * r['rpe_trans_m_per_frame'], '.2f')} | "
-            f"{_fmt(r.get('moving_f_measure'))} | {_fmt(r.get('moving_recall'))} | "
-            f"{_fmt(r.get('moving_precision'))} | {r['moving_cells_pct']:.2f} | "
-            f"{r['dynamic_pixels_pct']:.2f} ({r['dynamic_pixels_pct_max']:.1f}) | "
-            f"{sum(r['skipped'].values())} ({r['skipped_no_static']}) | "
-            f"{r.get('reacquired', '-')} |")
-    return "\n".join(lines)
+        ate, peer, rpe = r.get("ate_rmse_m"), r.get("best_peer_ate_m"), r.get("rpe_trans_m_per_frame")
+        cells.append([
+            r["case"], r["split"], _fmt(ate and 1e3 * ate, ".1f"), _fmt(peer and 1e3 * peer, ".1f"),
+            _fmt(r.get("ate_over_best_peer"), ".2f"), _fmt(rpe and 1e3 * rpe, ".2f"),
+            _fmt(r.get("moving_f_measure")), _fmt(r.get("moving_recall")),
+            _fmt(r.get("moving_precision")), f"{r['moving_cells_pct']:.2f}",
+            f"{r['dynamic_pixels_pct']:.2f} ({r['dynamic_pixels_pct_max']:.1f})",
+            f"{sum(r['skipped'].values())} ({r['skipped_no_static']})",
+            str(r.get("reacquired", "-"))])
+    return markdown_table(head, cells)
 
 
 def main(argv=None) -> int:
@@ -327,10 +324,8 @@ def main(argv=None) -> int:
     if plug:
         md.append("\n## Plug-in: each peer's ATE with jaxvo's mask over its ATE alone\n")
         kinds = list(OPENCV_PEERS)
-        md.append("| case | " + " | ".join(kinds) + " |\n|---|" + "---|" * len(kinds))
-        for r in plug:
-            md.append(f"| {r['case']} | " + " | ".join(
-                f"{r['plugin_ate_over_alone'][k]:.3f}" for k in kinds) + " |")
+        md.append(markdown_table(["case", *kinds], [
+            [r["case"], *(f"{r['plugin_ate_over_alone'][k]:.3f}" for k in kinds)] for r in plug]))
     for name, why in skipped.items():
         md.append(f"\n{name}: skipped, {why}")
     (args.out / "robustness.md").write_text("\n".join(md) + "\n")

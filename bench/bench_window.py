@@ -34,7 +34,7 @@ import jax.numpy as jnp
 import numpy as np
 
 sys.path.insert(0, str(Path(__file__).resolve().parent))
-from _common import SEVEN_SCENES, load_average, machine
+from _common import SEVEN_SCENES, load_average, machine, markdown_table
 from bench_robustness import _fmt, peers_alone, prepare
 from splits import Case, available, cases
 
@@ -161,17 +161,17 @@ def _f(x, spec=".1f"):
 
 
 def table(rows: list[dict]) -> str:
-    lines = [("| case | split | ATE mm off | ATE mm on | on/off | best peer mm | on/peer | "
-             "RPE mm/frame off | on | RPE deg/frame off | on |"), "|" + "---|" * 11]
+    head = ["case", "split", "ATE mm off", "ATE mm on", "on/off", "best peer mm", "on/peer",
+            "RPE mm/frame off", "on", "RPE deg/frame off", "on"]
+    cells = []
     for r in rows:
         off, on, peer = r.get("ate_mm_off"), r.get("ate_mm_on"), r.get("best_peer_ate_mm")
-        lines.append(
-            f"| {r['case']} | {r['split']} | {_f(off)} | {_f(on)} | "
-            f"{_f(on / off if off and on else None, '.2f')} | {_f(peer)} | "
-            f"{_f(on / peer if peer and on else None, '.2f')} | {_f(r.get('rpe_mm_off'), '.2f')} | "
-            f"{_f(r.get('rpe_mm_on'), '.2f')} | {_f(r.get('rpe_deg_off'), '.3f')} | "
-            f"{_f(r.get('rpe_deg_on'), '.3f')} |")
-    return "\n".join(lines)
+        cells.append([
+            r["case"], r["split"], _f(off), _f(on), _f(on / off if off and on else None, ".2f"),
+            _f(peer), _f(on / peer if peer and on else None, ".2f"),
+            _f(r.get("rpe_mm_off"), ".2f"), _f(r.get("rpe_mm_on"), ".2f"),
+            _f(r.get("rpe_deg_off"), ".3f"), _f(r.get("rpe_deg_on"), ".3f")])
+    return markdown_table(head, cells)
 
 
 def main(argv=None) -> int:

@@ -32,6 +32,7 @@ from _common import (
     CachedSequence,
     load_average,
     machine,
+    markdown_table,
     peak_rss_mib,
 )
 
@@ -362,11 +363,8 @@ def fmt(x, digits=4):
 def table(header: list[str], rows: list[list], digits=None) -> str:
     """Markdown table; ``digits`` gives the decimals of each column (default 4)."""
     digits = digits or [4] * len(header)
-    lines = ["| " + " | ".join(header) + " |", "|" + "---|" * len(header)]
-    lines += ["| " + " | ".join(c if isinstance(c, str) else fmt(c, d)
-                                for c, d in zip(r, digits, strict=False)) + " |"
-              for r in rows]
-    return "\n".join(lines)
+    return markdown_table(header, [[c if isinstance(c, str) else fmt(c, d)
+                                    for c, d in zip(r, digits, strict=False)] for r in rows])
 
 
 def write_report(out: Path, res: dict) -> None:
