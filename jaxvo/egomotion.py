@@ -30,7 +30,7 @@ from jaxvo.status import Status
 # of the usable points on the background suffice.
 _QUARTILE = 0.25
 _CHI_3_Q25 = 1.1081
-# The frame's robust scale may differ from the calibrated model's by at most these factors:
+# The frame's robust scale may differ from the noise model's by at most these factors:
 # a frame whose usable points are mostly mislabelled cannot inflate the Huber threshold
 # beyond twice the noise, nor shrink it below a quarter.
 _SCALE_RANGE = (0.25, 2.0)
@@ -43,10 +43,10 @@ def _huber_threshold(x, mask):
     return 2.0 * 1.4826 * masked_median(x, mask, precision_bits=12)
 
 
-def _huber_weights(r, c, w, cut=3.0):
+def _huber_weights(r, c, w):
     """Weights ``w`` times Huber's ``min(1, c / r)`` for residual sizes ``r >= 0``; 0 beyond
-    ``cut * c``."""
-    return jnp.where(r < cut * c, w * jnp.minimum(1.0, c / jnp.maximum(r, 1e-20)), 0.0)
+    three corners (``3 c``)."""
+    return jnp.where(r < 3.0 * c, w * jnp.minimum(1.0, c / jnp.maximum(r, 1e-20)), 0.0)
 
 
 def refine_reprojection(T, src, dst, weights, iters):
@@ -109,9 +109,9 @@ def estimate_egomotion(pts_prev, pts_cur, weights, params: Params, *, cfg: Confi
     """Robust rigid motion of the static background between two frames.
 
     Each re-weighting iteration takes the residuals in units of the sensor noise
-    (:mod:`jaxvo.noise`), a robust scale of the frame from their median length (so that a
-    fifth of mislabelled points cannot inflate it, and within ``_SCALE_RANGE`` of the
-    calibrated model), and refits with Huber weights whose corner is the inlier test
+    (:mod:`jaxvo.noise`), a robust scale of the frame from the lower quartile of their
+    lengths (so that mislabelled points cannot inflate it, and within ``_SCALE_RANGE`` of
+    the noise model), and refits with Huber weights whose corner is the inlier test
     (``chi2_3(confidence)``) at that scale; points beyond three corners get weight 0.
 
     Args:
@@ -120,7 +120,7 @@ def estimate_egomotion(pts_prev, pts_cur, weights, params: Params, *, cfg: Confi
       weights: (n,) float, > 0 for points that may be used (static and valid).
       params: numeric settings (``confidence``, ``min_static_points``).
       cfg: static settings (``ego_iters`` re-weighting iterations).
-      focal: () focal length, pixels; scale: the calibrated :class:`jaxvo.noise.NoiseScale`
+      focal: () focal length, pixels; scale: the current :class:`jaxvo.noise.NoiseScale`
         (by default the starting values of ``params``).
       T_init: optional (4, 4) starting motion (the background segment's); the first
         weights are then taken from its residuals instead of a fit on all usable points,

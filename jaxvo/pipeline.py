@@ -62,7 +62,7 @@ class PipelineState(NamedTuple):
     frame: jax.Array  # () int32, frame pairs processed so far
     T_last: jax.Array  # (4, 4) float32, the last accepted ego-motion T_cur_prev
     have_last: jax.Array  # () bool, whether T_last holds an accepted ego-motion yet
-    noise: NoiseScale  # the sensor noise calibrated so far (jaxvo.noise)
+    noise: NoiseScale  # the sensor noise model (jaxvo.noise; calibrated when noise_rate > 0)
     window: WindowState | None = None  # the last cfg.window frames (jaxvo.window), None: off
 
 
@@ -83,7 +83,7 @@ class StepOutput(NamedTuple):
     evidence: jax.Array  # (n,) float32 log-odds that each point moves
     background: jax.Array  # () int32 spatial label of the background segment, 0 none
     reacquired: jax.Array  # () bool the background took its identifier back this frame
-    noise: NoiseScale  # the calibrated sensor noise after this frame
+    noise: NoiseScale  # the sensor noise model after this frame
     # with cfg.window: the window's refined poses and the pose of the frame that left it
     # (jaxvo.window.WindowOut); T_w_c above is then the window's newest pose
     window: WindowOut | None = None
@@ -195,7 +195,7 @@ def step(state: PipelineState, flow, key, params: Params, *, cfg: Config, grid,
                        scale=state.noise)
     valid = pts.valid
 
-    # 1. spatial segmentation (Algorithms 1, 2) under the calibrated noise
+    # 1. spatial segmentation (Algorithms 1, 2) under the sensor noise model
     seg = segment(key, flow.pts_prev, flow.pts_cur, valid, params, cfg=cfg, grid=grid,
                   focal=flow.focal, scale=state.noise, batch_axis=batch_axis)
 
@@ -247,8 +247,7 @@ def step(state: PipelineState, flow, key, params: Params, *, cfg: Config, grid,
     # 5. the sensor noise, from the residuals of the points the ego-motion was fitted to
     used = inliers & ok
     noise = update_noise(state.noise, transfer(T_cur_prev, pts.src) - pts.dst, (use > 0) & ok,
-                         flow.focal, pts.src, pts.dst, params.noise_rate, floor=NOISE_FLOOR,
-                         ceiling=NOISE_CEILING)
+                         pts.noise, params.noise_rate, floor=NOISE_FLOOR, ceiling=NOISE_CEILING)
 
     # 6. the sliding-window refinement of the recent poses (jaxvo.window, cfg.window > 0)
     window, wout = state.window, None

@@ -37,7 +37,16 @@ import jax.numpy as jnp
 from jax import lax
 
 from jaxvo.cluster import dbscan, jaccard_distance, overlaps
-from jaxvo.noise import PointNoise, chi2_quantile, residuals, residuals_many, transfer_many
+from jaxvo.noise import (
+    PointNoise,
+    chi2_quantile,
+    init_noise,
+    mahalanobis,
+    point_noise,
+    residuals,
+    residuals_many,
+    transfer_many,
+)
 from jaxvo.procrustes import fit_rigid_cols
 from jaxvo.status import Status
 
@@ -357,7 +366,6 @@ def _same_motion(motions_a, own_a, motions_b, pts: _Points, eps):
     ``motions_a`` (A, 4, 4), ``motions_b`` (B, 4, 4); ``own_a`` (A, n) bool. The gap
     ``T_a p - T_b p`` is ``(T_a - T_b) p``: all pairs at once.
     """
-    from jaxvo.noise import mahalanobis
 
     a, b = motions_a.shape[0], motions_b.shape[0]
     diff = (motions_a[:, None] - motions_b[None, :]).reshape(a * b, 4, 4)
@@ -406,7 +414,6 @@ def frame_points(pts_prev, pts_cur, valid, params, *, focal, scale=None) -> _Poi
 
     Points that are non-finite or have non-positive depth count as invalid and are zeroed.
     """
-    from jaxvo.noise import init_noise, point_noise
 
     finite = jnp.all(jnp.isfinite(pts_prev), axis=1) & jnp.all(jnp.isfinite(pts_cur), axis=1)
     valid = valid & finite & (pts_prev[:, 2] > 0) & (pts_cur[:, 2] > 0)
@@ -433,7 +440,7 @@ def segment(key, pts_prev, pts_cur, valid, params, *, cfg, grid, focal=525.0, sc
       grid: (rows, cols) static.
       focal: () the camera's focal length, pixels (:class:`jaxvo.flow.GridFlow` ``focal``).
       scale: the sensor noise (:class:`jaxvo.noise.NoiseScale`), by default the starting
-        values of ``params`` (the pipeline passes its calibrated one).
+        values of ``params`` (the pipeline passes its current one).
       batch_axis: the name of a ``vmap`` axis over frames (or a tuple of names), when
         called under one: the search then skips a trip only once every frame of the batch
         is done (see :func:`_search_step`); the results are the same.

@@ -405,7 +405,7 @@ def pair_factor(T, src, dst, use, focal, scale: NoiseScale, c2):
 
     Args:
       T: (4, 4) the pair's ego-motion; src, dst: (n, 3) metres; use: (n,) bool.
-      focal: () pixels; scale: the calibrated noise; c2: () the robust loss's scale.
+      focal: () pixels; scale: the noise model; c2: () the robust loss's scale.
 
     Returns:
       ``(H (6, 6), g (6,))`` float32.
@@ -572,7 +572,7 @@ def update_window(state: WindowState, flow, T_cur_prev, static, noise_scale: Noi
       T_cur_prev: (4, 4) this pair's ego-motion (previous camera points -> current).
       static: (n,) bool grid points of the previous image the ego-motion used (static
         background, inliers); only these seed and carry tracks.
-      noise_scale: the calibrated sensor noise (:class:`jaxvo.noise.NoiseScale`).
+      noise_scale: the sensor noise model (:class:`jaxvo.noise.NoiseScale`).
       params: numeric settings (``confidence`` sets the robust loss's scale,
         ``min_static_points`` the fewest observations of the newest frame to call it
         refined).

@@ -180,7 +180,8 @@ def test_pure_model_noise_passes_the_inlier_test_at_its_confidence(confidence):
 def _calibrate(scale, src, dst, used, rate):
     T = jnp.asarray(MOTION, jnp.float32)
     r = T[:3, :3] @ src + T[:3, 3:4] - dst
-    return update_noise(scale, r, used, FOCAL, src, dst, rate, floor=FLOOR, ceiling=CEILING)
+    noise = point_noise(src, dst, jnp.float32(FOCAL), scale)
+    return update_noise(scale, r, used, noise, rate, floor=FLOOR, ceiling=CEILING)
 
 
 def _run_calibration(start, true, frames=40, rate=0.3, seed=2, n=1500):
@@ -227,6 +228,12 @@ def test_calibration_needs_twelve_points_and_a_rate():
     fixed = _calibrate(start, *_f32(src, dst), jnp.ones(200, bool), jnp.float32(0.0))
     assert (float(fixed.pixel_sigma), float(fixed.depth_coeff)) == (float(start.pixel_sigma),
                                                                     float(start.depth_coeff))
+    # rate 0 leaves a scale outside the calibration's floor and ceiling as it is (a
+    # simulator's 0.05 px, below the 0.1 px floor, stays 0.05)
+    below = NoiseScale(*_f32(0.05, 1e-4))
+    kept = _calibrate(below, *_f32(src, dst), jnp.ones(200, bool), jnp.float32(0.0))
+    assert (float(kept.pixel_sigma), float(kept.depth_coeff)) == (float(below.pixel_sigma),
+                                                                  float(below.depth_coeff))
     moved = _calibrate(start, *_f32(src, dst), jnp.arange(200) < 12, jnp.float32(0.3))
     assert float(moved.pixel_sigma) != float(start.pixel_sigma)  # 12 points: it calibrates
     assert float(moved.depth_coeff) != float(start.depth_coeff)
