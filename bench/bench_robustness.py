@@ -34,6 +34,7 @@ sys.path.insert(0, str(Path(__file__).resolve().parent))
 from _common import machine, markdown_table
 from splits import Case, available, cases
 
+from jaxvo import study
 from jaxvo.config import Config, Params, grid_shape, params_as_arrays
 from jaxvo.evaluation import trajectory_scores
 from jaxvo.flow import GridFlow, flows_for_sequence
@@ -56,21 +57,18 @@ def log(msg: str) -> None:
 
 
 def _flow_key(cfg: Config) -> str:
-    """A short hash of the settings the host flow depends on (the flow section of Config)."""
-    fields = {k: v for k, v in vars(cfg).items() if k in _FLOW_FIELDS}
-    return hashlib.sha1(json.dumps(fields, sort_keys=True).encode()).hexdigest()[:10]
-
-
-_FLOW_FIELDS = ("cell", "lk_window", "lk_levels", "lk_fast_px", "patch", "lk_iters", "lk_eps",
-                "fb_max", "min_similarity", "depth_min", "depth_max", "depth_jump",
-                "fill_radius", "fill_min_valid", "depth_smooth")
+    """A short hash of what the host flow depends on: the Config fields it reads and the
+    code that makes the frames and tracks them (``jaxvo.study``'s flow cache key)."""
+    fields = {k: getattr(cfg, k) for k in study.flow_fields()}
+    return hashlib.sha1(json.dumps([fields, study.code_hash()], sort_keys=True)
+                        .encode()).hexdigest()[:10]
 
 
 def prepare(case: Case, cache: Path, cfg: Config) -> dict:
     """Flows, timestamps, ground truth and grid truth of a case, from the cache or computed
     (the flows in one file, keyed by the flow settings; the moving truth in another)."""
     path = cache / f"{case.name}__{_flow_key(cfg)}.npz"
-    truth = cache / f"{case.name}__truth{cfg.cell}.npz"
+    truth = cache / f"{case.name}__truth{cfg.cell}_{study.code_hash()}.npz"
     seq = None
     if path.is_file():
         z = np.load(path, allow_pickle=False)
@@ -127,7 +125,7 @@ def moving_grid_truth(seq, k: int, cell: int) -> np.ndarray:
 
 def peers_alone(case: Case, cache: Path, seq=None) -> dict:
     """ATE of each OpenCV peer alone on the case (cached); {} without ground truth."""
-    path = cache / f"{case.name}__peers.json"
+    path = cache / f"{case.name}__peers_{study.code_hash()}.json"
     if path.is_file():
         return json.loads(path.read_text())
     seq = seq if seq is not None else case.build()
