@@ -14,6 +14,7 @@ from jaxvo.config import (
     Config,
     Params,
     check_config,
+    check_params,
     default_params,
     grid_shape,
     params_as_arrays,
@@ -123,6 +124,7 @@ __all__ = [
     "batch_params",
     "check_config",
     "check_intrinsics",
+    "check_params",
     "composite_sequence",
     "default_params",
     # plug-in masks

@@ -157,6 +157,65 @@ def params_as_arrays(params: Params) -> Params:
 MIN_CELL = 4
 
 
+# The values each Params field can take: (lowest, lowest allowed?, highest, highest
+# allowed?), None for no bound. Outside them a run does not fail, it quietly reports
+# nothing (confidence 1: an infinite moving threshold) or NaN tests (confidence 1.5).
+_PARAM_RANGES = {
+    "lam": (0.0, False, None, False),
+    "delta": (0.0, False, None, False),
+    "s_min": (0.0, True, None, False),
+    "confidence": (0.0, False, 1.0, False),
+    "cluster_eps": (0.0, True, 1.0, True),
+    "cluster_min_samples": (1.0, True, None, False),
+    "min_segment_points": (0.0, True, None, False),
+    "pixel_sigma": (0.0, False, None, False),
+    "depth_coeff": (0.0, False, None, False),
+    "noise_rate": (0.0, True, 1.0, True),
+    "min_match_corr": (-1.0, True, 1.0, True),
+    "max_age": (1.0, True, None, False),
+    "id_retention": (0.0, True, None, False),
+    "evidence_effect": (0.0, False, None, False),
+    "evidence_step": (0.0, False, None, False),
+    "evidence_decay": (0.0, True, 1.0, True),
+    "evidence_margin": (0.0, True, None, False),
+    "min_static_points": (0.0, True, None, False),
+}
+
+
+def check_param(field: str, value, *, name: str | None = None) -> None:
+    """Raise :class:`~jaxvo.errors.InputError` unless every entry of ``value`` (a number or
+    an array of them, for a batched study) is a finite number in ``field``'s range (any
+    finite number for a field without one)."""
+    import numpy as np
+
+    from jaxvo.errors import InputError
+
+    name = name or f"Params.{field}"
+    low, low_in, high, high_in = _PARAM_RANGES.get(field, (None, False, None, False))
+    try:
+        v = np.asarray(value, np.float64)
+    except (TypeError, ValueError):
+        raise InputError(f"{name} must be a number, got {value!r}") from None
+    if not np.all(np.isfinite(v)):
+        raise InputError(f"{name} must be a finite number, got {value!r}")
+    inside = np.ones(v.shape, bool)
+    if low is not None:
+        inside &= (v >= low) if low_in else (v > low)
+    if high is not None:
+        inside &= (v <= high) if high_in else (v < high)
+    if not np.all(inside):
+        span = (f"{'[' if low_in else '('}{low:g}, " if low is not None else "(-inf, ") + \
+               (f"{high:g}{']' if high_in else ')'}" if high is not None else "inf)")
+        bad = v[~inside].flat[0]
+        raise InputError(f"{name} must be in {span}, got {bad:g}")
+
+
+def check_params(params: Params, *, names: dict[str, str] | None = None) -> None:
+    """:func:`check_param` for every field of ``params``."""
+    for field, value in zip(Params._fields, params, strict=True):
+        check_param(field, value, name=(names or {}).get(field))
+
+
 def check_config(
     cfg: Config,
     *,

@@ -23,7 +23,7 @@ import jax.numpy as jnp
 import numpy as np
 
 from jaxvo.camera import Intrinsics, check_intrinsics, depth_metres
-from jaxvo.config import Config, Params, check_config, grid_shape, params_as_arrays
+from jaxvo.config import Config, Params, check_config, check_params, grid_shape, params_as_arrays
 from jaxvo.errors import InputError
 from jaxvo.flow import (
     MAX_DROPPED,
@@ -116,6 +116,7 @@ class Odometry:
         # otherwise; the state, parameters and key live there, and the step follows them.
         self.device = _device(device)
         params = params if params is not None else Params()
+        check_params(params)
         self._min_valid = min_valid_flow(cfg, params=params)
         self._max_dropped = max_dropped
         self.params = jax.device_put(params_as_arrays(params), self.device)
@@ -368,6 +369,8 @@ def run_sequence(
     if len(seq) < 2:
         raise InputError(f"sequence {seq.name!r} has {len(seq)} frame(s); odometry needs 2 or more")
     check_config(cfg, height=seq.height, width=seq.width)
+    if params is not None:
+        check_params(params)
     grid = grid_shape(seq.height, seq.width, cfg.cell)
 
     t0 = time.perf_counter()

@@ -75,7 +75,7 @@ from typing import Any, NamedTuple
 
 import numpy as np
 
-from jaxvo.config import Config, Params, grid_shape
+from jaxvo.config import Config, Params, check_config, check_param, grid_shape
 from jaxvo.errors import InputError
 from jaxvo.io import Trajectory, first_pose, groundtruth_of_frames
 from jaxvo.status import Status
@@ -340,6 +340,10 @@ def _check_value(key: str, value, bad, *, at: str):
     if key in Params._fields:
         if not isinstance(value, int | float) or isinstance(value, bool):
             raise bad(at, f"a Params value must be a number, got {value!r}")
+        try:
+            check_param(key, value, name="the value")
+        except InputError as e:
+            raise bad(at, str(e)) from None
         return float(value)
     if key in fields:
         allowed = _annotation_types(fields[key].type)
@@ -411,6 +415,12 @@ def _parse_configs(data, bad):
     for c in configs:
         if c not in unique:
             unique.append(c)
+    for c in unique:  # Config values no run can use (a window of 1 frame, ...)
+        try:
+            check_config(group_config(c))
+        except InputError as e:
+            raise bad("configuration " + ", ".join(f"{k} = {c[k]}" for k in config_fields()
+                                                   if k in c), str(e)) from None
     swept = tuple(k for k in settings if len({repr(c[k]) for c in unique}) > 1)
     return settings, base, tuple(unique), swept
 
@@ -489,7 +499,7 @@ def flow_fields() -> tuple[str, ...]:
 
 
 @functools.cache
-def _code_hash() -> str:
+def code_hash() -> str:
     """A hash of the code that makes frames and flow: a cache written by other code is
     not reused."""
     import jaxvo.flow
@@ -508,7 +518,7 @@ def sequence_key(s: SequenceSpec, cfg: Config) -> str:
     """The flow cache's key of a sequence under ``cfg``: the sequence's identity (its spec,
     the contents of a folder's frame lists), the flow's Config fields and the code."""
     ident = {**s._asdict(), "flow": {f: getattr(cfg, f) for f in flow_fields()},
-             "code": _code_hash()}
+             "code": code_hash()}
     ident.pop("label")
     if s.path is not None:
         lists = sorted(p for p in Path(s.path).glob("*.txt"))

@@ -29,7 +29,7 @@ import pytest
 
 from jaxvo.camera import Intrinsics, read_camera_file
 from jaxvo.cli import interrupt_at_safe_points, main
-from jaxvo.config import Config, check_config
+from jaxvo.config import Config, Params, check_config, check_params
 from jaxvo.errors import InputError, check_seed
 from jaxvo.io import InMemorySequence, open_sequence, read_trajectory
 from jaxvo.metrics import ate
@@ -175,6 +175,22 @@ def test_run_option_out_of_range_is_one_line_naming_it(base, tmp_path, capsys, a
 def test_synth_and_demo_options_out_of_range(tmp_path, capsys, args, needles):
     res = cli(capsys, *(a.format(tmp=tmp_path) for a in args))
     assert_one_line_error(res, *needles)
+
+
+def test_check_params_names_the_field_and_its_range():
+    from jaxvo.config import _PARAM_RANGES
+
+    assert set(_PARAM_RANGES) == set(Params._fields)  # every field has its range
+    check_params(Params())  # the defaults pass, and so does a batch of good values
+    check_params(Params(confidence=np.array([0.9, 0.99]), evidence_margin=np.zeros(2)))
+    with pytest.raises(InputError, match=r"^Params.evidence_margin must be in \[0, inf\), got -1$"):
+        check_params(Params(evidence_margin=-1.0))
+    with pytest.raises(InputError, match=r"^Params.confidence must be in \(0, 1\), got 1\.5$"):
+        check_params(Params(confidence=np.array([0.9, 1.5])))
+    with pytest.raises(InputError, match=r"^Params.max_age must be a finite number"):
+        check_params(Params(max_age=float("inf")))
+    with pytest.raises(InputError, match=r"^--conf must be a number, got 'high'$"):
+        check_params(Params(confidence="high"), names={"confidence": "--conf"})
 
 
 def test_check_config_and_check_seed_name_the_field():
@@ -623,6 +639,8 @@ def test_odometry_refuses_time_going_back_and_bad_settings(base_seq):
         Odometry(K._replace(fx=float("nan")))
     with pytest.raises(ValueError, match="Config.cell must be at least 4"):
         Odometry(K, cfg=Config(cell=0))
+    with pytest.raises(ValueError, match=r"Params.confidence must be in \(0, 1\), got 1"):
+        Odometry(K, params=Params(confidence=1.0))
     with pytest.raises(ValueError, match="T_w_c0 is not a rigid transform"):
         Odometry(K, T_w_c0=np.diag([2.0, 1.0, 1.0, 1.0]))
     with pytest.raises(ValueError, match="principal point"):

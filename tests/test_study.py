@@ -111,6 +111,16 @@ BAD = [
     ("[fixed]\nmax_age = true", "fixed.max_age: a Params value must be a number"),
     ("[fixed]\nlam = 1.0\n[sweep]\nlam = [2.0]", "fixed.lam: is also swept"),
     ("[[points]]\nmax_age = 'old'", "points[0].max_age: a Params value must be a number"),
+    # values outside a setting's range (they ran silently: nothing reported moving, NaN tests)
+    ("[fixed]\nconfidence = 1.5", "fixed.confidence: the value must be in (0, 1), got 1.5"),
+    ("[sweep]\nconfidence = [0.9, 1.0]", "sweep.confidence: the value must be in (0, 1), got 1"),
+    ("[fixed]\nevidence_margin = -10.0", "fixed.evidence_margin: the value must be in [0, inf)"),
+    ("[fixed]\nnoise_rate = -1", "fixed.noise_rate: the value must be in [0, 1], got -1"),
+    ("[fixed]\nevidence_decay = 2.0", "fixed.evidence_decay: the value must be in [0, 1], got 2"),
+    ("[fixed]\npixel_sigma = 0.0", "fixed.pixel_sigma: the value must be in (0, inf), got 0"),
+    ("[fixed]\nlam = nan", "fixed.lam: the value must be a finite number"),
+    ("[fixed]\nwindow = 1", "Config.window must be 0 (off) or at least 2 frames"),
+    ("[sweep]\nwindow = [3, -2]", "window = -2: Config.window must not be negative"),
     ("[distributed]\ncoordinator = 'nohost'", "distributed.coordinator: bad value"),
     # the sequences (a spec with its own [[sequences]] takes no default one)
     ("[[sequences]]\nscene = 'moon'", "sequences[0].scene: unknown scene 'moon'"),
