@@ -5,6 +5,7 @@ from __future__ import annotations
 import os
 import platform
 import resource
+import time
 from pathlib import Path
 
 import numpy as np
@@ -82,3 +83,8 @@ def markdown_table(header: list[str], rows: list[list[str]]) -> str:
     lines = ["| " + " | ".join(header) + " |", "|" + "---|" * len(header)]
     lines += ["| " + " | ".join(r) + " |" for r in rows]
     return "\n".join(lines)
+
+
+def log(msg: str) -> None:
+    """A progress line on standard output, with the time of day."""
+    print(f"[{time.strftime('%H:%M:%S')}] {msg}", flush=True)

@@ -43,7 +43,7 @@ import jax.numpy as jnp
 import numpy as np
 
 sys.path.insert(0, str(Path(__file__).resolve().parent))
-from _common import SEVEN_SCENES, load_average, machine
+from _common import SEVEN_SCENES, load_average, log, machine
 
 from jaxvo.config import Config, Params, grid_shape, params_as_arrays
 from jaxvo.flow import flows_for_sequence
@@ -72,10 +72,6 @@ PEER_CHILD = (
     "import sys; from jaxvo.io import open_sequence; from jaxvo.peers import run_peer; "
     f"run_peer(open_sequence(sys.argv[1]), {PEER!r})"
 )
-
-
-def log(msg: str) -> None:
-    print(f"[{time.strftime('%H:%M:%S')}] {msg}", flush=True)
 
 
 def sequence_folder(tmp: str) -> Path:

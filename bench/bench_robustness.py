@@ -31,7 +31,7 @@ import jax.numpy as jnp
 import numpy as np
 
 sys.path.insert(0, str(Path(__file__).resolve().parent))
-from _common import machine, markdown_table
+from _common import log, machine, markdown_table
 from splits import Case, available, cases
 
 from jaxvo import study
@@ -47,10 +47,6 @@ from jaxvo.plugin import iter_dynamic_masks
 from jaxvo.status import Status
 
 CFG = Config()
-
-
-def log(msg: str) -> None:
-    print(f"[{time.strftime('%H:%M:%S')}] {msg}", flush=True)
 
 
 # ------------------------------------------------------------------------------- caching

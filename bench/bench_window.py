@@ -34,7 +34,7 @@ import jax.numpy as jnp
 import numpy as np
 
 sys.path.insert(0, str(Path(__file__).resolve().parent))
-from _common import SEVEN_SCENES, load_average, machine, markdown_table
+from _common import SEVEN_SCENES, load_average, log, machine, markdown_table
 from bench_robustness import _fmt, peers_alone, prepare
 from splits import Case, available, cases
 
@@ -44,10 +44,6 @@ from jaxvo.flow import GridFlow
 from jaxvo.io import InMemorySequence, Trajectory, data_root, open_sequence
 from jaxvo.pipeline import init_pipeline, jit_step
 from jaxvo.window import window_trajectory
-
-
-def log(msg: str) -> None:
-    print(f"[{time.strftime('%H:%M:%S')}] {msg}", flush=True)
 
 
 def full_cases() -> list[Case]:

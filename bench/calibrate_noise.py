@@ -6,7 +6,8 @@ it, its robust spread per depth band gives the two scales of the noise model
 (:mod:`jaxvo.noise`): the depth noise along the ray over ``z^2`` (two depth readings) and the
 tracker's pixel noise across it. The starting values of ``Params.pixel_sigma`` and
 ``Params.depth_coeff`` are those of the real development frames (7-Scenes frames 0-149);
-the pipeline calibrates both online, so these matter for the first frames only.
+the pipeline keeps them (its online calibration, ``Params.noise_rate > 0``, is off by
+default: it did not pay on the validation split).
 
 Run: ``.venv/bin/python bench/calibrate_noise.py [--cache results/cache]`` (the flows of
 ``bench/bench_robustness.py``'s cache; it builds them when absent).

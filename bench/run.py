@@ -31,6 +31,7 @@ from _common import (
     TUM_WALKING,
     CachedSequence,
     load_average,
+    log,
     machine,
     markdown_table,
     peak_rss_mib,
@@ -50,10 +51,6 @@ from jaxvo.status import Status
 from jaxvo.synth import SCENARIOS, composite_sequence, make_sequence
 
 JAXVO = "jaxvo"
-
-
-def log(msg: str) -> None:
-    print(f"[{time.strftime('%H:%M:%S')}] {msg}", flush=True)
 
 
 # ----------------------------------------------------------------------------- sequences

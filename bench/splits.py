@@ -26,11 +26,11 @@ from __future__ import annotations
 from collections.abc import Callable
 from typing import NamedTuple
 
+from _common import SEVEN_SCENES, TUM_WALKING
+
 from jaxvo.io import InMemorySequence, data_root, open_sequence
 from jaxvo.synth import composite_sequence, make_sequence
 
-SEVEN_SCENES = "7scenes_static_0000_0299"
-TUM_WALKING = "tum_fr3_walking_halfsphere_50"
 SYNTHETIC = ("fixed_camera_1", "fixed_camera_2", "handheld_fast", "handheld_slow",
              "close_approach", "static")
 COMPOSITES = ("three_boxes", "enter_leave", "stop_start", "handheld_slow", "fixed_camera_2")

@@ -574,7 +574,7 @@ def update_window(state: WindowState, flow, T_cur_prev, static, noise_scale: Noi
         background, inliers); only these seed and carry tracks.
       noise_scale: the sensor noise model (:class:`jaxvo.noise.NoiseScale`).
       params: numeric settings (``confidence`` sets the robust loss's scale,
-        ``min_static_points`` the fewest observations of the newest frame to call it
+        ``min_static_points`` the fewest usable static points of the pair to call it
         refined).
       cfg: static settings (``window`` frames K >= 2, ``window_iters``).
       grid: static ``(rows, cols)``.
