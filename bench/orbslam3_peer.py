@@ -378,6 +378,22 @@ def streaming_masks(seq, odo, *, grow: int = 0) -> Iterator[tuple[object, np.nda
         yield prev, mask
 
 
+def streaming_keep(seq, odo):
+    """``keep(i)`` for :func:`run_orbslam3` and :func:`jaxvo.peers.run_peer` that runs
+    jaxvo frame by frame as the peer asks for each frame: jaxvo and the peer in one loop,
+    as on a robot, each frame reaching the peer one frame late with its mask
+    (:func:`streaming_masks`). Frames must be asked for in order, once each."""
+    stream = enumerate(streaming_masks(seq, odo))
+
+    def keep(i: int) -> np.ndarray:
+        k, (_, mask) = next(stream)
+        if k != i:
+            raise ValueError(f"frames are streamed in order: frame {k} is next, not {i}")
+        return ~mask
+
+    return keep
+
+
 # ------------------------------------------------------------------------ command line
 
 
