@@ -31,6 +31,7 @@ import jax.numpy as jnp
 import numpy as np
 
 sys.path.insert(0, str(Path(__file__).resolve().parent))
+import orbslam3_peer
 from _common import log, machine, markdown_table
 from splits import Case, available, cases
 
@@ -41,7 +42,7 @@ from jaxvo.flow import GridFlow, flows_for_sequence
 from jaxvo.io import Trajectory
 from jaxvo.masks import moving_at_grid
 from jaxvo.metrics import SegmentationScores
-from jaxvo.peers import OPENCV_PEERS, run_peer
+from jaxvo.peers import OPENCV_PEERS
 from jaxvo.pipeline import final_moving, init_pipeline, jit_step
 from jaxvo.plugin import iter_dynamic_masks
 from jaxvo.status import Status
@@ -119,18 +120,26 @@ def moving_grid_truth(seq, k: int, cell: int) -> np.ndarray:
     return np.isin(ids_at_grid(mask, cell), moving_ids)
 
 
+def peer_kinds() -> list[str]:
+    """The OpenCV peers, and ORB-SLAM3 where it can run (``bench/orbslam3_peer.py``)."""
+    return list(OPENCV_PEERS) + ([] if orbslam3_peer.missing() else [orbslam3_peer.NAME])
+
+
 def peers_alone(case: Case, cache: Path, seq=None) -> dict:
-    """ATE of each OpenCV peer alone on the case (cached); {} without ground truth."""
+    """ATE and ms/frame of each peer alone on the case (cached; a peer missing from the
+    cache, such as ORB-SLAM3 newly installed, is run and added); {} without ground truth.
+    ORB-SLAM3 is not deterministic: its cached figure is one run."""
     path = cache / f"{case.name}__peers_{study.code_hash()}.json"
-    if path.is_file():
-        return json.loads(path.read_text())
+    out = json.loads(path.read_text()) if path.is_file() else {}
+    todo = [k for k in peer_kinds() if k not in out]
+    if not todo:
+        return out
     seq = seq if seq is not None else case.build()
     if seq.groundtruth is None:
         return {}
-    out = {}
-    for kind in OPENCV_PEERS:
+    for kind in todo:
         log(f"{case.name}: peer {kind}")
-        run = run_peer(seq, kind)
+        run = orbslam3_peer.run_any_peer(seq, kind)
         out[kind] = trajectory_scores(seq.groundtruth, run.trajectory)
         out[kind]["ms_per_frame"] = run.ms_per_frame
     path.write_text(json.dumps(out, indent=1))
@@ -182,10 +191,13 @@ def score(case: Case, data: dict, traj, outs, final_ids, cache: Path, cfg: Confi
         res.update(trajectory_scores(gt, traj))
         peers = peers_alone(case, cache)
         if peers:
-            best = min(peers, key=lambda k: peers[k]["ate_rmse_m"])
+            best = min(OPENCV_PEERS, key=lambda k: peers[k]["ate_rmse_m"])
             res["best_peer"] = best
             res["best_peer_ate_m"] = peers[best]["ate_rmse_m"]
             res["ate_over_best_peer"] = res["ate_rmse_m"] / max(peers[best]["ate_rmse_m"], 1e-12)
+            if orbslam3_peer.NAME in peers:
+                o = peers[orbslam3_peer.NAME]
+                res["orbslam3_ate_m"], res["orbslam3_ms_per_frame"] = o["ate_rmse_m"], o["ms_per_frame"]
     if "grid_gt" in data:
         s = SegmentationScores()
         for k in range(len(moving)):
@@ -222,15 +234,15 @@ def people_scores(case: Case, masks, h: int, w: int, cfg: Config) -> dict:
 
 
 def plugin(case: Case, outs, final_ids, data: dict, cfg: Config) -> dict:
-    """Each OpenCV peer with jaxvo's dynamic pixels masked out, ATE over the peer alone."""
+    """Each peer with jaxvo's dynamic pixels masked out: its ATE."""
     if "gt_poses" not in data:
         return {}
     seq = case.build()
     h, w = seq.height, seq.width
     masks = list(iter_dynamic_masks(outs, h, w, cfg.cell, final_ids=final_ids))
     out = {}
-    for kind in OPENCV_PEERS:
-        run = run_peer(seq, kind, keep=lambda i: ~masks[i])
+    for kind in peer_kinds():
+        run = orbslam3_peer.run_any_peer(seq, kind, keep=lambda i: ~masks[i])
         out[kind] = trajectory_scores(seq.groundtruth, run.trajectory)["ate_rmse_m"]
     return out
 
@@ -243,14 +255,18 @@ def _fmt(x, spec=".3f"):
 
 
 def table(rows: list[dict]) -> str:
-    head = ["case", "split", "ATE mm", "best peer mm", "ratio", "RPE mm/frame", "F", "recall",
+    head = ["case", "split", "ATE mm", "best OpenCV peer mm", "ratio", "ORB-SLAM3 mm (ms/frame)",
+            "RPE mm/frame", "F", "recall",
             "precision", "moving cells %", "mask px % (max)", "skipped (no static)", "re-acq"]
     cells = []
     for r in rows:
         ate, peer, rpe = r.get("ate_rmse_m"), r.get("best_peer_ate_m"), r.get("rpe_trans_m_per_frame")
         cells.append([
             r["case"], r["split"], _fmt(ate and 1e3 * ate, ".1f"), _fmt(peer and 1e3 * peer, ".1f"),
-            _fmt(r.get("ate_over_best_peer"), ".2f"), _fmt(rpe and 1e3 * rpe, ".2f"),
+            _fmt(r.get("ate_over_best_peer"), ".2f"),
+            (f"{1e3 * r['orbslam3_ate_m']:.1f} ({r['orbslam3_ms_per_frame']:.0f})"
+             if "orbslam3_ate_m" in r else "-"),
+            _fmt(rpe and 1e3 * rpe, ".2f"),
             _fmt(r.get("moving_f_measure")), _fmt(r.get("moving_recall")),
             _fmt(r.get("moving_precision")), f"{r['moving_cells_pct']:.2f}",
             f"{r['dynamic_pixels_pct']:.2f} ({r['dynamic_pixels_pct_max']:.1f})",
@@ -317,9 +333,13 @@ def main(argv=None) -> int:
     plug = [r for r in rows if "plugin_ate_over_alone" in r]
     if plug:
         md.append("\n## Plug-in: each peer's ATE with jaxvo's mask over its ATE alone\n")
-        kinds = list(OPENCV_PEERS)
+        kinds = [k for k in peer_kinds() if k in plug[0]["plugin_ate_over_alone"]]
         md.append(markdown_table(["case", *kinds], [
             [r["case"], *(f"{r['plugin_ate_over_alone'][k]:.3f}" for k in kinds)] for r in plug]))
+    md.append("\nORB-SLAM3 (`bench/orbslam3_peer.py`, one run per case, its own process): "
+              + (f"skipped: {orbslam3_peer.missing()}" if orbslam3_peer.missing() else
+                 f"x jaxvo with `{orbslam3_peer.CHOSEN.name}` masking. "
+                 + orbslam3_peer.vocabulary_note()))
     for name, why in skipped.items():
         md.append(f"\n{name}: skipped, {why}")
     (args.out / "robustness.md").write_text("\n".join(md) + "\n")

@@ -29,6 +29,7 @@ writes them (255 = dynamic).
 from __future__ import annotations
 
 import argparse
+import functools
 import os
 import pickle
 import subprocess
@@ -70,6 +71,7 @@ def vocabulary_note(path: Path | None = None) -> str:
     return f"ORB-SLAM3 ran with the ORB vocabulary `{path}`."
 
 
+@functools.cache
 def missing() -> str | None:
     """None when ORB-SLAM3 can run here, else one line saying why not. The import is
     tried in a child interpreter, so this process never loads pyorbslam3."""
@@ -343,6 +345,22 @@ def run_orbslam3(seq, *, keep: Callable[[int], np.ndarray] | None = None,
     run = orb.finish()
     traj = anchored(run.trajectory, getattr(seq, "groundtruth", None))
     return PeerRun(traj, run.lost, run.ms_per_frame), run
+
+
+def all_peers() -> list[str]:
+    """Every peer that can run here: :func:`jaxvo.peers.available_peers`, then ORB-SLAM3
+    where :func:`missing` finds nothing missing."""
+    from jaxvo.peers import available_peers
+
+    return available_peers() + ([] if missing() else [NAME])
+
+
+def run_any_peer(seq, kind: str, *, keep: Callable[[int], np.ndarray] | None = None):
+    """:func:`jaxvo.peers.run_peer` for the peers of the package, :func:`run_orbslam3`
+    for ORB-SLAM3: a :class:`jaxvo.peers.PeerRun` either way."""
+    from jaxvo.peers import run_peer
+
+    return run_orbslam3(seq, keep=keep)[0] if kind == NAME else run_peer(seq, kind, keep=keep)
 
 
 def streaming_masks(seq, odo, *, grow: int = 0) -> Iterator[tuple[object, np.ndarray]]:

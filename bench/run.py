@@ -1,7 +1,8 @@
 """jaxvo against its peers on the same sequences, in one run: accuracy, segmentation, speed.
 
 Runs jaxvo and every available peer odometry (OpenCV ``cv2.Odometry`` RGB, DEPTH, RGB_DEPTH;
-Open3D colour / hybrid when ``open3d`` imports) on every synthetic scenario, the real
+Open3D colour / hybrid when ``open3d`` imports; ORB-SLAM3 in its own process when
+``pyorbslam3`` loads, ``bench/orbslam3_peer.py``) on every synthetic scenario, the real
 sequences of the data root (7-Scenes also at every 4th frame: fast motion with ground truth)
 and a 7-Scenes composite with moving boxes; then each peer again
 with jaxvo's dynamic pixels masked out (thesis Fig. 5.8, "Proposed x DVO"). Writes
@@ -26,6 +27,7 @@ import jax.numpy as jnp
 import numpy as np
 
 sys.path.insert(0, str(Path(__file__).resolve().parent))
+import orbslam3_peer
 from _common import (
     SEVEN_SCENES,
     TUM_WALKING,
@@ -43,7 +45,7 @@ from jaxvo.flow import GridFlowTracker, stack_flows
 from jaxvo.io import Trajectory, data_root, first_pose, open_sequence, write_trajectory
 from jaxvo.masks import overlay_panel
 from jaxvo.metrics import SegmentationScores, ate
-from jaxvo.peers import OPEN3D_PEERS, available_peers, run_peer
+from jaxvo.peers import OPEN3D_PEERS
 from jaxvo.pipeline import StepOutput, final_moving, frame_key, init_pipeline, jit_step, run_scan
 from jaxvo.plugin import dynamic_masks
 from jaxvo.spatial import segment
@@ -242,7 +244,7 @@ def style(name: str) -> dict:
     if name == JAXVO:
         return {"color": "tab:red", "lw": 1.8}
     base = name.split(" x ")[0]
-    peers = available_peers()
+    peers = orbslam3_peer.all_peers()
     colour = _COLOURS[peers.index(base) % len(_COLOURS)] if base in peers else "grey"
     ls = ":" if name.endswith("true mask") else "--" if " x " in name else "-"
     return {"color": colour, "lw": 1.0, "ls": ls}
@@ -394,6 +396,16 @@ def write_report(out: Path, res: dict) -> None:
               "installed and included." if res["open3d"] else
               "**not installed in this environment, so absent from this report**; "
               "`pip install open3d` adds `open3d_color` and `open3d_hybrid` to every table."),
+          "- **orbslam3**: " + (
+              "ORB-SLAM3 RGB-D (`pyorbslam3`, in its own process: `bench/orbslam3_peer.py`), "
+              "its end-of-run trajectory (after its final optimisation; frames before "
+              "initialisation or while lost left out), ms per `track_rgbd` call; x jaxvo: "
+              "jaxvo's dynamic pixels taken out of its input "
+              f"(`{orbslam3_peer.CHOSEN.name}`, chosen on the development split by "
+              "`bench/bench_orbslam3.py`). It is multi-threaded and "
+              "not deterministic: one run each here, the spread in `bench_orbslam3.py`'s "
+              f"report. {res['orbslam3']}" if "orbslam3" in res["peers"] else
+              f"**skipped**: {res.get('orbslam3', 'not measured in this run')}."),
           ""]
     L += ["## Sequences", ""]
     rows = [[s, d["kind"], str(d["frames"]), f"{d['duration_s']:.2f}",
@@ -543,13 +555,16 @@ def main(argv=None) -> int:
     (out / "traj").mkdir(parents=True, exist_ok=True)
     started = time.perf_counter()
     cfg = Config()
-    peers = available_peers()
+    peers = orbslam3_peer.all_peers()
+    if orbslam3_peer.missing():
+        log(f"ORB-SLAM3 skipped: {orbslam3_peer.missing()}")
     res = {
         "mode": "quick" if args.quick else "full",
         "command": "python bench/run.py " + " ".join(argv if argv is not None else sys.argv[1:]),
         "started": datetime.datetime.now().isoformat(timespec="seconds"),
         "frames": frames, "seed": args.seed, "machine": machine(), "peers": peers,
         "open3d": any(p in OPEN3D_PEERS for p in peers), "sequences": {},
+        "orbslam3": orbslam3_peer.missing() or orbslam3_peer.vocabulary_note(),
     }
     seqs, res["skipped"] = build_sequences(frames, args.seed, args.only)
     for label, kind, seq in seqs:
@@ -575,7 +590,7 @@ def main(argv=None) -> int:
         if seq.has_masks:
             d["mask_pixels"] = pixel_scores(seq, masks)
         for p in peers:
-            r = run_peer(seq, p)
+            r = orbslam3_peer.run_any_peer(seq, p)
             trajs[p] = r.trajectory
             d["timing"][p] = {"ms": r.ms_per_frame}
             d["failures"][p] = r.failures
@@ -584,14 +599,14 @@ def main(argv=None) -> int:
             if d["plugin_same"]:
                 rm = r
             else:
-                rm = run_peer(seq, p, keep=lambda i, m=masks: ~m[i])
+                rm = orbslam3_peer.run_any_peer(seq, p, keep=lambda i, m=masks: ~m[i])
             trajs[name] = rm.trajectory
             d["timing"][name] = {"ms": rm.ms_per_frame}
             d["failures"][name] = rm.failures
             d["scores"][name] = scores(seq, rm.trajectory)
             if seq.has_masks and seq.groundtruth is not None and d["true_dynamic"]:
                 # the upper bound of the plug-in: the true object masks instead of jaxvo's
-                ro = run_peer(seq, p, keep=lambda i, s=seq: s[i].mask == 0)
+                ro = orbslam3_peer.run_any_peer(seq, p, keep=lambda i, s=seq: s[i].mask == 0)
                 trajs[f"{p} x true mask"] = ro.trajectory
                 d["failures"][f"{p} x true mask"] = ro.failures
                 d["scores"][f"{p} x true mask"] = scores(seq, ro.trajectory)
