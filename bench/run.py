@@ -184,7 +184,7 @@ def run_jaxvo(seq: CachedSequence, cfg: Config, seed: int, repeats: int):
         t0 = time.perf_counter()
         final, outs = jax.block_until_ready(scan(flows_dev, key, params, T0j))
         times.append(time.perf_counter() - t0)
-    outs = StepOutput(*(np.asarray(x) for x in outs))
+    outs = jax.tree.map(np.asarray, outs)  # StepOutput.noise is itself a NamedTuple
     final_ids = np.asarray(final_moving(final, params))
     rss_after_scan = peak_rss_mib()
     stage_ms, stage_compile = time_stages(flows_dev, key, params, cfg, grid)
@@ -339,7 +339,7 @@ def stage_panels(path: Path, seq: CachedSequence, outs: StepOutput, cell: int,
     picks = panel_frames(T, count)
     rows = []
     for k in picks:
-        out = StepOutput(*(np.asarray(f[k]) for f in outs))
+        out = jax.tree.map(lambda f, k=k: f[k], outs)
         panel = overlay_panel(seq[k].bgr, out, cell, scale=0.3)
         cv2.putText(panel, f"frame {k}", (6, panel.shape[0] - 8), cv2.FONT_HERSHEY_SIMPLEX,
                     0.45, (255, 255, 255), 1, cv2.LINE_AA)
