@@ -77,7 +77,7 @@ import numpy as np
 
 from jaxvo.config import Config, Params, check_config, check_param, grid_shape
 from jaxvo.errors import InputError
-from jaxvo.io import Trajectory, first_pose, groundtruth_of_frames
+from jaxvo.io import Trajectory, groundtruth_of_frames
 from jaxvo.status import Status
 
 # Columns of the results table: the scores of one run. ``moving_*`` need ground-truth
@@ -510,6 +510,7 @@ def code_hash() -> str:
     h = hashlib.sha256()
     for mod in (jaxvo.flow, jaxvo.io, jaxvo.render, jaxvo.synth):
         h.update(inspect.getsource(mod).encode())
+    h.update(inspect.getsource(sequence_data).encode())  # what it stores beside the flow
     return h.hexdigest()[:16]
 
 
@@ -534,7 +535,8 @@ def sequence_data(s: SequenceSpec, cfg: Config, cache_dir: str | Path | None, *,
     Returns:
       ``(data, cached)``: ``cached`` says whether it came from ``cache_dir``.
     """
-    from jaxvo.flow import GridFlow, flows_for_sequence
+    from jaxvo.flow import GridFlow, sequence_flows
+    from jaxvo.odometry import choose_start_pose
 
     path = None
     if cache_dir is not None:
@@ -551,15 +553,23 @@ def sequence_data(s: SequenceSpec, cfg: Config, cache_dir: str | Path | None, *,
         raise InputError(f"sequence {s.label!r} has {len(seq)} frame(s); odometry needs 2")
     seq.cell = cfg.cell
     grid_shape(seq.height, seq.width, cfg.cell)  # an impossible cell fails here, in one line
-    flows = flows_for_sequence(seq, cfg, progress=progress)
+    # frames that cannot be used are dropped and the next pairs with the last good one, as
+    # in run_sequence: the kept frames' timestamps, start pose and masks go with the pairs
+    chain = sequence_flows(seq, cfg, progress=progress)
+    if len(chain.frames) < 2:
+        reasons = "; ".join(sorted(set(chain.dropped.values())))
+        raise InputError(f"sequence {s.label!r}: fewer than 2 frames can be used "
+                         f"({len(chain.dropped)} dropped: {reasons})")
+    kept = np.asarray(chain.frames)
+    stamps = np.asarray(seq.timestamps, np.float64)[kept]
     gt = seq.groundtruth
-    pairs = len(seq) - 1
-    masks = [seq.truth.get(k) for k in range(pairs)]
+    masks = [seq.truth.get(int(k)) for k in kept[:-1]]  # pair k is anchored on its first image
     truth = None if any(m is None for m in masks) else np.stack(masks)
-    data = SequenceData(s.label, flows, first_pose(seq), seq.timestamps, gt, truth,
-                        seq.height, seq.width)
+    T_w_c0, _ = choose_start_pose("gt", gt, stamps[0])
+    data = SequenceData(s.label, chain.flows, T_w_c0, stamps, gt, truth, seq.height,
+                        seq.width)
     if path is not None:
-        arrays = {**flows._asdict(), "T_w_c0": data.T_w_c0, "timestamps": data.timestamps,
+        arrays = {**chain.flows._asdict(), "T_w_c0": data.T_w_c0, "timestamps": data.timestamps,
                   "height": data.height, "width": data.width}
         if gt is not None:
             arrays.update(gt_t=gt.timestamps, gt_poses=gt.poses)

@@ -504,3 +504,40 @@ def test_lengths_read_in_millimetres(metric, label, scale):
     from jaxvo.study_report import display
 
     assert display(metric) == (label, scale)
+
+
+def test_a_dropped_frame_scores_as_jaxvo_run_scores_it(tmp_path):
+    """A black frame in the middle of a folder is dropped and the next frame pairs with the
+    last good one; the study's timestamps, start pose and scores must be those of the
+    frames kept, as in ``run_sequence`` (all of them shifted one frame before)."""
+    import cv2
+
+    from jaxvo.io import open_sequence
+    from jaxvo.odometry import run_sequence
+    from jaxvo.synth import make_sequence, write_sequence
+
+    folder = tmp_path / "seq"
+    write_sequence(make_sequence("handheld_slow", frames=8, seed=0), folder)
+    black = sorted((folder / "rgb").iterdir())[4]
+    cv2.imwrite(str(black), np.zeros((480, 640, 3), np.uint8))
+    spec = study.load_spec(spec_of(f"""
+name = "dropped"
+seeds = [0]
+[[sequences]]
+path = "{folder}"
+[fixed]
+cell = 32
+num_hypotheses = 4
+""", tmp_path))
+    res = study.run_spec(spec, tmp_path / "out", flow_cache=tmp_path / "flows")
+    data, cached = study.sequence_data(spec.sequences[0], Config(cell=32), tmp_path / "flows")
+    assert cached
+
+    ref = run_sequence(open_sequence(folder), cfg=Config(cell=32, num_hypotheses=4))
+    assert list(ref.dropped) == [4] and list(ref.frames) == [0, 1, 2, 3, 5, 6, 7]
+    np.testing.assert_array_equal(data.timestamps, ref.trajectory.timestamps)
+    np.testing.assert_array_equal(data.T_w_c0, ref.trajectory.poses[0])
+    assert data.flows.valid.shape[0] == len(ref.frames) - 1
+    # the study vmaps the scan that run_sequence runs alone: float32 rounding apart
+    expected = trajectory_scores(data.groundtruth, ref.trajectory)["ate_rmse_m"]
+    assert res.rows[0]["ate_rmse_m"] == pytest.approx(expected, rel=1e-3, abs=1e-5)
