@@ -4,19 +4,21 @@ sharded runs and their scores.
 A study names sequences, configurations (``Params`` values, which one compiled call
 batches, and ``Config`` values, each of which is its own compile) and seeds. Every
 sequence's grid flow is computed once and cached on disk; every configuration of one
-``Config`` then runs through :func:`jaxvo.pipeline.run_study`, the configurations split
-over every device of every process (``jax.sharding``: a one-axis ``Mesh`` and
-``shard_map``, each device vmapping ``batch`` configurations). Each finished run is
+``Config`` then runs through :func:`jaxvo.pipeline.run_study`, the configurations dealt
+out over every device of every process, each device vmapping ``batch`` configurations
+(4 on the CPU; on an accelerator the widest call the study fills and its memory holds,
+:func:`call_batch`). Each finished run is
 scored at once (ATE, RPE, moving-object recall / precision / F where the sequence has
 masks) and appended to ``runs.jsonl`` under the output folder, so an interrupted study
 keeps what it finished and a resumed one runs only the rest. The tables, the summary over
 seeds and the plots are written by :mod:`jaxvo.study_report`.
 
 Numbers do not depend on how many devices or processes share the work: each device runs
-the same compiled body on the same ``batch`` consecutive configurations (the
-configurations are padded to a whole number of calls; padding is dropped), with XLA's CPU
-fusion emitters off (:func:`same_bits_on_any_device_count`); the same configuration
-vmapped in a batch of another size may differ in the last bit.
+one program, traced once and compiled for it alone (:func:`compiled_programs`: the same
+machine code whatever the device count, with no partitioning pass and no XLA flag), on
+the same ``batch`` consecutive configurations (padded to a whole number of calls; padding
+is dropped); the same configuration vmapped in a batch of another size may differ in the
+last bit.
 
 The spec, in TOML (or the same structure in JSON)::
 
@@ -70,6 +72,7 @@ import os
 import re
 import time
 from collections.abc import Callable
+from concurrent.futures import ThreadPoolExecutor
 from pathlib import Path
 from typing import Any, NamedTuple
 
@@ -101,9 +104,6 @@ _TOP_KEYS = ("name", "seeds", "metrics", "batch", "sequences", "fixed", "sweep",
              "points", "distributed")
 _SEQUENCE_KEYS = ("name", "scene", "path", "composite", "frames", "seed", "step", "camera")
 _DISTRIBUTED_KEYS = ("coordinator", "num_processes", "process_id")
-# the mesh axis the configurations are split over; not "configs", which names
-# run_study's own vmapped axis (its hypothesis search sums over that axis, per device)
-_AXIS = "devices"
 RUNS_FILE = "runs.jsonl"
 
 
@@ -623,30 +623,54 @@ def batched_params(configs: list[dict]):
 
 
 def default_batch(backend: str) -> int:
-    """Configurations per device and call: on the CPU a vmapped call is no faster per
-    configuration than one scan (``docs/report/study.md``), so small calls keep the
-    padding and the resume granularity small; an accelerator wants wide calls (64 ran
-    40x a loop of scans on an H100, ``docs/report/study_h100_b64.md``)."""
-    return 4 if backend == "cpu" else 64
+    """Configurations per device and call on the CPU: a vmapped call is no faster per
+    configuration than one scan there (``docs/report/study.md``), so small calls keep the
+    padding and the resume granularity small. Accelerators size theirs from the device
+    and the study (:func:`accelerator_batch`)."""
+    if backend != "cpu":
+        raise ValueError("an accelerator's batch comes from accelerator_batch")
+    return 4
 
 
-# XLA's CPU fusion emitters compile the ego-motion's reprojection refinement a little
-# differently in a program partitioned over several devices than in one over a single
-# device (the poses then differ by about 1e-7 m from the first pair on). With them off the
-# programs agree bit for bit, at the same speed on the 2-core CPU (five paired runs of
-# 8 vmapped configurations of a 60-frame scan, compile included: wall time 1.007x).
-CPU_FLAG = "--xla_cpu_use_fusion_emitters=false"
+# The largest share of a device's free memory one call may take, and the widest call. On an
+# H200 a 60-frame scene ran 3.3k configuration-frames/s at 64 configurations a call, 9.8k
+# at 256, 38k at 1024 and 83k at 4096 (issue 30): an accelerator wants the widest call the
+# study and the memory allow.
+MEMORY_SHARE = 0.5
+MAX_ACCELERATOR_BATCH = 16384
 
 
-def same_bits_on_any_device_count(environ=None) -> bool:
-    """Turn XLA's CPU fusion emitters off for this process (``XLA_FLAGS``), unless the
-    user's flags already say how they want them. Takes effect only when called before JAX
-    starts its backend; ``jaxvo study`` calls it first. Returns whether the flag is set."""
-    env = os.environ if environ is None else environ
-    flags = env.get("XLA_FLAGS", "")
-    if "xla_cpu_use_fusion_emitters" not in flags:
-        env["XLA_FLAGS"] = f"{flags} {CPU_FLAG}".strip()
-    return CPU_FLAG in env["XLA_FLAGS"]
+def accelerator_batch(configs_per_device: int, bytes_per_config: float | None,
+                      free_bytes: float | None) -> int:
+    """Configurations per device and call on an accelerator: every configuration of the
+    study in one call (a power of two at or above it, so that studies of nearby sizes share
+    a compiled program), no wider than :data:`MEMORY_SHARE` of the free memory at
+    ``bytes_per_config`` allows.
+
+    Args:
+      configs_per_device: the study's runs of one program, divided over the devices.
+      bytes_per_config: device memory one configuration of the call needs (the compiled
+        program's arguments, outputs and temporaries over its batch), None when unknown.
+      free_bytes: the device's free memory, None when it does not say.
+    """
+    batch = 1 << max(0, int(configs_per_device) - 1).bit_length()
+    batch = min(batch, MAX_ACCELERATOR_BATCH)
+    if bytes_per_config and free_bytes:
+        fits = int(MEMORY_SHARE * free_bytes // bytes_per_config)
+        while batch > 1 and batch > fits:
+            batch //= 2
+    return batch
+
+
+def free_memory(device) -> float | None:
+    """Bytes free on ``device`` (None where its backend keeps no statistics, as the CPU)."""
+    try:
+        stats = device.memory_stats()
+    except Exception:  # noqa: BLE001 - backends without statistics raise or return None
+        return None
+    if not stats or "bytes_limit" not in stats:
+        return None
+    return float(stats["bytes_limit"] - stats.get("bytes_in_use", 0))
 
 
 def init_distributed(coordinator: str | None, num_processes: int | None,
@@ -671,29 +695,24 @@ def init_distributed(coordinator: str | None, num_processes: int | None,
                                process_id=process_id)
 
 
-def device_mesh():
-    """A one-axis mesh over every device of every process."""
+def study_devices() -> list:
+    """Every device of every process, in the order the configurations are dealt out:
+    process by process, each process's own devices in JAX's order."""
     import jax
-    from jax.sharding import Mesh
 
-    return Mesh(np.asarray(jax.devices()), (_AXIS,))
+    return sorted(jax.devices(), key=lambda d: (d.process_index, d.id))
 
 
 @functools.cache
-def _sharded_study(mesh, cfg: Config, grid: tuple[int, int]):
-    """``run_study`` over the configurations split across ``mesh``; returns
+def _study_program(cfg: Config, grid: tuple[int, int]):
+    """``run_study`` of a batch of configurations on one device, jitted; returns
     ``(T_w_c, moving, status)`` stacked over the configurations."""
     import jax
-    from jax.sharding import PartitionSpec as P
 
     from jaxvo.pipeline import run_study
     from jaxvo.window import window_trajectory
 
-    if not hasattr(jax, "shard_map"):
-        raise InputError(f"jaxvo study needs jax.shard_map (JAX 0.7 or later), this is JAX "
-                         f"{jax.__version__}")
-
-    def local(flows, T_w_c0, seeds, params):
+    def one_device(flows, T_w_c0, seeds, params):
         keys = jax.vmap(jax.random.key)(seeds)
         out = run_study(flows, keys, params, T_w_c0, cfg=cfg, grid=grid)
         T_w_c = out.T_w_c
@@ -701,59 +720,124 @@ def _sharded_study(mesh, cfg: Config, grid: tuple[int, int]):
             T_w_c = jax.vmap(window_trajectory)(out.window)[:, 1:]
         return T_w_c, out.moving, out.status
 
-    # check_vma=False: the hypothesis search's psum over run_study's own vmapped axes
-    # inside shard_map fails JAX 0.10's varying-axes check (an AssertionError); the
-    # function touches no mesh axis, so there is nothing for that check to guard
-    return jax.jit(jax.shard_map(local, mesh=mesh, in_specs=(P(), P(), P(_AXIS), P(_AXIS)),
-                                 out_specs=P(_AXIS), check_vma=False))
+    return jax.jit(one_device)
 
 
-def _global(x: np.ndarray, sharding):
-    """A global array from the same host value on every process (each places its shards)."""
+def _call_args(data: SequenceData, configs: list[dict], seeds: np.ndarray):
+    """The host arguments of one device's call: the flow, the start pose, its seeds and its
+    configurations' ``Params``."""
+    return (data.flows, data.T_w_c0.astype(np.float32), seeds, batched_params(configs))
+
+
+_compiled: dict[tuple, Any] = {}
+
+
+def compiled_programs(cfg: Config, grid: tuple[int, int], args, devices) -> list:
+    """The study program compiled for each of ``devices`` from one traced program (the
+    same HLO and options but for the device: the same machine code, so the same bits on
+    every device and device count), compiled concurrently, loaded from the persistent
+    compile cache where it is there. ``args`` are one device's host arguments."""
+    import jax
+    from jax.sharding import SingleDeviceSharding
+
+    fn = _study_program(cfg, grid)
+    shapes = jax.tree.map(lambda a: (np.shape(a), np.asarray(a).dtype), args)
+    keys = [(cfg, grid, str(shapes), d) for d in devices]
+    missing = [(k, d) for k, d in zip(keys, devices, strict=True) if k not in _compiled]
+    lowered = [fn.lower(*jax.tree.map(
+        lambda a, d=d: jax.ShapeDtypeStruct(np.shape(a), np.asarray(a).dtype,
+                                            sharding=SingleDeviceSharding(d)), args))
+        for _, d in missing]
+    with ThreadPoolExecutor(max(1, len(lowered))) as pool:  # XLA compiles without the GIL
+        for (k, _), exe in zip(missing, pool.map(lambda low: low.compile(), lowered),
+                               strict=True):
+            _compiled[k] = exe
+    return [_compiled[k] for k in keys]
+
+
+def bytes_per_config(executable, batch: int) -> float | None:
+    """Device memory one configuration of a compiled call needs (its arguments, outputs and
+    temporaries over the batch); None where the backend does not say."""
+    try:
+        m = executable.memory_analysis()
+    except Exception:  # noqa: BLE001 - not every backend analyses memory
+        return None
+    if m is None:
+        return None
+    total = (m.argument_size_in_bytes + m.output_size_in_bytes + m.temp_size_in_bytes
+             - m.alias_size_in_bytes)
+    return total / batch
+
+
+def call_batch(data: SequenceData, cfg: Config, configs: list[dict], *, requested: int | None,
+               devices: list) -> int:
+    """Configurations per device and call for ``configs`` of one program: ``requested``
+    (``--batch`` or the spec's) where given, 4 on the CPU, else the accelerator's widest
+    call that the study fills and half its free memory holds (compiled at that width to
+    read its memory need, then halved until it fits)."""
+    if requested:
+        return requested
+    if devices[0].platform == "cpu":
+        return default_batch("cpu")
     import jax
 
-    x = np.asarray(x)
-    return jax.make_array_from_callback(x.shape, sharding, lambda idx: x[idx])
+    own = next(d for d in devices if d.process_index == jax.process_index())
+    per_device = -(-len(configs) // len(devices))
+    free = free_memory(own)
+    batch = accelerator_batch(per_device, None, free)
+    grid = grid_shape(data.height, data.width, cfg.cell)
+    while True:
+        args = _call_args(data, [configs[0]] * batch, np.zeros(batch, np.uint32))
+        need = bytes_per_config(compiled_programs(cfg, grid, args, [own])[0], batch)
+        fits = accelerator_batch(per_device, need, free)
+        if fits >= batch:
+            break
+        batch = fits
+    return int(_from_first(np.asarray([batch]))[0])  # every process calls alike
 
 
-def _to_host(a) -> np.ndarray:
-    """A global result on the host of every process."""
-    if a.is_fully_addressable:
-        return np.asarray(a)
+def _gather(local: np.ndarray) -> np.ndarray:
+    """Every process's block of results, in process order, on every process."""
+    import jax
+
+    if jax.process_count() == 1:
+        return local
     from jax.experimental import multihost_utils
 
-    return np.asarray(multihost_utils.process_allgather(a, tiled=True))
+    return np.asarray(multihost_utils.process_allgather(local, tiled=True))
 
 
 def run_call(data: SequenceData, cfg: Config, configs: list[dict], seeds: list[int], *,
-             mesh, batch: int):
-    """One sharded call: configuration ``i`` with seed ``seeds[i]`` on ``data``'s flow.
+             devices: list, batch: int):
+    """One call: configuration ``i`` with seed ``seeds[i]`` on ``data``'s flow.
 
-    The list is padded with copies of its last entry to ``batch`` times the mesh's device
-    count (the padding's results are dropped).
+    The list is padded with copies of its last entry to ``batch`` times the device count
+    (the padding's results are dropped) and dealt out in order, ``batch`` consecutive
+    configurations to each device of :func:`study_devices`; every device runs the same
+    program (:func:`compiled_programs`), dispatched without waiting, so the devices work
+    at once.
 
     Returns:
       ``(T_w_c (B, T, 4, 4) float32, moving (B, T, n) bool, status (B, T) int32)`` numpy.
     """
-    from jax.sharding import NamedSharding
-    from jax.sharding import PartitionSpec as P
+    import jax
 
-    size = batch * mesh.devices.size
+    size = batch * len(devices)
     b = len(configs)
     if not 0 < b <= size or len(seeds) != b:
         raise ValueError(f"a call takes 1 to {size} configurations with one seed each, got "
                          f"{b} and {len(seeds)} seeds")
     configs = list(configs) + [configs[-1]] * (size - b)
     seeds = np.asarray(list(seeds) + [seeds[-1]] * (size - b), np.uint32)
-    rep, split = NamedSharding(mesh, P()), NamedSharding(mesh, P(_AXIS))
+    mine = [(k, d) for k, d in enumerate(devices) if d.process_index == jax.process_index()]
+    args = [_call_args(data, configs[k * batch:(k + 1) * batch], seeds[k * batch:(k + 1) * batch])
+            for k, _ in mine]
     grid = grid_shape(data.height, data.width, cfg.cell)
-    fn = _sharded_study(mesh, cfg, grid)
-    import jax
-
-    outs = fn(jax.tree.map(lambda a: _global(a, rep), data.flows),
-              _global(data.T_w_c0.astype(np.float32), rep), _global(seeds, split),
-              jax.tree.map(lambda a: _global(a, split), batched_params(configs)))
-    return tuple(_to_host(o)[:b] for o in outs)
+    programs = compiled_programs(cfg, grid, args[0], [d for _, d in mine])
+    pending = [exe(*jax.device_put(a, d)) for exe, a, (_, d) in zip(programs, args, mine,
+                                                                     strict=True)]
+    outs = [np.concatenate([np.asarray(p[i]) for p in pending]) for i in range(3)]
+    return tuple(_gather(o)[:b] for o in outs)
 
 
 def score_run(data: SequenceData, T_w_c: np.ndarray, moving: np.ndarray,
@@ -807,7 +891,7 @@ class StudyResult(NamedTuple):
     flow_seconds: float  # host time computing flow (0 for cached flow)
     devices: int  # devices over every process
     processes: int
-    batch: int
+    batch: tuple[int, ...]  # configurations per device and call, each size used
 
 
 def run_spec(spec: StudySpec, out_dir: str | Path, *, resume: bool = False,
@@ -826,7 +910,8 @@ def run_spec(spec: StudySpec, out_dir: str | Path, *, resume: bool = False,
       resume: continue a study whose runs are already in ``out_dir`` (without it, such a
         folder is an error rather than mixed into).
       flow_cache: where the flows are cached (default ``out_dir/flows``).
-      batch: configurations per device and call (default ``spec.batch``, else by backend).
+      batch: configurations per device and call (default ``spec.batch``, else
+        :func:`call_batch` sizes each program's calls from the device and the study).
       progress: called as ``progress(config_frames_done, config_frames_total)``.
       log: called with a line on each sequence's flow.
 
@@ -853,8 +938,9 @@ def run_spec(spec: StudySpec, out_dir: str | Path, *, resume: bool = False,
     _agree(problem)
     done = _from_first(np.asarray([i in done_ids for i in ids], bool))
 
-    mesh = device_mesh()
-    batch = batch or spec.batch or default_batch(jax.default_backend())
+    devices = study_devices()
+    requested = batch or spec.batch
+    batches: list[int] = []
     # (sequence, Config) groups in spec order, each with its runs left
     groups: dict[tuple[int, Config], list[int]] = {}
     for k, r in enumerate(runs):
@@ -884,12 +970,18 @@ def run_spec(spec: StudySpec, out_dir: str | Path, *, resume: bool = False,
                         "from the cache" if cached else f"in {time.perf_counter() - t0:.1f} s"))
         _agree(problem)
         data = _share_data(data)
-        per_call = batch * mesh.devices.size
+        t0 = time.perf_counter()
+        group_batch = call_batch(data, cfg, [spec.configs[runs[k].config] for k in ks],
+                                 requested=requested, devices=devices)
+        seconds += time.perf_counter() - t0  # an accelerator's sizing compiles the program
+        batches.append(group_batch)
+        per_call = group_batch * len(devices)
         for start in range(0, len(ks), per_call):
             chunk = [runs[k] for k in ks[start:start + per_call]]
             t0 = time.perf_counter()
             T_w_c, moving, status = run_call(data, cfg, [spec.configs[r.config] for r in chunk],
-                                             [r.seed for r in chunk], mesh=mesh, batch=batch)
+                                             [r.seed for r in chunk], devices=devices,
+                                             batch=group_batch)
             took = time.perf_counter() - t0
             seconds += took
             ran += len(chunk)
@@ -912,7 +1004,8 @@ def run_spec(spec: StudySpec, out_dir: str | Path, *, resume: bool = False,
                 progress(done_frames, total)
     rows = finished_rows(spec, out) if first else []
     return StudyResult(rows, len(runs), ran, done_frames, seconds, first_frames, first_seconds,
-                       flow_seconds, mesh.devices.size, jax.process_count(), batch)
+                       flow_seconds, len(devices), jax.process_count(),
+                       tuple(sorted(set(batches))))
 
 
 def spec_runs(spec: StudySpec) -> tuple[list[Run], list[str]]:

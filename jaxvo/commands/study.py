@@ -42,7 +42,8 @@ def add_arguments(p: argparse.ArgumentParser) -> None:
                    help="where flows are cached (default DIR/flows); studies may share one")
     p.add_argument("--batch", type=int, metavar="N",
                    help="configurations per device and call (default: the spec's, else 4 on "
-                   "the CPU, 64 on an accelerator)")
+                   "the CPU; on an accelerator the widest call the study fills and half the "
+                   "free memory holds)")
     p.add_argument("--cpu-devices", type=int, metavar="N",
                    help="split the CPU into N JAX devices (to shard a study on the CPU)")
     p.add_argument("--coordinator", metavar="HOST:PORT",
@@ -59,8 +60,6 @@ def run(args: argparse.Namespace) -> int:
 
     from jaxvo import study
     from jaxvo.errors import InputError
-
-    study.same_bits_on_any_device_count()  # before JAX starts its backend
 
     spec = study.load_spec(args.spec, check_folders=False)
     if args.batch is not None and args.batch < 1:
@@ -118,7 +117,7 @@ def run(args: argparse.Namespace) -> int:
         "seeds": len(spec.seeds),
         "devices": res.devices,
         "processes": res.processes,
-        "batch_per_device": res.batch,
+        "batch_per_device": list(res.batch),
         "config_frames": res.config_frames,
         "config_frames_per_second": None if rate is None else round(rate, 1),
         "device_seconds": round(res.seconds, 2),
@@ -133,8 +132,11 @@ def run(args: argparse.Namespace) -> int:
     print(f"jaxvo study: {spec.name}: {len(res.rows)} of {res.total} runs in {args.out} "
           f"({res.ran} this time; {len(spec.sequences)} sequences x {len(spec.configs)} "
           f"configurations x {len(spec.seeds)} seeds)")
-    print(f"  devices    {res.devices} over {res.processes} process(es), {res.batch} "
-          "configurations per device and call")
+    sized = "--batch" if args.batch else ("the spec" if spec.batch else
+                                          "sized for the device and the study")
+    batches = " / ".join(str(b) for b in res.batch) or "none (nothing left to run)"
+    print(f"  devices    {res.devices} over {res.processes} process(es), {batches} "
+          f"configurations per device and call ({sized})")
     speed = "n/a (every call compiled)" if rate is None else f"{rate:.1f} configuration-frames/s"
     print(f"  speed      {speed} after the first call of each program; first calls "
           f"(compile included) {res.first_call_seconds:.1f} s, flow {res.flow_seconds:.1f} s, "
