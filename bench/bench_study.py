@@ -2,20 +2,20 @@
 and the study split over 1, 2 and 4 devices.
 
 One synthetic sequence (grid flow computed once on the host), B configurations over seeds,
-lambda (thesis eq. 3.1) and the grid model's max_age: ``jaxvo.pipeline.run_study`` (one
+lambda (thesis eq. 3.1) and the grid model's max_age: ``jaxvo.core.pipeline.run_study`` (one
 jit-compiled ``vmap`` over the whole-sequence scan) against ``run_scan`` called B times in
 a Python loop. Both are compiled before timing (compile times reported apart); steady-state
 times are medians of ``--repeats`` runs. Throughput = configurations x frame pairs per
 second. To show where the time goes, the vmapped call is also timed at B = 1, 2, 4, ...
 
 Then the same B configurations as one call of ``jaxvo study``'s sharded runner
-(``jaxvo.study.run_call``: B / D configurations vmapped on each of D devices) for each D of
+(``jaxvo.study.runner.run_call``: B / D configurations vmapped on each of D devices) for each D of
 ``--devices``, each in a fresh process whose CPU is split into D JAX devices
 (``jax_num_cpu_devices``; on an accelerator, its devices as they are), the first call
 (compile included) apart from the steady state, against the loop of scans above as a ratio.
 
 Last, the batch ``jaxvo study`` chooses for a study of ``--sized`` configurations of the
-sequence (``jaxvo.study.call_batch``: 4 on the CPU; on an accelerator the widest call the
+sequence (``jaxvo.study.runner.call_batch``: 4 on the CPU; on an accelerator the widest call the
 study fills and half the free memory holds) against each hand-picked batch of
 ``--curve``: configuration-frames/s of the whole study at each, and the chosen batch's
 ratio to the best.
@@ -42,9 +42,9 @@ import numpy as np
 sys.path.insert(0, str(Path(__file__).resolve().parent))
 from _common import load_average, machine
 
-from jaxvo import study
 from jaxvo.config import Config, Params, grid_shape
-from jaxvo.pipeline import batch_params, run_scan, run_study
+from jaxvo.core.pipeline import batch_params, run_scan, run_study
+from jaxvo.study import runner as study
 
 LAMBDAS = (3e2, 1e3, 3e3, 1e4)
 MAX_AGES = (15.0, 30.0)
@@ -294,7 +294,7 @@ def main(argv=None) -> int:
         L += [""]
     if devices:
         L += [(f"The same B = {B} configurations as one call of `jaxvo study`'s sharded runner "
-               "(`jaxvo.study.run_call`, B / D configurations vmapped on each of D devices; "
+               "(`jaxvo.study.runner.run_call`, B / D configurations vmapped on each of D devices; "
                f"{'the CPU split into D JAX devices' if info['jax_backend'] == 'cpu' else ''}"
                "), each device count in a fresh process; steady state is the median of "
                f"{args.repeats} calls, the first call includes the compile:"), "",

@@ -14,10 +14,10 @@ import numpy as np
 import pytest
 
 from jaxvo import __version__
-from jaxvo.cli import build_parser, main
-from jaxvo.compile_cache import ENV, choose_compile_cache, setup_compile_cache
+from jaxvo.cli.main import build_parser, main
 from jaxvo.errors import InputError
-from jaxvo.io import read_trajectory
+from jaxvo.host.compile_cache import ENV, choose_compile_cache, setup_compile_cache
+from jaxvo.host.io import read_trajectory
 
 VERSIONED = f"jaxvo-{__version__}_jax-{jax.__version__}"
 
@@ -27,7 +27,7 @@ VERSIONED = f"jaxvo-{__version__}_jax-{jax.__version__}"
 CHILD = """
 import json, sys
 import jax, jax.numpy as jnp
-from jaxvo.compile_cache import announce_compile, setup_compile_cache
+from jaxvo.host.compile_cache import announce_compile, setup_compile_cache
 setup_compile_cache(sys.argv[1])
 
 @jax.jit
@@ -163,7 +163,7 @@ def test_jaxvo_run_compiles_once_then_loads_the_step_with_the_same_poses(tmp_pat
     the load is slow enough to be announced, says that it loads) and estimates the same
     poses. The test reads the mechanism (``from_cache``), never a clock: under load a
     cache load takes seconds."""
-    from jaxvo.synth import make_sequence, write_sequence
+    from jaxvo.synth.scenes import make_sequence, write_sequence
 
     seq_dir = tmp_path / "seq"
     write_sequence(make_sequence("handheld_slow", frames=3, seed=0), seq_dir)
@@ -172,7 +172,7 @@ def test_jaxvo_run_compiles_once_then_loads_the_step_with_the_same_poses(tmp_pat
     for k in range(2):
         out = tmp_path / f"t{k}.txt"
         proc = subprocess.run(
-            [sys.executable, "-m", "jaxvo.cli", "run", str(seq_dir), "--out", str(out),
+            [sys.executable, "-m", "jaxvo.cli.main", "run", str(seq_dir), "--out", str(out),
              "--json", "--compile-cache", str(tmp_path / "cache"),
              "--hypotheses", "2", "--cell", "32"],  # a smaller step: 5 s to compile, not 8
             capture_output=True, text=True, env=env, timeout=600, check=False)
@@ -193,8 +193,8 @@ def test_the_command_line_starts_without_jax_or_opencv():
     """``jaxvo --help``, ``--version`` and one-line errors wait for no heavy import: the
     package's names load lazily (they took 1.0-1.5 s, 4 s on a busy machine, when
     ``import jaxvo`` imported every module)."""
-    code = ("import sys, jaxvo, jaxvo.cli\n"
-            "jaxvo.cli.build_parser()\n"
+    code = ("import sys, jaxvo, jaxvo.cli.main\n"
+            "jaxvo.cli.main.build_parser()\n"
             "heavy = sorted(m for m in ('jax', 'cv2') if m in sys.modules)\n"
             "assert not heavy, heavy\n"
             "assert jaxvo.Odometry.__name__ == 'Odometry' and 'jax' in sys.modules\n"

@@ -1,4 +1,4 @@
-"""Tests of jaxvo.io and jaxvo.transforms: trajectory files, association, TUM sequences."""
+"""Tests of jaxvo.host.io and jaxvo.host.transforms: trajectory files, association, TUM sequences."""
 
 from __future__ import annotations
 
@@ -6,9 +6,9 @@ import cv2
 import numpy as np
 import pytest
 
-from jaxvo.camera import PRESETS, Intrinsics, write_camera_file
 from jaxvo.errors import InputError
-from jaxvo.io import (
+from jaxvo.host.camera import PRESETS, Intrinsics, write_camera_file
+from jaxvo.host.io import (
     Frame,
     InMemorySequence,
     Trajectory,
@@ -19,7 +19,7 @@ from jaxvo.io import (
     read_trajectory,
     write_trajectory,
 )
-from jaxvo.transforms import (
+from jaxvo.host.transforms import (
     invert_pose,
     pose_from_tq,
     quat_to_rotation,
@@ -370,7 +370,7 @@ def test_sevenscenes_sequence(require_data):
 
 
 def test_first_pose_and_the_ground_truth_of_chosen_frames():
-    from jaxvo.io import first_pose, groundtruth_of_frames
+    from jaxvo.host.io import first_pose, groundtruth_of_frames
 
     poses = np.tile(np.eye(4), (5, 1, 1))
     poses[:, 0, 3] = np.arange(5.0)

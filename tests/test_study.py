@@ -17,14 +17,14 @@ import jax.numpy as jnp
 import numpy as np
 import pytest
 
-from jaxvo import study
-from jaxvo.cli import main
+from jaxvo.cli.main import main
 from jaxvo.config import Config, Params
+from jaxvo.core.pipeline import batch_params, run_study
 from jaxvo.errors import InputError
-from jaxvo.evaluation import trajectory_scores
-from jaxvo.io import Trajectory
-from jaxvo.pipeline import batch_params, run_study
-from jaxvo.study_report import plot_points, summarise, write_report
+from jaxvo.evaluation.scores import trajectory_scores
+from jaxvo.host.io import Trajectory
+from jaxvo.study import runner as study
+from jaxvo.study.report import plot_points, summarise, write_report
 
 # a tiny study: 8 frames of the fast hand-held scene, a coarse grid, few hypotheses, a
 # confidence of 0.9 and the online noise calibration on (at the defaults the runs of lam 10
@@ -207,8 +207,8 @@ class _Recorder:
 
 
 def test_flow_cache_key_covers_every_config_field_the_flow_reads():
-    from jaxvo.flow import flows_for_sequence
-    from jaxvo.synth import make_sequence
+    from jaxvo.host.flow import flows_for_sequence
+    from jaxvo.synth.scenes import make_sequence
 
     seen: set[str] = set()
     flows_for_sequence(make_sequence("handheld_fast", frames=3, seed=0),
@@ -284,7 +284,7 @@ def _env(**extra) -> dict:
 
 
 def _cli(*args) -> list[str]:
-    return [sys.executable, "-m", "jaxvo.cli", "study", *map(str, args)]
+    return [sys.executable, "-m", "jaxvo.cli.main", "study", *map(str, args)]
 
 
 @pytest.fixture(scope="module")
@@ -335,9 +335,9 @@ def test_a_study_sets_no_xla_flag():
     device count come from compiling one program per device instead."""
     import inspect
 
-    import jaxvo.commands.study
+    import jaxvo.cli.study
 
-    for module in (study, jaxvo.commands.study):
+    for module in (study, jaxvo.cli.study):
         assert "XLA_FLAGS" not in inspect.getsource(module)
 
 
@@ -362,7 +362,7 @@ def _two_processes(path, out, root):
 def test_importing_jaxvo_leaves_jax_distributed_possible():
     """``jax.distributed.initialize`` (``jaxvo study --coordinator``) must run before JAX
     starts its backend, so importing jaxvo's modules must not start it (a JAX array built
-    at import in jaxvo.pipeline did, and every multi-process study stopped at once)."""
+    at import in jaxvo.core.pipeline did, and every multi-process study stopped at once)."""
     import pkgutil
 
     import jaxvo
@@ -427,7 +427,7 @@ def test_an_interrupted_study_resumes_where_it_stopped(tiny, tmp_path):
 
 
 def test_cli_interrupted_keeps_the_tables_of_what_finished(tiny, tmp_path, monkeypatch, capsys):
-    from jaxvo.progress import Progress
+    from jaxvo.host.progress import Progress
 
     _, path, root, first = tiny
     calls = []
@@ -516,7 +516,7 @@ def test_without_matplotlib_the_plot_is_skipped_and_said_so(tmp_path, monkeypatc
     ("seconds", "seconds [s]", 1.0),
 ])
 def test_lengths_read_in_millimetres(metric, label, scale):
-    from jaxvo.study_report import display
+    from jaxvo.study.report import display
 
     assert display(metric) == (label, scale)
 
@@ -527,9 +527,9 @@ def test_a_dropped_frame_scores_as_jaxvo_run_scores_it(tmp_path):
     frames kept, as in ``run_sequence`` (all of them shifted one frame before)."""
     import cv2
 
-    from jaxvo.io import open_sequence
+    from jaxvo.host.io import open_sequence
     from jaxvo.odometry import run_sequence
-    from jaxvo.synth import make_sequence, write_sequence
+    from jaxvo.synth.scenes import make_sequence, write_sequence
 
     folder = tmp_path / "seq"
     write_sequence(make_sequence("handheld_slow", frames=8, seed=0), folder)
