@@ -2,6 +2,8 @@
 
 from __future__ import annotations
 
+from pathlib import Path
+
 import cv2
 import numpy as np
 import pytest
@@ -387,3 +389,14 @@ def test_first_pose_and_the_ground_truth_of_chosen_frames():
     assert np.array_equal(first_pose(sparse), np.eye(4))
     none = type("Seq", (), {"groundtruth": None, "__len__": lambda self: 3})()
     assert groundtruth_of_frames(none, np.array([0])) is None
+
+
+def test_the_data_root_defaults_to_shared_data_beside_the_checkout(monkeypatch):
+    import jaxvo
+    from jaxvo.host.io import data_root
+
+    monkeypatch.delenv("JAXVO_DATA", raising=False)
+    checkout = Path(jaxvo.__file__).resolve().parent.parent
+    assert data_root() == checkout.parent / "shared" / "data"
+    monkeypatch.setenv("JAXVO_DATA", "/elsewhere")
+    assert data_root() == Path("/elsewhere")

@@ -25,7 +25,10 @@ def data_root() -> Path:
     env = os.environ.get("JAXVO_DATA")
     if env:
         return Path(env)
-    return Path(__file__).resolve().parent.parent.parent / "shared" / "data"
+    import jaxvo
+
+    checkout = Path(jaxvo.__file__).resolve().parent.parent  # the folder holding jaxvo/
+    return checkout.parent / "shared" / "data"
 
 
 class Frame(NamedTuple):
