@@ -42,9 +42,9 @@ from _common import SEVEN_SCENES, TUM_WALKING, load_average, log, machine, markd
 from splits import available, cases
 
 import jaxvo
-from jaxvo.evaluation import trajectory_scores
-from jaxvo.io import InMemorySequence, data_root, first_pose, open_sequence
-from jaxvo.peers import OPENCV_PEERS, run_peer
+from jaxvo.evaluation.scores import trajectory_scores
+from jaxvo.host.io import InMemorySequence, data_root, first_pose, open_sequence
+from jaxvo.host.peers import OPENCV_PEERS, run_peer
 
 ALONE = "ORB-SLAM3"
 # ORB-SLAM3 runs that make the TUM clip's reference (their medoid: the run with the least

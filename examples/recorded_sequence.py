@@ -12,9 +12,9 @@ from pathlib import Path
 import cv2
 
 import jaxvo
-from jaxvo.masks import overlay_panel
+from jaxvo.host.masks import overlay_panel
 
-default = jaxvo.io.data_root() / "tum_fr3_walking_halfsphere_50"
+default = jaxvo.host.io.data_root() / "tum_fr3_walking_halfsphere_50"
 root = Path(sys.argv[1]) if len(sys.argv) > 1 else default
 seq = jaxvo.open_sequence(root)  # intrinsics from its camera.txt (or camera="tum_fr3")
 odo = jaxvo.Odometry(seq.intrinsics, seed=0)

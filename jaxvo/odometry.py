@@ -7,7 +7,7 @@
   runs every frame in one jit-compiled ``lax.scan``.
 
 Both drop the frames that cannot be used and pair the next frame with the last good one
-(:class:`jaxvo.flow.FrameChain`), and both use the same per-frame step and the same PRNG
+(:class:`jaxvo.host.flow.FrameChain`), and both use the same per-frame step and the same PRNG
 keys (folded from the seed and the index of the frame pair stepped), so they give the same
 trajectory for the same seed.
 """
@@ -22,20 +22,20 @@ import jax
 import jax.numpy as jnp
 import numpy as np
 
-from jaxvo.camera import Intrinsics, check_intrinsics, depth_metres
 from jaxvo.config import Config, Params, check_config, check_params, grid_shape, params_as_arrays
+from jaxvo.core.pipeline import StepOutput, init_pipeline, jit_step, run_scan
+from jaxvo.core.window import window_trajectory
 from jaxvo.errors import InputError
-from jaxvo.flow import (
+from jaxvo.host.camera import Intrinsics, check_intrinsics, depth_metres
+from jaxvo.host.flow import (
     MAX_DROPPED,
     FrameChain,
     GridFlowTracker,
     min_valid_flow,
     sequence_flows,
 )
-from jaxvo.io import Trajectory, pose_at
-from jaxvo.pipeline import StepOutput, init_pipeline, jit_step, run_scan
+from jaxvo.host.io import Trajectory, pose_at
 from jaxvo.status import Status
-from jaxvo.window import window_trajectory
 
 
 class FrameResult(NamedTuple):
@@ -64,10 +64,10 @@ class Odometry:
     the last good frame has too few valid vectors: a black, saturated or noise image) is
     dropped: it gets no pose (``FrameResult.dropped`` says why; ``T_w_c`` repeats the last
     kept pose) and is left out of :attr:`trajectory`, and the next frame pairs with the last
-    good one (:class:`jaxvo.flow.FrameChain`).
+    good one (:class:`jaxvo.host.flow.FrameChain`).
 
     With ``cfg.window`` K > 0 the last K frames' poses are refined together
-    (:mod:`jaxvo.window`): ``FrameResult.T_w_c`` is then the newest frame's pose after one
+    (:mod:`jaxvo.core.window`): ``FrameResult.T_w_c`` is then the newest frame's pose after one
     refinement, and a frame's final pose comes out when it leaves the window, K frames
     later (``FrameResult.left``). :attr:`trajectory` holds the immediate poses,
     :attr:`refined_trajectory` the final ones and, for the frames still in the window,
@@ -89,7 +89,7 @@ class Odometry:
       T_w_c0: (4, 4) camera-to-world pose of the first frame; None: the identity (the
         trajectory then starts at the origin of its own frame).
       device: where the per-frame step runs (see ``__init__``).
-      max_dropped: most frames dropped in a row (:class:`jaxvo.flow.FrameChain`).
+      max_dropped: most frames dropped in a row (:class:`jaxvo.host.flow.FrameChain`).
     Raises:
       ValueError: intrinsics no camera has, settings no run can use, or a ``T_w_c0`` that
         is not a finite rigid transform.
@@ -347,7 +347,7 @@ def run_sequence(
     """Flow for every frame pair on the host, then one jit-compiled ``lax.scan``.
 
     Frames that cannot be used are dropped and the next frame pairs with the last good one
-    (:func:`jaxvo.flow.sequence_flows`); the trajectory holds the kept frames. With
+    (:func:`jaxvo.host.flow.sequence_flows`); the trajectory holds the kept frames. With
     ``cfg.window`` it holds each frame's final pose (when it left the window, or where the
     window ended), and ``SequenceResult.immediate`` the poses as each step gave them.
 

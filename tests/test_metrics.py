@@ -1,4 +1,4 @@
-"""Tests of jaxvo.metrics against closed forms, an SVD reference and evo's own figures."""
+"""Tests of jaxvo.evaluation.metrics against closed forms, an SVD reference and evo's own figures."""
 
 from __future__ import annotations
 
@@ -9,8 +9,7 @@ import numpy as np
 import pytest
 
 from jaxvo.errors import InputError
-from jaxvo.io import Trajectory, read_trajectory
-from jaxvo.metrics import (
+from jaxvo.evaluation.metrics import (
     SegmentationScores,
     align_umeyama,
     ate,
@@ -18,7 +17,8 @@ from jaxvo.metrics import (
     rpe,
     rpe_pairs,
 )
-from jaxvo.transforms import pose_from_tq
+from jaxvo.host.io import Trajectory, read_trajectory
+from jaxvo.host.transforms import pose_from_tq
 
 
 def random_rotation(rng):
