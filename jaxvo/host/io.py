@@ -521,8 +521,17 @@ def _describe(K: Intrinsics) -> str:
     return f"fx {K.fx:g} fy {K.fy:g} cx {K.cx:g} cy {K.cy:g} depth_scale {K.depth_scale:g}"
 
 
-def open_sequence(path: str | Path, **kwargs) -> TumSequence:
-    """Open the RGB-D sequence in folder ``path`` (TUM layout); ``kwargs`` go to the reader."""
+def open_sequence(path: str | Path, *, rgb_topic: str | None = None,
+                  depth_topic: str | None = None, **kwargs) -> TumSequence:
+    """Open the RGB-D sequence at ``path``: a folder in the TUM layout, or a ROS bag (a
+    ``.bag`` file or a ROS 2 bag folder, :class:`jaxvo.host.rosbag.BagSequence`, whose image
+    topics ``rgb_topic`` / ``depth_topic`` choose); ``kwargs`` go to the reader."""
+    from jaxvo.host.rosbag import BagSequence, is_bag
+
+    if is_bag(path):
+        return BagSequence(path, rgb_topic=rgb_topic, depth_topic=depth_topic, **kwargs)
+    if rgb_topic or depth_topic:
+        raise InputError(f"{path}: not a ROS bag; --rgb-topic and --depth-topic are for bags")
     root = Path(path)
     if not root.is_dir():
         raise InputError(f"sequence folder not found: {root}")
