@@ -26,7 +26,14 @@ import numpy as np
 
 from jaxvo.errors import InputError
 from jaxvo.host.camera import Intrinsics, check_intrinsics, depth_metres, preset
-from jaxvo.host.io import Frame, associate, preset_from_name
+from jaxvo.host.io import (
+    Frame,
+    associate,
+    check_frame_size,
+    frame_index,
+    given_camera,
+    preset_from_name,
+)
 
 # colour, depth and camera-info topics of the TUM RGB-D benchmark's bags
 TUM_TOPICS = ("/camera/rgb/image_color", "/camera/depth/image", "/camera/rgb/camera_info")
@@ -202,13 +209,9 @@ class BagSequence:
 
     def _intrinsics(self, camera, info_topic: str) -> tuple[Intrinsics, str]:
         """The ``camera`` given, else the bag's camera info, else the name's preset."""
-        if isinstance(camera, Intrinsics):
-            return camera, "given"
-        if camera is not None:
-            try:
-                return preset(camera), f"preset {camera}"
-            except ValueError as exc:
-                raise InputError(str(exc)) from None
+        given = given_camera(camera)
+        if given is not None:
+            return given
         guess = preset_from_name(self.name)
         conns = [c for c in self._reader.connections
                  if c.topic == info_topic and c.msgtype == INFO_TYPE]
@@ -234,18 +237,12 @@ class BagSequence:
 
     def __getitem__(self, index: int) -> Frame:
         """Decode frame ``index`` from the bag (negative indices count from the end)."""
-        n = len(self)
-        if not -n <= index < n:
-            raise IndexError(f"frame {index} out of range for {n} frames")
-        index = int(index) % n
+        index = frame_index(index, len(self))
         rgb_topic, at_rgb, depth_topic, at_depth = self._at[index]
         bgr = colour_bgr(self._message(rgb_topic, at_rgb))
         depth = depth_m(self._message(depth_topic, at_depth))
         for topic, img in ((rgb_topic, bgr), (depth_topic, depth)):
-            if img.shape[:2] != (self.height, self.width):
-                raise InputError(f"{self.path} {topic} frame {index}: image is "
-                                 f"{img.shape[1]}x{img.shape[0]}, the sequence is "
-                                 f"{self.width}x{self.height}")
+            check_frame_size(f"{self.path} {topic} frame {index}", img, self.height, self.width)
         return Frame(index, float(self.timestamps[index]), bgr, depth, None)
 
     def __iter__(self):
