@@ -192,3 +192,24 @@ def test_tum_clip_bag_gives_the_folders_trajectory(require_data, tmp_path, capsy
                                    atol=1e-6)  # tol 1 us: stamps via sec + nanosec
         np.testing.assert_allclose(trajs[name].poses, trajs["folder"].poses,
                                    atol=1e-9)  # tol 1e-9: the file's printed precision
+
+
+def test_a_study_takes_a_bag(tmp_path, frames):
+    """A study spec names a bag as it names a folder; the flow cache's key changes when the
+    bag is written anew."""
+    import os
+
+    from jaxvo.config import Config
+    from jaxvo.study import runner as study
+
+    bag = write_bag(tmp_path / "seq.bag", frames, ros1=True)
+    spec = tmp_path / "spec.toml"
+    spec.write_text('[[sequences]]\npath = "seq.bag"\nframes = 3\n')
+    (s,) = study.load_spec(spec).sequences
+    assert s.path == str(bag.resolve())
+    data, cached = study.sequence_data(s, Config(), None)  # the study's frames and flow
+    assert not cached and data.flows.valid.shape[0] == 2 and len(data.timestamps) == 3
+    key = study.sequence_key(s, Config())
+    os.utime(bag, ns=(0, 0))  # as if written again
+    study.sequence_key.cache_clear()  # memoised within a process; a new run computes it anew
+    assert study.sequence_key(s, Config()) != key
