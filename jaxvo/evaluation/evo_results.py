@@ -25,12 +25,14 @@ import io
 import json
 import zipfile
 from pathlib import Path
-from typing import NamedTuple
+from typing import TYPE_CHECKING, NamedTuple
 
 import numpy as np
 
 from jaxvo.errors import InputError
-from jaxvo.evaluation.metrics import Alignment, AteResult, RpeResult, Stats
+
+if TYPE_CHECKING:  # `jaxvo --help` builds eval's options from this module: kept light
+    from jaxvo.evaluation.metrics import Alignment, AteResult, RpeResult, Stats
 
 # evo's names of what an error measures (PoseRelation values) and of their units
 RELATIONS = {
