@@ -42,6 +42,7 @@ COMMANDS: dict[str, tuple[str, str]] = {
     "eval": ("jaxvo.cli.eval", "score a trajectory against ground truth (ATE, RPE)"),
     "synth": ("jaxvo.cli.synth", "render a synthetic dynamic RGB-D sequence with ground truth"),
     "study": ("jaxvo.cli.study", "run and score a study over sequences, settings and seeds"),
+    "data": ("jaxvo.cli.data", "download the TUM RGB-D and Bonn RGB-D Dynamic sequences"),
 }
 
 

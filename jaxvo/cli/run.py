@@ -29,7 +29,10 @@ input: SEQ_DIR in the TUM RGB-D layout: rgb.txt and depth.txt ('timestamp filena
   or associations.txt ('t_rgb rgb t_depth depth'); optional groundtruth.txt (TUM
   trajectory) and camera.txt (lines 'fx 535.4', 'fx: 535.4' or 'fx = 535.4' for fx fy cx
   cy in pixels and depth_scale in raw units per metre, default 5000). Lines out of time
-  order are sorted and repeated timestamps dropped, with a warning.
+  order are sorted and repeated timestamps dropped, with a warning. Or a ROS bag (ROS 1
+  SEQ.bag, or a ROS 2 bag folder): --rgb-topic and --depth-topic (TUM's topics by default),
+  paired by header stamp within --max-diff; the camera from the camera_info beside the
+  colour topic unless --camera.
 
 camera: --camera, else camera.txt, else the folder's name as the TUM and Bonn benchmarks
   name their downloads (rgbd_dataset_freiburg3_*, rgbd_bonn_*).
@@ -55,7 +58,9 @@ def add_arguments(p: argparse.ArgumentParser) -> None:
 
     p.epilog = EPILOG + "\n" + EXIT_STATUSES
     p.formatter_class = argparse.RawDescriptionHelpFormatter
-    p.add_argument("sequence", metavar="SEQ_DIR", help="folder in the TUM RGB-D layout")
+    p.add_argument("sequence", metavar="SEQ_DIR",
+                   help="folder in the TUM RGB-D layout, or a ROS bag (SEQ.bag, or a ROS 2 "
+                   "bag folder): colour, depth and camera info, TUM's topics by default")
     p.add_argument("--out", "-o", required=True, metavar="FILE",
                    help="trajectory to write (TUM format, camera-to-world; evo reads it)")
     p.add_argument("--camera", metavar="PRESET",
@@ -64,6 +69,12 @@ def add_arguments(p: argparse.ArgumentParser) -> None:
     p.add_argument("--max-diff", type=float, default=0.02, metavar="S",
                    help="largest rgb/depth (and ground-truth) timestamp difference when "
                    "associating, seconds (default 0.02)")
+    p.add_argument("--rgb-topic", metavar="TOPIC",
+                   help="a bag's colour topic (sensor_msgs/Image; default /camera/rgb/image_color"
+                   "; the camera info beside it, e.g. /camera/rgb/camera_info)")
+    p.add_argument("--depth-topic", metavar="TOPIC",
+                   help="a bag's depth topic (32FC1 metres or 16UC1 millimetres; default "
+                   "/camera/depth/image)")
     p.add_argument("--frames", type=int, metavar="N",
                    help="process only the first N frames (default all)")
     p.add_argument("--seed", type=int, default=0,
@@ -127,6 +138,8 @@ def _check_options(args: argparse.Namespace):
 
 def _input_files(seq_dir: Path) -> tuple[Path, ...]:
     """The files of the sequence folder that a run reads (and must never overwrite)."""
+    if seq_dir.is_file():  # a ROS 1 bag
+        return (seq_dir,)
     names = ("rgb.txt", "depth.txt", "associations.txt", "groundtruth.txt", "camera.txt",
              "mask.txt")
     return tuple(seq_dir / name for name in names)
@@ -166,7 +179,8 @@ def run(args: argparse.Namespace) -> int:
                            ("--overlays", args.overlays)):
         if folder:
             folders[option] = output_folder(folder, what=option)
-    seq = open_sequence(args.sequence, camera=args.camera, max_diff=args.max_diff)
+    seq = open_sequence(args.sequence, camera=args.camera, max_diff=args.max_diff,
+                        rgb_topic=args.rgb_topic, depth_topic=args.depth_topic)
     n = len(seq) if args.frames is None else min(len(seq), args.frames)
     if n < 2:
         raise InputError(f"{args.sequence}: {n} frame(s); odometry needs at least 2")

@@ -147,6 +147,15 @@ def align_umeyama(src: np.ndarray, dst: np.ndarray, *, scale: bool = False) -> A
 # --- trajectory errors ------------------------------------------------------------------
 
 
+class Matched(NamedTuple):
+    """The poses of two trajectories associated by timestamp, one-to-one, in time order."""
+
+    gt_timestamps: np.ndarray  # (n,) seconds
+    est_timestamps: np.ndarray  # (n,) seconds
+    gt_poses: np.ndarray  # (n, 4, 4) T_w_c, float64
+    est_poses: np.ndarray  # (n, 4, 4) T_w_c as given (not aligned), float64
+
+
 class AteResult(NamedTuple):
     """Absolute trajectory error (thesis eqs. 5.6-5.8), metres."""
 
@@ -156,6 +165,7 @@ class AteResult(NamedTuple):
     alignment: Alignment | None  # S, or None when not aligned
     max_diff: float  # association tolerance used, seconds
     unit: str = "m"
+    matched: Matched | None = None  # the associated poses the errors were taken on
 
     @property
     def num_pairs(self) -> int:
@@ -177,16 +187,28 @@ class RpeResult(NamedTuple):
     max_diff: float  # association tolerance used, seconds
     trans_unit: str = "m"
     rot_unit: str = "deg"
+    alignment: Alignment | None = None  # S applied to the estimate first (see rpe's scale)
+    matched: Matched | None = None  # the associated poses the pairs index
 
     @property
     def num_pairs(self) -> int:
         return len(self.pairs)
 
 
-def _matched(
+def match_poses(
     gt: Trajectory, est: Trajectory, max_diff: float, names: tuple[str, str]
-) -> tuple[np.ndarray, np.ndarray, np.ndarray]:
-    """Associated ``(stamps, Q, P)``: ground-truth stamps (n,) and poses (n, 4, 4) each."""
+) -> Matched:
+    """Associate ``est`` with ``gt`` by nearest timestamp within ``max_diff`` seconds
+    (:func:`jaxvo.host.io.associate`), after checking that neither is empty or implausibly far out.
+
+    Args:
+      gt: ground-truth trajectory.
+      est: estimated trajectory.
+      max_diff: largest time difference of an associated pair, seconds.
+      names: names of the two trajectories in error messages.
+    Returns:
+      :class:`Matched`.
+    """
     for traj, name in zip((gt, est), names):
         if len(traj) == 0:
             raise InputError(f"{name}: empty trajectory")
@@ -197,11 +219,31 @@ def _matched(
                 f"{_MAX_COORD_M:g} m no trajectory is plausible (and float64 overflows)"
             )
     ig, ie = associate(gt.timestamps, est.timestamps, max_diff, names=names)
-    return (
+    return Matched(
         np.asarray(gt.timestamps, np.float64)[ig],
+        np.asarray(est.timestamps, np.float64)[ie],
         np.asarray(gt.poses, np.float64)[ig],
         np.asarray(est.poses, np.float64)[ie],
     )
+
+
+def fit_alignment(m: Matched, *, align: bool, scale: bool) -> Alignment | None:
+    """The ``S`` evo's ``-a`` / ``-s`` / ``-as`` apply to the estimate, from the matched
+    positions: ``align`` a rigid Umeyama fit (SE(3)); ``align`` and ``scale`` Sim(3);
+    ``scale`` alone only the Sim(3) fit's scale (rotation identity, no translation: evo's
+    "scale corrected"); neither ``None``.
+
+    Args:
+      m: the associated poses.
+      align: fit a rotation and translation.
+      scale: fit a scale.
+    Returns:
+      the :class:`Alignment`, or ``None``.
+    """
+    if not (align or scale):
+        return None
+    S = align_umeyama(m.est_poses[:, :3, 3], m.gt_poses[:, :3, 3], scale=scale)
+    return S if align else Alignment(np.eye(3), np.zeros(3), S.scale)
 
 
 def ate(
@@ -225,18 +267,18 @@ def ate(
       est: estimated trajectory ``P`` (``T_w_c``).
       max_diff: largest time difference of an associated pair, seconds.
       align: fit ``S`` (rigid); otherwise compare in the given frames.
-      scale: let ``S`` scale too (Sim(3); only with ``align``).
+      scale: let ``S`` scale too: Sim(3) with ``align``, the scale alone without it (evo's
+        ``-s``, see :func:`fit_alignment`).
       names: names of the two trajectories in error messages (e.g. the file paths).
     Returns:
       :class:`AteResult`, metres.
     """
-    stamps, Q, P = _matched(gt, est, max_diff, names)
-    if scale and not align:
-        raise InputError("a scale can only be fitted together with the alignment")
-    S = align_umeyama(P[:, :3, 3], Q[:, :3, 3], scale=scale) if align else None
-    p = S.apply_points(P[:, :3, 3]) if S is not None else P[:, :3, 3]
-    errors = np.linalg.norm(p - Q[:, :3, 3], axis=-1)  # |trans(F_i)|, eqs. (5.6), (5.7)
-    return AteResult(errors, stamps, error_stats(errors), S, float(max_diff))
+    m = match_poses(gt, est, max_diff, names)
+    S = fit_alignment(m, align=align, scale=scale)
+    p = S.apply_points(m.est_poses[:, :3, 3]) if S is not None else m.est_poses[:, :3, 3]
+    errors = np.linalg.norm(p - m.gt_poses[:, :3, 3], axis=-1)  # |trans(F_i)|, eqs. 5.6, 5.7
+    return AteResult(errors, m.gt_timestamps, error_stats(errors), S, float(max_diff),
+                     matched=m)
 
 
 def rpe_pairs(
@@ -293,6 +335,8 @@ def rpe(
     delta_unit: str = "frames",
     max_diff: float = 0.02,
     all_pairs: bool | None = None,
+    align: bool = False,
+    scale: bool = False,
     names: tuple[str, str] = ("ground truth", "estimate"),
 ) -> RpeResult:
     """Relative pose error of ``est`` against ``gt``, thesis eqs. (5.4), (5.5).
@@ -300,7 +344,9 @@ def rpe(
     ``E_i = inv(inv(Q_i) Q_j) (inv(P_i) P_j)`` (eq. 5.5) for each pair ``(i, j)``; the
     translational error is ``|trans(E_i)|`` metres (its rmse is eq. 5.4), the rotational
     error the angle of ``rot(E_i)`` in degrees. No alignment is needed: ``E_i`` does not
-    change under a rigid transform of either trajectory.
+    change under a rigid transform of either trajectory; ``align`` / ``scale`` apply evo's
+    ``-a`` / ``-s`` first (:func:`fit_alignment`), of which only the scale changes ``E_i``
+    (the translational errors of an estimate off in scale, e.g. monocular).
 
     Args:
       gt: ground-truth trajectory ``Q``.
@@ -311,6 +357,8 @@ def rpe(
       all_pairs: every start pose (thesis eq. 5.4, ``m = n - delta``) or consecutive
         non-overlapping pairs; ``None`` follows the reference tool of each unit: evo's
         consecutive pairs for frames, TUM ``evaluate_rpe.py``'s all pairs for seconds.
+      align: align the estimate onto the ground truth first (rigid Umeyama).
+      scale: correct the estimate's scale first (Sim(3) Umeyama's scale).
       names: names of the two trajectories in error messages.
     Returns:
       :class:`RpeResult`.
@@ -323,7 +371,10 @@ def rpe(
         raise InputError(f"a delta in frames must be a whole number, got {delta}")
     if all_pairs is None:
         all_pairs = delta_unit == "seconds"
-    stamps, Q, P = _matched(gt, est, max_diff, names)
+    m = match_poses(gt, est, max_diff, names)
+    S = fit_alignment(m, align=align, scale=scale)
+    stamps, Q = m.gt_timestamps, m.gt_poses
+    P = S.apply_poses(m.est_poses) if S is not None else m.est_poses
     pairs = rpe_pairs(stamps, delta, delta_unit, all_pairs=all_pairs, max_diff=max_diff)
     if len(pairs) == 0:
         span = stamps[-1] - stamps[0]
@@ -346,6 +397,8 @@ def rpe(
         delta_unit=delta_unit,
         all_pairs=bool(all_pairs),
         max_diff=float(max_diff),
+        alignment=S,
+        matched=m,
     )
 
 

@@ -41,6 +41,37 @@ class Frame(NamedTuple):
     mask: np.ndarray | None = None  # (H, W) uint8 moving-object id, 0 = static (synthetic only)
 
 
+def frame_index(index: int, n: int) -> int:
+    """``index`` into a sequence of ``n`` frames as 0 .. n-1 (negative counts from the end).
+
+    Raises:
+      IndexError: out of range.
+    """
+    if not -n <= index < n:
+        raise IndexError(f"frame {index} out of range for {n} frames")
+    return int(index) % n
+
+
+def check_frame_size(where: str, image: np.ndarray, height: int, width: int) -> None:
+    """Raise :class:`InputError` when ``image`` (H, W, ...) is not the sequence's size."""
+    if image.shape[:2] != (height, width):
+        raise InputError(f"{where}: image is {image.shape[1]}x{image.shape[0]}, the sequence "
+                         f"is {width}x{height}")
+
+
+def given_camera(camera) -> tuple[Intrinsics, str] | None:
+    """The intrinsics a caller gave (an :class:`Intrinsics`, or a preset name) and where they
+    came from, in words; None when ``camera`` is None."""
+    if isinstance(camera, Intrinsics):
+        return camera, "given"
+    if camera is None:
+        return None
+    try:
+        return preset(camera), f"preset {camera}"
+    except ValueError as exc:
+        raise InputError(str(exc)) from None
+
+
 class Trajectory(NamedTuple):
     """Timestamped camera poses, camera-to-world (``T_w_c``), float64."""
 
@@ -423,13 +454,9 @@ class TumSequence:
         """The intrinsics and where they came from (said in ``jaxvo run``'s summary): the
         ``camera`` given, else ``camera.txt``, else the folder's name."""
         cam_file = root / "camera.txt"
-        if isinstance(camera, Intrinsics):
-            K, source = camera, "given"
-        elif camera is not None:
-            try:
-                K, source = preset(camera), f"preset {camera}"
-            except ValueError as exc:
-                raise InputError(str(exc)) from None
+        given = given_camera(camera)
+        if given is not None:
+            K, source = given
         elif cam_file.exists():
             return read_camera_file(cam_file), str(cam_file)
         else:
@@ -458,10 +485,7 @@ class TumSequence:
 
     def __getitem__(self, index: int) -> Frame:
         """Read frame ``index`` from disk (negative indices count from the end)."""
-        n = len(self)
-        if not -n <= index < n:
-            raise IndexError(f"frame {index} out of range for {n} frames")
-        index = int(index) % n
+        index = frame_index(index, len(self))
         bgr = _read_image(self._rgb[index], _imread_color())
         raw = _read_image(self._depth[index], _imread_unchanged())
         if raw.ndim != 2 or raw.dtype != np.uint16:
@@ -470,11 +494,7 @@ class TumSequence:
                 f"{raw.dtype} with shape {raw.shape}"
             )
         for p, img in ((self._rgb[index], bgr), (self._depth[index], raw)):
-            if img.shape[:2] != (self.height, self.width):
-                raise InputError(
-                    f"{p}: image is {img.shape[1]}x{img.shape[0]}, the sequence is "
-                    f"{self.width}x{self.height}"
-                )
+            check_frame_size(str(p), img, self.height, self.width)
         depth = depth_metres(raw, self.intrinsics)
         mask = self._read_mask(index) if self._mask is not None else None
         return Frame(index, float(self.timestamps[index]), bgr, depth, mask)
@@ -521,8 +541,17 @@ def _describe(K: Intrinsics) -> str:
     return f"fx {K.fx:g} fy {K.fy:g} cx {K.cx:g} cy {K.cy:g} depth_scale {K.depth_scale:g}"
 
 
-def open_sequence(path: str | Path, **kwargs) -> TumSequence:
-    """Open the RGB-D sequence in folder ``path`` (TUM layout); ``kwargs`` go to the reader."""
+def open_sequence(path: str | Path, *, rgb_topic: str | None = None,
+                  depth_topic: str | None = None, **kwargs) -> TumSequence:
+    """Open the RGB-D sequence at ``path``: a folder in the TUM layout, or a ROS bag (a
+    ``.bag`` file or a ROS 2 bag folder, :class:`jaxvo.host.rosbag.BagSequence`, whose image
+    topics ``rgb_topic`` / ``depth_topic`` choose); ``kwargs`` go to the reader."""
+    from jaxvo.host.rosbag import BagSequence, is_bag
+
+    if is_bag(path):
+        return BagSequence(path, rgb_topic=rgb_topic, depth_topic=depth_topic, **kwargs)
+    if rgb_topic or depth_topic:
+        raise InputError(f"{path}: not a ROS bag; --rgb-topic and --depth-topic are for bags")
     root = Path(path)
     if not root.is_dir():
         raise InputError(f"sequence folder not found: {root}")

@@ -314,13 +314,14 @@ def _parse_sequences(entries, bad, base_dir: Path, *,
 
 
 def _resolve_folder(given: str, base_dir: Path) -> str | None:
-    """A sequence folder: as given when absolute, else beside the spec, else under the
-    data root (None when there is none)."""
+    """A sequence folder (or ROS bag): as given when absolute, else beside the spec, else
+    under the data root (None when there is none)."""
     from jaxvo.host.io import data_root
+    from jaxvo.host.rosbag import is_bag
 
     p = Path(given).expanduser()
     for folder in ([p] if p.is_absolute() else [base_dir / p, data_root() / p]):
-        if folder.is_dir():
+        if folder.is_dir() or is_bag(folder):
             return str(folder.resolve())
     return None
 
@@ -517,11 +518,17 @@ def code_hash() -> str:
 @functools.cache
 def sequence_key(s: SequenceSpec, cfg: Config) -> str:
     """The flow cache's key of a sequence under ``cfg``: the sequence's identity (its spec,
-    the contents of a folder's frame lists), the flow's Config fields and the code."""
+    the contents of a folder's frame lists, or a bag's file sizes and modification times),
+    the flow's Config fields and the code."""
     ident = {**s._asdict(), "flow": {f: getattr(cfg, f) for f in flow_fields()},
              "code": code_hash()}
     ident.pop("label")
-    if s.path is not None:
+    from jaxvo.host.rosbag import is_bag
+
+    if s.path is not None and is_bag(s.path):  # too large to hash: its files' sizes and times
+        files = [Path(s.path)] if Path(s.path).is_file() else sorted(Path(s.path).iterdir())
+        ident["bag"] = [(f.name, f.stat().st_size, f.stat().st_mtime_ns) for f in files]
+    elif s.path is not None:
         lists = sorted(p for p in Path(s.path).glob("*.txt"))
         ident["lists"] = hashlib.sha256(b"".join(p.read_bytes() for p in lists)).hexdigest()
     blob = json.dumps(ident, sort_keys=True).encode()
