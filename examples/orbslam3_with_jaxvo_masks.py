@@ -22,6 +22,7 @@ import sys
 from pathlib import Path
 
 import jaxvo
+from jaxvo.host.io import data_root, first_pose
 from jaxvo.host.masks import dynamic_pixels
 
 sys.path.insert(0, str(Path(__file__).resolve().parent.parent / "bench"))
@@ -29,13 +30,13 @@ from orbslam3_peer import OrbSlam3, anchored, mask_frame, missing
 
 
 def main() -> int:
-    default = jaxvo.host.io.data_root() / "tum_fr3_walking_halfsphere_50"
+    default = data_root() / "tum_fr3_walking_halfsphere_50"
     root = Path(sys.argv[1]) if len(sys.argv) > 1 else default
     if why := missing():
         print(f"ORB-SLAM3 cannot run here: {why}")
         return 1
     seq = jaxvo.open_sequence(root)
-    odo = jaxvo.Odometry(seq.intrinsics, seed=0, T_w_c0=jaxvo.host.io.first_pose(seq))
+    odo = jaxvo.Odometry(seq.intrinsics, seed=0, T_w_c0=first_pose(seq))
     orb = OrbSlam3(seq.intrinsics, seq.width, seq.height)  # starts its own process
     prev, dynamic = None, None
     for frame in seq:  # a camera's frames, one at a time
