@@ -59,8 +59,20 @@ def run(args: argparse.Namespace) -> int:
     from jaxvo.config import Config
     from jaxvo.errors import InputError, check_seed
     from jaxvo.evaluation import segmentation_scores, trajectory_scores
-    from jaxvo.io import InMemorySequence, output_folder, write_image, write_trajectory
+    from jaxvo.io import (
+        InMemorySequence,
+        check_outputs,
+        output_folder,
+        write_image,
+        write_trajectory,
+    )
     from jaxvo.masks import overlay_panel
+    from jaxvo.memory import (
+        FRAME_BYTES_PER_PIXEL,
+        SYNTH_BYTES_PER_FRAME,
+        check_memory,
+        run_bytes,
+    )
     from jaxvo.odometry import run_sequence
     from jaxvo.peers import run_peer
     from jaxvo.progress import Progress
@@ -75,7 +87,17 @@ def run(args: argparse.Namespace) -> int:
     if args.frames < 2:
         raise InputError(f"--frames must be at least 2, got {args.frames}")
     check_seed(args.seed, name="--seed")
-    out = output_folder(args.out, what="--out") if args.out else None
+    # the frames are rendered into memory, then scanned whole
+    check_memory(run_bytes(cfg, height=480, width=640, frames=args.frames, host_bytes_per_frame=(
+        SYNTH_BYTES_PER_FRAME + FRAME_BYTES_PER_PIXEL * 480 * 640)),
+        what=f"jaxvo demo --frames {args.frames}")
+    out = None
+    if args.out:  # one file per method, and the overlays, each named apart
+        from pathlib import Path
+
+        check_outputs((), files={f"the {name} trajectory": Path(args.out) / f"{name}.txt"
+                                 for name in ("jaxvo", "groundtruth", *peers)})
+        out = output_folder(args.out, what="--out")
     quiet = args.quiet or args.json
     with interrupt_at_safe_points() as stop:
 
