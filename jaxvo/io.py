@@ -742,19 +742,22 @@ class TrajectoryWriter:
 # Median depth of a frame, metres: outside the hard band no RGB-D sensor reads (the depth
 # scale is wrong, e.g. 1000 for millimetres against TUM's 5000, or float depth that is not
 # metres); outside the soft band it is possible but unusual for the structured-light and
-# time-of-flight cameras of these datasets, so it is said but run. The soft band starts at
-# 0.5 m, the nearest range of the Kinect and Xtion sensors of TUM, Bonn and ICL-style data:
-# millimetre depth read at 5000 per metre puts a room 1-4 m deep at 0.2-0.8 m (median about
-# 0.4 m), nearer than those sensors measure at all.
+# time-of-flight cameras of these datasets (0.5 m: the nearest range of the Kinect and
+# Xtion sensors of TUM, Bonn and ICL-style data), so it is said but run.
+_DEPTH_HARD_M = (0.1, 15.0)
+_DEPTH_SOFT_M = (0.5, 8.0)
+# The depth scales of the sensors' files: TUM, Bonn, ETH3D 5000 per metre; millimetres 1000.
+# A wrong one of these is the usual mistake, and it can stay inside the soft band (a room
+# 2-4 m deep in millimetres read at 5000 per metre: median 0.4-0.6 m). So the median is
+# also compared with the typical indoor median, the soft band's geometric centre (2 m):
+# when another common scale puts it nearer (in ratio), that scale is the likelier one.
+_COMMON_SCALES = (5000.0, 1000.0)
+_TYPICAL_M = float(np.sqrt(_DEPTH_SOFT_M[0] * _DEPTH_SOFT_M[1]))
+
+
 class DepthScaleWarning(UserWarning):
     """A frame's depth is possible but unusual for an RGB-D sensor (see
     :func:`check_depth_scale`): the depth scale may be wrong."""
-
-
-_DEPTH_HARD_M = (0.1, 15.0)
-_DEPTH_SOFT_M = (0.5, 8.0)
-# the depth scales of the sensors' files: TUM, Bonn, ETH3D 5000 per metre; millimetres 1000
-_COMMON_SCALES = (5000.0, 1000.0)
 
 
 def check_depth_scale(depth: np.ndarray, K, *, where: str, raw_units: bool = True) -> str | None:
@@ -767,8 +770,9 @@ def check_depth_scale(depth: np.ndarray, K, *, where: str, raw_units: bool = Tru
       raw_units: the depth was raw units divided by ``K.depth_scale`` (else it was given as
         float metres, and the message says so).
     Returns:
-      a one-line warning when the median lies outside 0.5 to 8 m, else None (also for a
-      frame without readings, which the pipeline reports per frame).
+      a one-line warning when the median lies outside 0.5 to 8 m, or when another common
+      depth scale (5000 or 1000 per metre) puts it nearer the typical 2 m; else None (also
+      for a frame without readings, which the pipeline reports per frame).
     Raises:
       InputError: the median lies outside 0.1 to 15 m.
     """
@@ -776,17 +780,23 @@ def check_depth_scale(depth: np.ndarray, K, *, where: str, raw_units: bool = Tru
     if valid.size == 0:
         return None
     med = float(np.median(valid))
+    likelier = []
     if raw_units:
-        others = [f"{med * K.depth_scale / s:.3g} m at {s:g}" for s in _COMMON_SCALES
-                  if s != K.depth_scale]
+        at = {s: med * K.depth_scale / s for s in _COMMON_SCALES if s != K.depth_scale}
+        likelier = [s for s, m in at.items()
+                    if abs(np.log(m / _TYPICAL_M)) < abs(np.log(med / _TYPICAL_M))]
         hint = (f"median depth is {med:.3g} m with depth_scale {K.depth_scale:g} ("
-                f"{', '.join(others)}; TUM uses 5000 per metre, millimetre sensors 1000)")
+                + ", ".join(f"{m:.3g} m at {s:g}" for s, m in at.items())
+                + "; TUM uses 5000 per metre, millimetre sensors 1000)")
     else:
         hint = (f"median of the float depth is {med:.3g}, read as metres (millimetres or "
                 "raw units? give float depth in metres, or uint16 raw units with the "
                 "intrinsics' depth_scale)")
     if not _DEPTH_HARD_M[0] <= med <= _DEPTH_HARD_M[1]:
         raise InputError(f"{where}: {hint}: the depth scale looks wrong")
+    if likelier:
+        return (f"{where}: {hint}: depth_scale {likelier[0]:g} is likelier (--depth-scale): "
+                "check the depth scale")
     if not _DEPTH_SOFT_M[0] <= med <= _DEPTH_SOFT_M[1]:
         return f"{where}: {hint}: check the depth scale"
     return None

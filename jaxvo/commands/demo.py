@@ -88,15 +88,16 @@ def run(args: argparse.Namespace) -> int:
         raise InputError(f"--frames must be at least 2, got {args.frames}")
     check_seed(args.seed, name="--seed")
     # the frames are rendered into memory, then scanned whole
-    check_memory(run_bytes(cfg, height=480, width=640, frames=args.frames, host_bytes_per_frame=(
-        SYNTH_BYTES_PER_FRAME + FRAME_BYTES_PER_PIXEL * 480 * 640)),
+    check_memory(run_bytes(cfg, height=480, width=640, frames=args.frames, host_bytes=(
+        SYNTH_BYTES_PER_FRAME + FRAME_BYTES_PER_PIXEL * 480 * 640) * args.frames),
         what=f"jaxvo demo --frames {args.frames}")
     out = None
     if args.out:  # one file per method, and the overlays, each named apart
         from pathlib import Path
 
-        check_outputs((), files={f"the {name} trajectory": Path(args.out) / f"{name}.txt"
-                                 for name in ("jaxvo", "groundtruth", *peers)})
+        methods = ("jaxvo", "groundtruth", *peers)  # a peer named twice: one file twice
+        check_outputs((), files={f"the {name} trajectory (#{k + 1})": Path(args.out) / f"{name}.txt"
+                                 for k, name in enumerate(methods)})
         out = output_folder(args.out, what="--out")
     quiet = args.quiet or args.json
     with interrupt_at_safe_points() as stop:

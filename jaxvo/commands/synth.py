@@ -68,8 +68,9 @@ def run(args: argparse.Namespace) -> int:
         frames = synth.DEFAULT_FRAMES if args.frames is None else args.frames
     scenario = synth.SCENARIOS.get(args.scenario)
     objects = len(scenario.objects) if scenario is not None else 0
-    check_memory(run_bytes(Config(), height=480, width=640, frames=0, host_bytes_per_frame=(
-        SYNTH_BYTES_PER_FRAME + SYNTH_BYTES_PER_OBJECT_FRAME * objects) * frames),
+    # frames are rendered and written one at a time; their trajectories are held whole
+    check_memory(run_bytes(Config(), height=480, width=640, host_bytes=frames * (
+        SYNTH_BYTES_PER_FRAME + SYNTH_BYTES_PER_OBJECT_FRAME * objects)),
         what=f"jaxvo synth --frames {frames}")
     # before any frame is rendered: a folder of its own, never one holding what it reads
     check_outputs(reads, folders={"OUT_DIR": Path(args.out_dir)})
