@@ -447,8 +447,8 @@ class TumSequence:
             guess = preset_from_name(root.resolve().name)
             if guess is None:
                 raise InputError(
-                    f"{root}: no camera.txt; pass --intrinsics fx,fy,cx,cy or a camera preset "
-                    f"({', '.join(sorted(PRESETS))}), or write a camera.txt"
+                    f"{root}: no camera.txt; pass a camera preset ({', '.join(sorted(PRESETS))}) "
+                    "or the intrinsics (--intrinsics fx,fy,cx,cy), or write a camera.txt"
                 )
             return preset(guess), f"preset {guess}, from the folder name"
         if cam_file.is_file():

@@ -35,6 +35,7 @@ from jaxvo.flow import (
     sequence_flows,
 )
 from jaxvo.io import DepthScaleWarning, Trajectory, check_depth_scale, pose_at
+from jaxvo.memory import check_memory, run_bytes
 from jaxvo.pipeline import StepOutput, init_pipeline, jit_step, run_scan
 from jaxvo.status import Status
 from jaxvo.window import window_trajectory
@@ -180,7 +181,9 @@ class Odometry:
           completed first).
         Raises:
           ValueError: a colour or depth image of the wrong type or shape, images of
-            different sizes, or a timestamp that is not finite or does not increase.
+            different sizes, a timestamp that is not finite or does not increase; on the
+            first frame, depth no sensor reads or settings that need more memory than the
+            machine has (:mod:`jaxvo.memory`).
         """
         self.flush()
         return self._finish(self._dispatch(bgr, depth, timestamp))
@@ -227,6 +230,8 @@ class Odometry:
             h, w = depth.shape
             check_intrinsics(self.intrinsics, where="intrinsics", width=w, height=h)
             check_config(self.cfg, height=h, width=w)
+            check_memory(run_bytes(self.cfg, height=h, width=w),
+                         what=f"Odometry with {_shape_settings(self.cfg)}")
             tracker = GridFlowTracker(self.intrinsics, self.cfg, height=h, width=w)
             self._chain = FrameChain(tracker, min_valid=self._min_valid,
                                      max_dropped=self._max_dropped)
@@ -382,7 +387,8 @@ def run_sequence(
     Returns:
       :class:`SequenceResult`.
     Raises:
-      InputError: fewer than 2 frames, or fewer than 2 that can be used.
+      InputError: fewer than 2 frames, or fewer than 2 that can be used, or a run that
+        needs more memory than the machine has (:mod:`jaxvo.memory`).
       ValueError: ``seq`` is neither a sequence nor a folder path.
     """
     seq = _as_sequence(seq)
@@ -391,6 +397,8 @@ def run_sequence(
     check_config(cfg, height=seq.height, width=seq.width)
     if params is not None:
         check_params(params)
+    check_memory(run_bytes(cfg, height=seq.height, width=seq.width, frames=len(seq)),
+                 what=f"run_sequence of {len(seq)} frames with {_shape_settings(cfg)}")
     grid = grid_shape(seq.height, seq.width, cfg.cell)
 
     t0 = time.perf_counter()
@@ -418,6 +426,11 @@ def run_sequence(
         poses[0] = T0  # float64, as without the window
     return SequenceResult(Trajectory(stamps, poses), outs, chain.flows, flow_s, scan_s, grid,
                           chain.frames, chain.dropped, start, immediate)
+
+
+def _shape_settings(cfg: Config) -> str:
+    """The settings that size a run's memory, for messages."""
+    return f"num_hypotheses {cfg.num_hypotheses}, window {cfg.window}, cell {cfg.cell}"
 
 
 def _as_sequence(seq):

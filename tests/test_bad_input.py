@@ -989,6 +989,18 @@ def test_study_that_cannot_fit_in_memory_is_refused(tmp_path, capsys, extra, nee
                           "(1000000000 frames)", "TB of memory")
 
 
+def test_python_api_refuses_memory_it_cannot_have(base_seq):
+    from jaxvo.odometry import run_sequence
+
+    f = base_seq[0]
+    with pytest.raises(ValueError, match="Odometry with num_hypotheses 20, window 100000, cell "
+                                         "16 needs about .* TB of memory"):
+        Odometry(base_seq.intrinsics, cfg=Config(window=100000)).process(f.bgr, f.depth, 0.0)
+    with pytest.raises(InputError, match=f"run_sequence of {FRAMES} frames with num_hypotheses "
+                                         "100000, window 0, cell 16 needs about"):
+        run_sequence(base_seq, cfg=Config(num_hypotheses=100000))
+
+
 def test_check_memory_gives_both_numbers():
     from jaxvo.memory import check_memory, run_bytes
 
