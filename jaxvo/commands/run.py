@@ -31,8 +31,15 @@ input: SEQ_DIR in the TUM RGB-D layout: rgb.txt and depth.txt ('timestamp filena
   cy in pixels and depth_scale in raw units per metre, default 5000). Lines out of time
   order are sorted and repeated timestamps dropped, with a warning.
 
-camera: --camera, else camera.txt, else the folder's name as the TUM and Bonn benchmarks
-  name their downloads (rgbd_dataset_freiburg3_*, rgbd_bonn_*).
+camera: --camera or --intrinsics, else camera.txt, else ETH3D's calibration.txt ('fx fy cx
+  cy'), else the folder's name as the TUM and Bonn benchmarks name their downloads
+  (rgbd_dataset_freiburg3_*, rgbd_bonn_*); --depth-scale overrides the depth scale. A
+  negative fy (ICL-NUIM) is a camera whose y axis points up. Depth: 16-bit PNG in raw
+  units, or float metres in 32-bit float TIFF or .npy files.
+
+refused before any work: outputs over what the run reads (--masks SEQ_DIR/rgb) or over
+  each other (two options, one folder), and settings that need more memory than the
+  machine has (--window, --hypotheses).
 
 output: the trajectory is camera-to-world in TUM format, one pose per frame kept, written
   as it is computed; with --window K, each frame's pose is written when the frame leaves
