@@ -8,7 +8,7 @@ a temporary folder when they are absent), on this machine:
    run on the machine (a fresh compile-cache folder: the step compiles) and on later runs
    (the step loaded from that cache), its first frame pair's time (the compile or the load),
    its ATE;
-2. OpenCV's RGB odometry (``jaxvo.peers``) the same ways: a child process reading the same
+2. OpenCV's RGB odometry (``jaxvo.host.peers``) the same ways: a child process reading the same
    folder, for the whole-process ratio, and in this process on the same frames preloaded,
    for the per-frame ratio;
 3. in this process, on the frames preloaded: ``Odometry.process`` per frame (median, p90;
@@ -46,12 +46,12 @@ sys.path.insert(0, str(Path(__file__).resolve().parent))
 from _common import SEVEN_SCENES, load_average, log, machine
 
 from jaxvo.config import Config, Params, grid_shape, params_as_arrays
-from jaxvo.flow import flows_for_sequence
-from jaxvo.io import InMemorySequence, data_root, open_sequence
+from jaxvo.core.pipeline import run_scan
+from jaxvo.host.flow import flows_for_sequence
+from jaxvo.host.io import InMemorySequence, data_root, open_sequence
+from jaxvo.host.peers import run_peer
 from jaxvo.odometry import Odometry
-from jaxvo.peers import run_peer
-from jaxvo.pipeline import run_scan
-from jaxvo.synth import make_sequence, write_sequence
+from jaxvo.synth.scenes import make_sequence, write_sequence
 
 FRAMES = 300
 PEER = "opencv_rgb"
@@ -69,7 +69,7 @@ TARGETS = {
 
 # The peer over a folder as a process of its own, as a user would run it.
 PEER_CHILD = (
-    "import sys; from jaxvo.io import open_sequence; from jaxvo.peers import run_peer; "
+    "import sys; from jaxvo.host.io import open_sequence; from jaxvo.host.peers import run_peer; "
     f"run_peer(open_sequence(sys.argv[1]), {PEER!r})"
 )
 
@@ -93,7 +93,7 @@ def jaxvo_run(seq_dir: Path, out: Path, cache: Path) -> dict:
     wall time, and whether it said that it compiled."""
     t0 = time.perf_counter()
     proc = subprocess.run(
-        [sys.executable, "-m", "jaxvo.cli", "run", str(seq_dir), "--out", str(out),
+        [sys.executable, "-m", "jaxvo.cli.main", "run", str(seq_dir), "--out", str(out),
          "--json", "--frames", str(FRAMES), "--compile-cache", str(cache)],
         capture_output=True, text=True, check=False, env=child_env(),
     )

@@ -34,17 +34,17 @@ sys.path.insert(0, str(Path(__file__).resolve().parent))
 from _common import log, machine, markdown_table
 from splits import Case, available, cases
 
-from jaxvo import study
 from jaxvo.config import Config, Params, grid_shape, params_as_arrays
-from jaxvo.evaluation import trajectory_scores
-from jaxvo.flow import GridFlow, flows_for_sequence
-from jaxvo.io import Trajectory
-from jaxvo.masks import moving_at_grid
-from jaxvo.metrics import SegmentationScores
-from jaxvo.peers import OPENCV_PEERS, run_peer
-from jaxvo.pipeline import final_moving, init_pipeline, jit_step
-from jaxvo.plugin import iter_dynamic_masks
+from jaxvo.core.pipeline import final_moving, init_pipeline, jit_step
+from jaxvo.evaluation.metrics import SegmentationScores
+from jaxvo.evaluation.scores import trajectory_scores
+from jaxvo.host.flow import GridFlow, flows_for_sequence
+from jaxvo.host.io import Trajectory
+from jaxvo.host.masks import moving_at_grid
+from jaxvo.host.peers import OPENCV_PEERS, run_peer
+from jaxvo.host.plugin import iter_dynamic_masks
 from jaxvo.status import Status
+from jaxvo.study import runner as study
 
 CFG = Config()
 
@@ -54,7 +54,7 @@ CFG = Config()
 
 def _flow_key(cfg: Config) -> str:
     """A short hash of what the host flow depends on: the Config fields it reads and the
-    code that makes the frames and tracks them (``jaxvo.study``'s flow cache key)."""
+    code that makes the frames and tracks them (``jaxvo.study.runner``'s flow cache key)."""
     fields = {k: getattr(cfg, k) for k in study.flow_fields()}
     return hashlib.sha1(json.dumps([fields, study.code_hash()], sort_keys=True)
                         .encode()).hexdigest()[:10]
@@ -114,7 +114,7 @@ def moving_grid_truth(seq, k: int, cell: int) -> np.ndarray:
         pb = corners @ traj.poses[b][:3, :3].T + traj.poses[b][:3, 3]
         if np.max(np.linalg.norm(pa - pb, axis=1)) > _STOPPED:
             moving_ids.append(oid)
-    from jaxvo.masks import ids_at_grid
+    from jaxvo.host.masks import ids_at_grid
 
     return np.isin(ids_at_grid(mask, cell), moving_ids)
 
@@ -206,7 +206,7 @@ def people_scores(case: Case, masks, h: int, w: int, cfg: Config) -> dict:
         return {"people": "no annotation module (bench/people_masks.py)"}
     import cv2
 
-    from jaxvo.io import data_root
+    from jaxvo.host.io import data_root
 
     people = people_masks(data_root() / case.source)
     grow = np.ones((2 * cfg.cell + 1, 2 * cfg.cell + 1), np.uint8)

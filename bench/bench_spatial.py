@@ -34,10 +34,10 @@ sys.path.insert(0, str(Path(__file__).resolve().parent))
 from _common import load_average, machine, real_present
 
 from jaxvo.config import Config, Params, grid_shape, params_as_arrays
-from jaxvo.flow import flows_for_sequence
-from jaxvo.io import InMemorySequence, data_root, open_sequence
-from jaxvo.procrustes import fit_rigid
-from jaxvo.spatial import segment
+from jaxvo.core.procrustes import fit_rigid
+from jaxvo.core.spatial import segment
+from jaxvo.host.flow import flows_for_sequence
+from jaxvo.host.io import InMemorySequence, data_root, open_sequence
 
 
 def _rotation(axis, angle):

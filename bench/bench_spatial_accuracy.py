@@ -32,14 +32,14 @@ import numpy as np
 sys.path.insert(0, str(Path(__file__).resolve().parent))
 from _common import machine_line
 
-from jaxvo.camera import project
 from jaxvo.config import Config, Params, grid_shape, params_as_arrays
-from jaxvo.flow import flows_for_sequence
-from jaxvo.masks import ids_at_grid
-from jaxvo.metrics import SegmentationScores
-from jaxvo.pipeline import frame_key
-from jaxvo.spatial import segment
-from jaxvo.synth import SCENARIOS, make_sequence
+from jaxvo.core.pipeline import frame_key
+from jaxvo.core.spatial import segment
+from jaxvo.evaluation.metrics import SegmentationScores
+from jaxvo.host.camera import project
+from jaxvo.host.flow import flows_for_sequence
+from jaxvo.host.masks import ids_at_grid
+from jaxvo.synth.scenes import SCENARIOS, make_sequence
 
 MIN_PX = 1.0  # an object moving this much or less in the image is not counted as a motion
 

@@ -2,23 +2,26 @@
 and the study split over 1, 2 and 4 devices.
 
 One synthetic sequence (grid flow computed once on the host), B configurations over seeds,
-lambda (thesis eq. 3.1) and the grid model's max_age: ``jaxvo.pipeline.run_study`` (one
+lambda (thesis eq. 3.1) and the grid model's max_age: ``jaxvo.core.pipeline.run_study`` (one
 jit-compiled ``vmap`` over the whole-sequence scan) against ``run_scan`` called B times in
 a Python loop. Both are compiled before timing (compile times reported apart); steady-state
 times are medians of ``--repeats`` runs. Throughput = configurations x frame pairs per
 second. To show where the time goes, the vmapped call is also timed at B = 1, 2, 4, ...
 
 Then the same B configurations as one call of ``jaxvo study``'s sharded runner
-(``jaxvo.study.run_call``: B / D configurations vmapped on each of D devices) for each D of
+(``jaxvo.study.runner.run_call``: B / D configurations vmapped on each of D devices) for each D of
 ``--devices``, each in a fresh process whose CPU is split into D JAX devices
 (``jax_num_cpu_devices``; on an accelerator, its devices as they are), the first call
 (compile included) apart from the steady state, against the loop of scans above as a ratio.
 
-All of it runs with the XLA flags ``jaxvo study`` sets (the CPU fusion emitters off);
-``--xla-cpu-defaults`` keeps XLA's own, for comparison.
+Last, the batch ``jaxvo study`` chooses for a study of ``--sized`` configurations of the
+sequence (``jaxvo.study.runner.call_batch``: 4 on the CPU; on an accelerator the widest call the
+study fills and half the free memory holds) against each hand-picked batch of
+``--curve``: configuration-frames/s of the whole study at each, and the chosen batch's
+ratio to the best.
 
 Run: ``.venv/bin/python bench/bench_study.py [--frames 60] [--batch 8] [--devices 1,2,4]
-[--xla-cpu-defaults] [--out results/]``
+[--sized 4096 --curve 64,256,1024,4096] [--out results/]``
 """
 
 from __future__ import annotations
@@ -39,9 +42,9 @@ import numpy as np
 sys.path.insert(0, str(Path(__file__).resolve().parent))
 from _common import load_average, machine
 
-from jaxvo import study
 from jaxvo.config import Config, Params, grid_shape
-from jaxvo.pipeline import batch_params, run_scan, run_study
+from jaxvo.core.pipeline import batch_params, run_scan, run_study
+from jaxvo.study import runner as study
 
 LAMBDAS = (3e2, 1e3, 3e3, 1e4)
 MAX_AGES = (15.0, 30.0)
@@ -86,10 +89,10 @@ def worker(args) -> int:
     B, D = args.batch, len(jax.devices())
     seeds, lam, age, _, _ = configurations(B)
     configs = [{"lam": lam[b], "max_age": age[b]} for b in range(B)]
-    mesh = study.device_mesh()
+    devices = study.study_devices()
 
     def call():
-        return study.run_call(data, cfg, configs, [int(s) for s in seeds], mesh=mesh,
+        return study.run_call(data, cfg, configs, [int(s) for s in seeds], devices=devices,
                               batch=B // D)
 
     t0 = time.perf_counter()
@@ -131,6 +134,52 @@ def device_runs(args, cache: Path) -> list[dict]:
     return runs
 
 
+def batch_sizing(data: study.SequenceData, n: int, curve: str) -> dict:
+    """A study of ``n`` configurations (seeds 0..n-1 at the default Params) at the batch
+    ``jaxvo study`` chooses and at each hand-picked batch of ``curve``: the first call
+    (compile) apart, then the whole study's configuration-frames/s."""
+    cfg = Config()
+    devices = study.study_devices()
+    configs, seeds = [{}] * n, list(range(n))
+    T = len(data.timestamps) - 1
+    t0 = time.perf_counter()
+    chosen = study.call_batch(data, cfg, configs, requested=None, devices=devices)
+    sizing_s = time.perf_counter() - t0
+    rows = []
+    for b in sorted({chosen, *(int(x) for x in curve.split(",") if x)}):
+        per_call = b * len(devices)
+        t0 = time.perf_counter()
+        study.run_call(data, cfg, configs[:per_call], seeds[:per_call], devices=devices, batch=b)
+        first = time.perf_counter() - t0
+        t0 = time.perf_counter()
+        for start in range(0, n, per_call):
+            study.run_call(data, cfg, configs[start:start + per_call],
+                           seeds[start:start + per_call], devices=devices, batch=b)
+        took = time.perf_counter() - t0
+        rows.append({"batch": b, "chosen": b == chosen, "first_call_s": first,
+                     "seconds": took, "config_frames_per_s": n * T / took})
+        print(f"  sized study, batch {b}{' (chosen)' if b == chosen else ''}: "
+              f"{n * T / took:.0f} config-frames/s", flush=True)
+    best = max(r["config_frames_per_s"] for r in rows)
+    mine = next(r for r in rows if r["chosen"])
+    return {"configurations": n, "devices": len(devices), "chosen": chosen,
+            "sizing_s": sizing_s, "free_bytes": study.free_memory(devices[0]),
+            "rows": rows, "ratio_to_best": mine["config_frames_per_s"] / best}
+
+
+def sizing_table(s: dict) -> list[str]:
+    free = "not reported" if s["free_bytes"] is None else f"{s['free_bytes'] / 2**30:.1f} GiB"
+    L = [(f"A study of {s['configurations']} configurations on {s['devices']} device(s): "
+          f"`jaxvo study` chose {s['chosen']} configurations per device and call (sizing "
+          f"took {s['sizing_s']:.1f} s; free device memory {free}); its throughput is "
+          f"**{s['ratio_to_best']:.2f}x** the best hand-picked batch's."),
+         "", "| batch per device | first call [s] | whole study [s] | config x frames / s |",
+         "|---|---|---|---|"]
+    L += [f"| {r['batch']}{' (chosen)' if r['chosen'] else ''} | {r['first_call_s']:.1f} | "
+          f"{r['seconds']:.2f} | {r['config_frames_per_s']:.0f} |" for r in s["rows"]]
+    return L + [""]
+
+
 def main(argv=None) -> int:
     ap = argparse.ArgumentParser(description=__doc__.split("\n\n")[0])
     ap.add_argument("--frames", type=int, default=60, help="frames of the sequence (default 60)")
@@ -142,13 +191,13 @@ def main(argv=None) -> int:
     ap.add_argument("--devices", default="1,2,4",
                     help="device counts to split the study over (default 1,2,4; '' skips)")
     ap.add_argument("--out", default="results", help="folder for study.json / study.md")
-    ap.add_argument("--xla-cpu-defaults", action="store_true",
-                    help="keep XLA's CPU fusion emitters on (jaxvo study turns them off)")
+    ap.add_argument("--sized", type=int, default=0,
+                    help="configurations of the batch-sizing study (default 0: skipped)")
+    ap.add_argument("--curve", default="",
+                    help="hand-picked batches to time the sized study at, e.g. 64,256,1024")
     ap.add_argument("--worker", action="store_true", help=argparse.SUPPRESS)
     ap.add_argument("--cache", help=argparse.SUPPRESS)
     args = ap.parse_args(argv)
-    if not args.xla_cpu_defaults:  # as jaxvo study runs; the device workers inherit it
-        study.same_bits_on_any_device_count()
     if args.worker:
         return worker(args)
     out = Path(args.out)
@@ -210,6 +259,8 @@ def main(argv=None) -> int:
         # (jaxvo study keeps the per-device batch fixed instead, and gets equal bits)
         r["max_position_diff_vs_first_m"] = float(np.max(np.abs(p - positions[0])))
 
+    sizing = batch_sizing(data, args.sized, args.curve) if args.sized else None
+
     info["load_average_end"] = load_average()
     res = {
         "machine": info, "scenario": args.scenario, "frames": args.frames, "pairs": T,
@@ -219,18 +270,16 @@ def main(argv=None) -> int:
                     "compile_s": study_compile},
         "loop": {"seconds": t_loop, "config_frames_per_s": thr_l, "compile_s": scan_compile},
         "ratio": ratio, "max_position_diff_m": pose_diff,
-        "scaling": scaling, "devices": devices,
+        "scaling": scaling, "devices": devices, "sizing": sizing,
     }
     (out / "study.json").write_text(json.dumps(res, indent=1))
-    flags = os.environ.get("XLA_FLAGS", "")
-    whose = " (as jaxvo study sets them)" if study.CPU_FLAG in flags else ""
     L = ["# Parameter study: one vmapped call vs a loop of scans", "",
          (f"Sequence: synthetic `{args.scenario}`, {args.frames} frames ({T} pairs), grid "
          f"{grid[0]} x {grid[1]}. B = {B} configurations: seeds {seeds.tolist()}, lambda "
          f"{lam}, max_age {age}. Machine: {info['cpu_model']}, {info['cores']} cores, JAX "
          f"{info['jax']} ({info['jax_backend']}); load average {info['load_average_start']} "
          f"at start, {info['load_average_end']} at end. Medians of {args.repeats} runs, "
-         f"compile apart. XLA_FLAGS: `{flags or 'none'}`{whose}."), "",
+         "compile apart."), "",
          "| | seconds (steady) | config x frames / s | compile [s] |", "|---|---|---|---|",
          f"| vmapped `run_study` | {t_vmap:.2f} | {thr_v:.1f} | {study_compile:.1f} |",
          f"| loop of `run_scan` | {t_loop:.2f} | {thr_l:.1f} | {scan_compile:.1f} |", "",
@@ -245,7 +294,7 @@ def main(argv=None) -> int:
         L += [""]
     if devices:
         L += [(f"The same B = {B} configurations as one call of `jaxvo study`'s sharded runner "
-               "(`jaxvo.study.run_call`, B / D configurations vmapped on each of D devices; "
+               "(`jaxvo.study.runner.run_call`, B / D configurations vmapped on each of D devices; "
                f"{'the CPU split into D JAX devices' if info['jax_backend'] == 'cpu' else ''}"
                "), each device count in a fresh process; steady state is the median of "
                f"{args.repeats} calls, the first call includes the compile:"), "",
@@ -261,6 +310,8 @@ def main(argv=None) -> int:
                    "device fixed, so its numbers are the same bits on any device count "
                    "(`tests/test_study.py`).")]
         L += [""]
+    if sizing:
+        L += sizing_table(sizing)
     (out / "study.md").write_text("\n".join(L))
     print(f"wrote {out / 'study.md'}")
     return 0

@@ -1,4 +1,4 @@
-"""Render time of jaxvo.synth frames (640x480) on this machine: first call and steady state.
+"""Render time of jaxvo.synth.scenes frames (640x480) on this machine: first call and steady state.
 
 Usage: .venv/bin/python bench/bench_synth.py [--frames N] [--scenario NAME ...]
 
@@ -18,7 +18,7 @@ import time
 import numpy as np
 from _common import machine_line
 
-from jaxvo import synth
+from jaxvo.synth import scenes as synth
 
 BUDGET_MS = 20.0
 

@@ -20,7 +20,7 @@ import numpy as np
 from _common import machine_line
 
 from jaxvo.config import Config, Params, grid_shape, params_as_arrays
-from jaxvo.temporal import init_temporal, update_temporal
+from jaxvo.core.temporal import init_temporal, update_temporal
 
 
 class Seg(NamedTuple):

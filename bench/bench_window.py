@@ -39,11 +39,11 @@ from bench_robustness import _fmt, peers_alone, prepare
 from splits import Case, available, cases
 
 from jaxvo.config import Config, Params, grid_shape, params_as_arrays
-from jaxvo.evaluation import trajectory_scores
-from jaxvo.flow import GridFlow
-from jaxvo.io import InMemorySequence, Trajectory, data_root, open_sequence
-from jaxvo.pipeline import init_pipeline, jit_step
-from jaxvo.window import window_trajectory
+from jaxvo.core.pipeline import init_pipeline, jit_step
+from jaxvo.core.window import window_trajectory
+from jaxvo.evaluation.scores import trajectory_scores
+from jaxvo.host.flow import GridFlow
+from jaxvo.host.io import InMemorySequence, Trajectory, data_root, open_sequence
 
 
 def full_cases() -> list[Case]:
@@ -140,7 +140,7 @@ def memory(K: int) -> dict:
     with tempfile.TemporaryDirectory() as tmp:
         for label, extra in (("off", []), ("on", ["--window", str(K)])):
             proc = subprocess.run(
-                [sys.executable, "-m", "jaxvo.cli", "run", str(seq_dir), "--out",
+                [sys.executable, "-m", "jaxvo.cli.main", "run", str(seq_dir), "--out",
                  str(Path(tmp) / f"{label}.txt"), "-q", "--json", *extra],
                 capture_output=True, text=True, check=False)
             if proc.returncode not in (0, 1):

@@ -3,7 +3,7 @@
 Under the true camera motion a static grid point's residual ``T_gt p_prev - p_cur`` is the
 sensor's noise (and the ground truth's own error). Split along the viewing ray and across
 it, its robust spread per depth band gives the two scales of the noise model
-(:mod:`jaxvo.noise`): the depth noise along the ray over ``z^2`` (two depth readings) and the
+(:mod:`jaxvo.core.noise`): the depth noise along the ray over ``z^2`` (two depth readings) and the
 tracker's pixel noise across it. The starting values of ``Params.pixel_sigma`` and
 ``Params.depth_coeff`` are those of the real development frames (7-Scenes frames 0-149);
 the pipeline keeps them (its online calibration, ``Params.noise_rate > 0``, is off by

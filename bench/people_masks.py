@@ -169,7 +169,7 @@ def main(argv: list[str] | None = None) -> int:
                         help=f"the clip's folder (default: the data root's {SEQUENCE})")
     args = parser.parse_args(argv)
     if args.seq is None:
-        from jaxvo.io import data_root
+        from jaxvo.host.io import data_root
 
         seq = data_root() / SEQUENCE
     else:

@@ -38,17 +38,24 @@ from _common import (
 )
 
 from jaxvo.config import Config, Params, grid_shape, params_as_arrays
-from jaxvo.evaluation import segmentation_scores, trajectory_scores
-from jaxvo.flow import GridFlowTracker, stack_flows
-from jaxvo.io import Trajectory, data_root, first_pose, open_sequence, write_trajectory
-from jaxvo.masks import overlay_panel
-from jaxvo.metrics import SegmentationScores, ate
-from jaxvo.peers import OPEN3D_PEERS, available_peers, run_peer
-from jaxvo.pipeline import StepOutput, final_moving, frame_key, init_pipeline, jit_step, run_scan
-from jaxvo.plugin import dynamic_masks
-from jaxvo.spatial import segment
+from jaxvo.core.pipeline import (
+    StepOutput,
+    final_moving,
+    frame_key,
+    init_pipeline,
+    jit_step,
+    run_scan,
+)
+from jaxvo.core.spatial import segment
+from jaxvo.evaluation.metrics import SegmentationScores, ate
+from jaxvo.evaluation.scores import segmentation_scores, trajectory_scores
+from jaxvo.host.flow import GridFlowTracker, stack_flows
+from jaxvo.host.io import Trajectory, data_root, first_pose, open_sequence, write_trajectory
+from jaxvo.host.masks import overlay_panel
+from jaxvo.host.peers import OPEN3D_PEERS, available_peers, run_peer
+from jaxvo.host.plugin import dynamic_masks
 from jaxvo.status import Status
-from jaxvo.synth import SCENARIOS, composite_sequence, make_sequence
+from jaxvo.synth.scenes import SCENARIOS, composite_sequence, make_sequence
 
 JAXVO = "jaxvo"
 
@@ -311,7 +318,7 @@ def panel_frames(T: int, count: int) -> list[int]:
 def plot_labels_and_peers(path: Path, seq: CachedSequence, trajs: dict, outs: StepOutput,
                           cell: int, title: str, count: int = 3) -> None:
     """No ground truth: jaxvo's label overlays of a few frames beside every method's path."""
-    from jaxvo.masks import overlay
+    from jaxvo.host.masks import overlay
 
     plt = _plt()
     T = len(outs.ids)
@@ -387,7 +394,7 @@ def write_report(out: Path, res: dict) -> None:
           ("- **opencv_rgb / opencv_depth / opencv_rgbd**: `cv2.Odometry` (RGB, DEPTH, "
           "RGB_DEPTH), frame to frame, default settings."),
           ("- **PEER x jaxvo**: the same peer with jaxvo's dynamic pixels masked out of every "
-          "frame (`jaxvo.plugin.dynamic_masks`, thesis Fig. 5.8 \"Proposed x DVO\"); image "
+          "frame (`jaxvo.host.plugin.dynamic_masks`, thesis Fig. 5.8 \"Proposed x DVO\"); image "
           "k takes the labels of pair k -> k+1, the last image the final compensated "
           "temporal map."),
           "- **Open3D** (colour / hybrid RGB-D odometry): " + (

@@ -28,8 +28,8 @@ from typing import NamedTuple
 
 from _common import SEVEN_SCENES, TUM_WALKING
 
-from jaxvo.io import InMemorySequence, data_root, open_sequence
-from jaxvo.synth import composite_sequence, make_sequence
+from jaxvo.host.io import InMemorySequence, data_root, open_sequence
+from jaxvo.synth.scenes import composite_sequence, make_sequence
 
 SYNTHETIC = ("fixed_camera_1", "fixed_camera_2", "handheld_fast", "handheld_slow",
              "close_approach", "static")

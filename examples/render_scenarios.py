@@ -1,4 +1,4 @@
-"""Render every jaxvo.synth scenario: one picture each and a table of what it contains.
+"""Render every jaxvo.synth.scenes scenario: one picture each and a table of what it contains.
 
 Usage: .venv/bin/python examples/render_scenarios.py [--out DIR] [--frames 90]
 
@@ -23,9 +23,9 @@ from pathlib import Path
 import cv2
 import numpy as np
 
-from jaxvo import synth
-from jaxvo.camera import backproject, project
-from jaxvo.io import data_root
+from jaxvo.host.camera import backproject, project
+from jaxvo.host.io import data_root
+from jaxvo.synth import scenes as synth
 
 TILE = (256, 192)
 MASK_COLOURS = np.array([[0, 0, 0], [40, 40, 255], [255, 160, 30], [40, 220, 60],

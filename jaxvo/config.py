@@ -78,7 +78,7 @@ class Config:
     # (egomotion.refine_reprojection; 0 turns it off)
     ego_reprojection_iters: int = 3
 
-    # --- sliding-window refinement (jaxvo.window, our addition) ---
+    # --- sliding-window refinement (jaxvo.core.window, our addition) ---
     # frames whose poses are refined together, the oldest held fixed; a frame's pose is
     # final when it leaves the window. 0: off, else at least 2
     window: int = 0
@@ -108,7 +108,7 @@ class Params(NamedTuple):
     # With noise the mean stays above it, so the search also ends once at most
     # min_segment_points valid points are inliers of no hypothesis; 0 runs all H trips
     s_min: float = 0.012
-    # confidence of every statistical test against the sensor noise model (jaxvo.noise):
+    # confidence of every statistical test against the sensor noise model (jaxvo.core.noise):
     # a point is an inlier of a motion when its normalised residual is within the
     # chi-square(3) quantile at this confidence; a minimal sample fits one motion when its
     # points' residuals sum within chi-square(3 m - 6)
@@ -117,7 +117,7 @@ class Params(NamedTuple):
     cluster_min_samples: float = 1.0  # DBSCAN core-point threshold (count, incl. itself)
     min_segment_points: float = 12.0  # N_threshold of Algorithm 2, grid points
 
-    # sensor noise (jaxvo.noise): the values a sequence starts from, a little above the real
+    # sensor noise (jaxvo.core.noise): the values a sequence starts from, a little above the real
     # development frames' noise measured against ground truth (7-Scenes frames 0-149: 0.75
     # px across the ray, 0.9-1.3e-3 z^2 a depth reading along it; bench/calibrate_noise.py):
     # a start below the noise splits the background into regional segments, a start above

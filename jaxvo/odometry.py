@@ -7,7 +7,7 @@
   runs every frame in one jit-compiled ``lax.scan``.
 
 Both drop the frames that cannot be used and pair the next frame with the last good one
-(:class:`jaxvo.flow.FrameChain`), and both use the same per-frame step and the same PRNG
+(:class:`jaxvo.host.flow.FrameChain`), and both use the same per-frame step and the same PRNG
 keys (folded from the seed and the index of the frame pair stepped), so they give the same
 trajectory for the same seed.
 """
@@ -24,21 +24,21 @@ import jax
 import jax.numpy as jnp
 import numpy as np
 
-from jaxvo.camera import Intrinsics, as_intrinsics, check_intrinsics, depth_metres
 from jaxvo.config import Config, Params, check_config, check_params, grid_shape, params_as_arrays
+from jaxvo.core.pipeline import StepOutput, init_pipeline, jit_step, run_scan
+from jaxvo.core.window import window_trajectory
 from jaxvo.errors import InputError
-from jaxvo.flow import (
+from jaxvo.host.camera import Intrinsics, as_intrinsics, check_intrinsics, depth_metres
+from jaxvo.host.flow import (
     MAX_DROPPED,
     FrameChain,
     GridFlowTracker,
     min_valid_flow,
     sequence_flows,
 )
-from jaxvo.io import DepthScaleWarning, Trajectory, check_depth_scale, pose_at
-from jaxvo.memory import check_memory, run_bytes
-from jaxvo.pipeline import StepOutput, init_pipeline, jit_step, run_scan
+from jaxvo.host.io import DepthScaleWarning, Trajectory, check_depth_scale, pose_at
+from jaxvo.host.memory import check_memory, run_bytes
 from jaxvo.status import Status
-from jaxvo.window import window_trajectory
 
 
 class FrameResult(NamedTuple):
@@ -67,10 +67,10 @@ class Odometry:
     the last good frame has too few valid vectors: a black, saturated or noise image) is
     dropped: it gets no pose (``FrameResult.dropped`` says why; ``T_w_c`` repeats the last
     kept pose) and is left out of :attr:`trajectory`, and the next frame pairs with the last
-    good one (:class:`jaxvo.flow.FrameChain`).
+    good one (:class:`jaxvo.host.flow.FrameChain`).
 
     With ``cfg.window`` K > 0 the last K frames' poses are refined together
-    (:mod:`jaxvo.window`): ``FrameResult.T_w_c`` is then the newest frame's pose after one
+    (:mod:`jaxvo.core.window`): ``FrameResult.T_w_c`` is then the newest frame's pose after one
     refinement, and a frame's final pose comes out when it leaves the window, K frames
     later (``FrameResult.left``). :attr:`trajectory` holds the immediate poses,
     :attr:`refined_trajectory` the final ones and, for the frames still in the window,
@@ -84,9 +84,9 @@ class Odometry:
             print(r.T_w_c[:3, 3], r.status.reason)
 
     The first frame's depth is checked against what RGB-D sensors see
-    (:func:`jaxvo.io.check_depth_scale`): a median depth no sensor reads (float depth in
+    (:func:`jaxvo.host.io.check_depth_scale`): a median depth no sensor reads (float depth in
     millimetres or raw units, a wrong depth scale) raises a ``ValueError``, an unusual one
-    gives a :class:`jaxvo.io.DepthScaleWarning` (also kept in :attr:`warnings`).
+    gives a :class:`jaxvo.host.io.DepthScaleWarning` (also kept in :attr:`warnings`).
 
     Args:
       intrinsics: the (depth-registered) camera, pixels, as an :class:`Intrinsics`, a
@@ -99,7 +99,7 @@ class Odometry:
       T_w_c0: (4, 4) camera-to-world pose of the first frame; None: the identity (the
         trajectory then starts at the origin of its own frame).
       device: where the per-frame step runs (see ``__init__``).
-      max_dropped: most frames dropped in a row (:class:`jaxvo.flow.FrameChain`).
+      max_dropped: most frames dropped in a row (:class:`jaxvo.host.flow.FrameChain`).
     Raises:
       ValueError: intrinsics of another type or that no camera has, settings no run can
         use, or a ``T_w_c0`` that is not a finite rigid transform.
@@ -183,7 +183,7 @@ class Odometry:
           ValueError: a colour or depth image of the wrong type or shape, images of
             different sizes, a timestamp that is not finite or does not increase; on the
             first frame, depth no sensor reads or settings that need more memory than the
-            machine has (:mod:`jaxvo.memory`).
+            machine has (:mod:`jaxvo.host.memory`).
         """
         self.flush()
         return self._finish(self._dispatch(bgr, depth, timestamp))
@@ -369,7 +369,7 @@ def run_sequence(
     """Flow for every frame pair on the host, then one jit-compiled ``lax.scan``.
 
     Frames that cannot be used are dropped and the next frame pairs with the last good one
-    (:func:`jaxvo.flow.sequence_flows`); the trajectory holds the kept frames. With
+    (:func:`jaxvo.host.flow.sequence_flows`); the trajectory holds the kept frames. With
     ``cfg.window`` it holds each frame's final pose (when it left the window, or where the
     window ended), and ``SequenceResult.immediate`` the poses as each step gave them.
 
@@ -388,7 +388,7 @@ def run_sequence(
       :class:`SequenceResult`.
     Raises:
       InputError: fewer than 2 frames, or fewer than 2 that can be used, or a run that
-        needs more memory than the machine has (:mod:`jaxvo.memory`).
+        needs more memory than the machine has (:mod:`jaxvo.host.memory`).
       ValueError: ``seq`` is neither a sequence nor a folder path.
     """
     seq = _as_sequence(seq)
@@ -438,7 +438,7 @@ def _as_sequence(seq):
     a folder path opened as a TUM-layout sequence; else a ValueError saying what is
     expected (a list of frames has no camera and no timestamps of its own)."""
     if isinstance(seq, str | Path):
-        from jaxvo.io import open_sequence
+        from jaxvo.host.io import open_sequence
 
         return open_sequence(seq)
     needed = ("intrinsics", "height", "width", "timestamps", "name")

@@ -12,7 +12,7 @@ from pathlib import Path
 
 import pytest
 
-from jaxvo.io import data_root as _data_root
+from jaxvo.host.io import data_root as _data_root
 
 # The jaxvo commands keep compiled programs in the user's cache folder by default. The tests
 # (and the `jaxvo run` children they start, which inherit this) must neither write there nor
@@ -30,7 +30,7 @@ def _require(*parts: str) -> Path:
 
 @pytest.fixture
 def data_root() -> Path:
-    """The real-data folder (``jaxvo.io.data_root()``); skips the test when it is absent."""
+    """The real-data folder (``jaxvo.host.io.data_root()``); skips the test when it is absent."""
     return _require()
 
 

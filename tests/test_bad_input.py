@@ -28,15 +28,15 @@ import cv2
 import numpy as np
 import pytest
 
-from jaxvo.camera import Intrinsics, read_camera_file
-from jaxvo.cli import interrupt_at_safe_points, main
+from jaxvo.cli.main import interrupt_at_safe_points, main
 from jaxvo.config import Config, Params, check_config, check_params
 from jaxvo.errors import InputError, check_seed
-from jaxvo.io import InMemorySequence, open_sequence, read_trajectory
-from jaxvo.metrics import ate
+from jaxvo.evaluation.metrics import ate
+from jaxvo.host.camera import Intrinsics, read_camera_file
+from jaxvo.host.io import InMemorySequence, open_sequence, read_trajectory
 from jaxvo.odometry import Odometry
 from jaxvo.status import Status
-from jaxvo.synth import make_sequence, write_sequence
+from jaxvo.synth.scenes import make_sequence, write_sequence
 
 FRAMES = 6
 
@@ -548,7 +548,7 @@ def test_ctrl_c_is_taken_at_the_next_safe_point():
 def _run_until_compiling(seq: Path, out: Path, env: dict) -> subprocess.Popen:
     """``jaxvo run`` in a child, returned 1 s into XLA's compile of the per-frame step (an
     interrupt 0.3-3 s in crashed 8 of 8 tries before; one at its very start did not)."""
-    code = "import sys; from jaxvo.cli import main; sys.exit(main())"
+    code = "import sys; from jaxvo.cli.main import main; sys.exit(main())"
     proc = subprocess.Popen(
         [sys.executable, "-c", code, "run", str(seq), "--out", str(out), "-q"],
         stdout=subprocess.PIPE, stderr=subprocess.PIPE, text=True, env=env,
@@ -576,7 +576,7 @@ def test_ctrl_c_during_the_first_compile_exits_130_keeping_the_first_pose(base, 
 def test_a_second_ctrl_c_stops_at_once_with_130():
     code = (
         "import os, signal, time\n"
-        "from jaxvo.cli import interrupt_at_safe_points\n"
+        "from jaxvo.cli.main import interrupt_at_safe_points\n"
         "with interrupt_at_safe_points():\n"
         "    os.kill(os.getpid(), signal.SIGINT)\n"
         "    os.kill(os.getpid(), signal.SIGINT)\n"
@@ -761,7 +761,7 @@ def test_study_results_never_go_over_the_spec_or_a_sequence(base, tmp_path, caps
 
 
 def test_check_outputs_refuses_one_file_twice(tmp_path):
-    from jaxvo.io import check_outputs
+    from jaxvo.host.io import check_outputs
 
     with pytest.raises(InputError, match="b and a are the same file"):
         check_outputs((), files={"a": tmp_path / "t.txt", "b": tmp_path / "." / "t.txt"})
@@ -913,7 +913,7 @@ def test_odometry_refuses_float_depth_in_millimetres_or_raw_units(base_seq):
             Odometry(K).process(f.bgr, depth, f.timestamp)
     mm = np.round(f.depth * 1000).astype(np.uint16)  # millimetres at 5000 per metre
     odo = Odometry(K)
-    from jaxvo.io import DepthScaleWarning
+    from jaxvo.host.io import DepthScaleWarning
 
     with pytest.warns(DepthScaleWarning, match="depth_scale 1000 is likelier"):
         odo.process(f.bgr, mm, f.timestamp)
@@ -1002,7 +1002,7 @@ def test_python_api_refuses_memory_it_cannot_have(base_seq):
 
 
 def test_check_memory_gives_both_numbers():
-    from jaxvo.memory import check_memory, run_bytes
+    from jaxvo.host.memory import check_memory, run_bytes
 
     need = run_bytes(Config(), height=480, width=640)
     check_memory(need, what="x", available=2 * need)

@@ -7,9 +7,9 @@ import json
 import numpy as np
 import pytest
 
-from jaxvo.cli import main
-from jaxvo.io import Trajectory, write_trajectory
-from jaxvo.transforms import pose_from_tq
+from jaxvo.cli.main import main
+from jaxvo.host.io import Trajectory, write_trajectory
+from jaxvo.host.transforms import pose_from_tq
 
 
 @pytest.fixture

@@ -6,9 +6,9 @@ import cv2
 import numpy as np
 import pytest
 
-from jaxvo.cli import main
-from jaxvo.io import read_trajectory
-from jaxvo.synth import make_sequence, write_sequence
+from jaxvo.cli.main import main
+from jaxvo.host.io import read_trajectory
+from jaxvo.synth.scenes import make_sequence, write_sequence
 
 
 @pytest.fixture(scope="module")
@@ -118,9 +118,9 @@ def test_an_image_that_cannot_be_written_mid_run_is_one_line_and_exit_2(
         seq_dir, tmp_path, capsys, monkeypatch):
     """Masks are written on a background thread: a write that fails there (a full disk)
     still ends the run with one line naming the file, and the poses so far are kept."""
-    import jaxvo.io
+    import jaxvo.host.io
 
-    real_write = jaxvo.io.write_image
+    real_write = jaxvo.host.io.write_image
     calls = {"n": 0}
 
     def write_image(path, image):
@@ -129,7 +129,7 @@ def test_an_image_that_cannot_be_written_mid_run_is_one_line_and_exit_2(
             raise OSError(28, "No space left on device", str(path))
         real_write(path, image)
 
-    monkeypatch.setattr(jaxvo.io, "write_image", write_image)
+    monkeypatch.setattr(jaxvo.host.io, "write_image", write_image)
     traj = tmp_path / "traj.txt"
     rc = main(["run", str(seq_dir), "--out", str(traj), "--masks", str(tmp_path / "m"), "-q"])
     err = capsys.readouterr().err.strip().splitlines()

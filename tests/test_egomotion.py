@@ -7,7 +7,7 @@ import numpy as np
 import pytest
 
 from jaxvo.config import Config, Params, params_as_arrays
-from jaxvo.egomotion import estimate_egomotion
+from jaxvo.core.egomotion import estimate_egomotion
 from jaxvo.status import Status
 
 CFG = Config()
@@ -35,7 +35,7 @@ def _scene(rng, n=600):
 
 
 def _model_noise(rng, prev, cur, pixel_sigma, depth_coeff, focal=525.0):
-    """The pair with the sensor noise of jaxvo.noise: each depth reading's noise along its
+    """The pair with the sensor noise of jaxvo.core.noise: each depth reading's noise along its
     own viewing ray (``depth_coeff * z^2``), the tracker's across the current ray
     (``pixel_sigma * z / focal`` per axis); float64, then float32."""
     prev, cur = np.asarray(prev, np.float64), np.asarray(cur, np.float64)
@@ -88,7 +88,7 @@ def test_a_starting_motion_and_the_calibrated_noise_are_used(ego):
     the majority (150 mm off measured). ``scale`` replaces the starting noise: with noise 6
     times the model's the frame's robust scale is capped at twice the model, and most
     correct points fall outside the test; told the true scale, they do not."""
-    from jaxvo.noise import NoiseScale
+    from jaxvo.core.noise import NoiseScale
 
     rng = np.random.default_rng(5)
     prev, cur, T = _scene(rng)
@@ -143,8 +143,8 @@ def test_all_zero_input_gives_no_nan(ego):
 def test_reprojection_refinement_undoes_the_shortening_by_depth_noise():
     # depth noise along the viewing rays of both frames (5 % of z at 3 m, the structured-light
     # shape), pixels exact: the isotropic 3D fit is biased, the image/depth split is not
-    from jaxvo.egomotion import refine_reprojection
-    from jaxvo.procrustes import fit_rigid
+    from jaxvo.core.egomotion import refine_reprojection
+    from jaxvo.core.procrustes import fit_rigid
 
     rng = np.random.default_rng(3)
     prev, cur, T = _scene(rng, n=1200)
@@ -165,7 +165,7 @@ def test_reprojection_refinement_undoes_the_shortening_by_depth_noise():
 
 
 def test_reprojection_refinement_keeps_an_exact_pose_and_ignores_too_few_points():
-    from jaxvo.egomotion import refine_reprojection
+    from jaxvo.core.egomotion import refine_reprojection
 
     rng = np.random.default_rng(4)
     prev, cur, T = _scene(rng)

@@ -4,8 +4,8 @@ from typing import NamedTuple
 
 import numpy as np
 
-from jaxvo.evaluation import segmentation_scores, trajectory_scores
-from jaxvo.io import Trajectory
+from jaxvo.evaluation.scores import segmentation_scores, trajectory_scores
+from jaxvo.host.io import Trajectory
 
 
 def _traj(positions):

@@ -9,9 +9,9 @@ import cv2
 import numpy as np
 import pytest
 
-from jaxvo.camera import Intrinsics, backproject, grid_pixels, read_camera_file
 from jaxvo.config import Config
-from jaxvo.flow import (
+from jaxvo.host.camera import Intrinsics, backproject, grid_pixels, read_camera_file
+from jaxvo.host.flow import (
     GridFlow,
     GridFlowTracker,
     bilinear_depth,
@@ -24,7 +24,7 @@ from jaxvo.flow import (
     sample_patches,
     sequence_flows,
 )
-from jaxvo.io import data_root
+from jaxvo.host.io import data_root
 from jaxvo.status import Status
 
 H, W = 480, 640

@@ -3,7 +3,7 @@
 import jax.numpy as jnp
 import numpy as np
 
-from jaxvo.geometry import invert_pose, make_pose, masked_median, transform_points
+from jaxvo.core.geometry import invert_pose, make_pose, masked_median, transform_points
 
 
 def _random_pose(rng):
@@ -61,7 +61,7 @@ def test_masked_median_to_12_bits_is_the_lower_middle_value_to_one_part_in_4096(
 
 
 def test_so3_exp_is_the_rotation_about_the_axis_and_exact_near_zero():
-    from jaxvo.geometry import so3_exp
+    from jaxvo.core.geometry import so3_exp
 
     axis = np.array([1.0, -2.0, 0.5]) / np.linalg.norm([1.0, -2.0, 0.5])
     for angle in (0.0, 1e-7, 0.3, 2.5):

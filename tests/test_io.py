@@ -1,14 +1,16 @@
-"""Tests of jaxvo.io and jaxvo.transforms: trajectory files, association, TUM sequences."""
+"""Tests of jaxvo.host.io and jaxvo.host.transforms: trajectory files, association, TUM sequences."""
 
 from __future__ import annotations
+
+from pathlib import Path
 
 import cv2
 import numpy as np
 import pytest
 
-from jaxvo.camera import PRESETS, Intrinsics, write_camera_file
 from jaxvo.errors import InputError
-from jaxvo.io import (
+from jaxvo.host.camera import PRESETS, Intrinsics, write_camera_file
+from jaxvo.host.io import (
     Frame,
     InMemorySequence,
     Trajectory,
@@ -19,7 +21,7 @@ from jaxvo.io import (
     read_trajectory,
     write_trajectory,
 )
-from jaxvo.transforms import (
+from jaxvo.host.transforms import (
     invert_pose,
     pose_from_tq,
     quat_to_rotation,
@@ -370,7 +372,7 @@ def test_sevenscenes_sequence(require_data):
 
 
 def test_first_pose_and_the_ground_truth_of_chosen_frames():
-    from jaxvo.io import first_pose, groundtruth_of_frames
+    from jaxvo.host.io import first_pose, groundtruth_of_frames
 
     poses = np.tile(np.eye(4), (5, 1, 1))
     poses[:, 0, 3] = np.arange(5.0)
@@ -387,3 +389,14 @@ def test_first_pose_and_the_ground_truth_of_chosen_frames():
     assert np.array_equal(first_pose(sparse), np.eye(4))
     none = type("Seq", (), {"groundtruth": None, "__len__": lambda self: 3})()
     assert groundtruth_of_frames(none, np.array([0])) is None
+
+
+def test_the_data_root_defaults_to_shared_data_beside_the_checkout(monkeypatch):
+    import jaxvo
+    from jaxvo.host.io import data_root
+
+    monkeypatch.delenv("JAXVO_DATA", raising=False)
+    checkout = Path(jaxvo.__file__).resolve().parent.parent
+    assert data_root() == checkout.parent / "shared" / "data"
+    monkeypatch.setenv("JAXVO_DATA", "/elsewhere")
+    assert data_root() == Path("/elsewhere")

@@ -1,4 +1,4 @@
-"""Tests of jaxvo.metrics against closed forms, an SVD reference and evo's own figures."""
+"""Tests of jaxvo.evaluation.metrics against closed forms, an SVD reference and evo's own figures."""
 
 from __future__ import annotations
 
@@ -9,8 +9,7 @@ import numpy as np
 import pytest
 
 from jaxvo.errors import InputError
-from jaxvo.io import Trajectory, read_trajectory
-from jaxvo.metrics import (
+from jaxvo.evaluation.metrics import (
     SegmentationScores,
     align_umeyama,
     ate,
@@ -18,7 +17,8 @@ from jaxvo.metrics import (
     rpe,
     rpe_pairs,
 )
-from jaxvo.transforms import pose_from_tq
+from jaxvo.host.io import Trajectory, read_trajectory
+from jaxvo.host.transforms import pose_from_tq
 
 
 def random_rotation(rng):
@@ -312,3 +312,33 @@ def test_segmentation_scores_no_positives_rule():
     assert not any(np.isnan(v) for v in SegmentationScores().as_dict().values())
     with pytest.raises(InputError, match="differ in shape"):
         s.add(np.zeros(3), np.zeros(4))
+
+
+# --- evo's -s / -as: the scale alone, or Sim(3) ----------------------------------------------
+
+
+def test_scale_only_and_sim3_alignment():
+    """evo's ``-s`` without ``-a`` corrects only the scale; ``-as`` fits Sim(3). Closed form:
+    an estimate at half the ground truth's scale about the origin is undone by scale 2 alone
+    (error 0 unaligned), and a rotated, shifted, half-scale one by Sim(3)."""
+    rng = np.random.default_rng(3)
+    n = 30
+    t = np.arange(n) / 30.0
+    gt = Trajectory(t, pose_from_tq(rng.normal(size=(n, 3)), rng.normal(size=(n, 4))))
+    half = gt.poses.copy()
+    half[:, :3, 3] *= 0.5
+    est = Trajectory(t, half)
+    only = ate(gt, est, align=False, scale=True)
+    assert only.alignment.scale == pytest.approx(2.0, abs=1e-12)  # tol 1e-12
+    np.testing.assert_allclose(only.alignment.rotation, np.eye(3), atol=0)  # exactly identity
+    assert only.stats.max <= 1e-12  # tol 1e-12 m
+    assert ate(gt, est, align=False).stats.rmse > 0.1  # not corrected: far off
+    S = pose_from_tq([1.0, -2.0, 0.5], [0.2, -0.1, 0.3, 0.9])
+    moved = Trajectory(t, S @ half)
+    sim3 = ate(gt, moved, align=True, scale=True)
+    assert sim3.alignment.scale == pytest.approx(2.0, abs=1e-9)  # tol 1e-9
+    assert sim3.stats.max <= 1e-9  # tol 1e-9 m
+    # RPE: the rigid part changes nothing, the scale undoes the halved steps
+    assert rpe(gt, moved).trans.rmse > 0.1
+    assert rpe(gt, moved, align=True, scale=True).trans.max <= 1e-9  # tol 1e-9 m
+    assert rpe(gt, moved, scale=True).trans.max <= 1e-9  # tol 1e-9 m

@@ -1,4 +1,4 @@
-"""The sensor noise model (jaxvo.noise): the Mahalanobis length against the full covariance,
+"""The sensor noise model (jaxvo.core.noise): the Mahalanobis length against the full covariance,
 the chi-square quantiles against SciPy, the inlier rate of pure model noise, and the online
 calibration's convergence.
 
@@ -14,7 +14,7 @@ import jax.numpy as jnp
 import numpy as np
 import pytest
 
-from jaxvo.noise import (
+from jaxvo.core.noise import (
     NoiseScale,
     chi2_quantile,
     mahalanobis,

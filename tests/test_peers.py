@@ -3,10 +3,10 @@
 import numpy as np
 import pytest
 
-from jaxvo.evaluation import trajectory_scores
-from jaxvo.io import InMemorySequence
-from jaxvo.peers import available_peers, run_peer
-from jaxvo.synth import make_sequence
+from jaxvo.evaluation.scores import trajectory_scores
+from jaxvo.host.io import InMemorySequence
+from jaxvo.host.peers import available_peers, run_peer
+from jaxvo.synth.scenes import make_sequence
 
 
 @pytest.fixture(scope="module")

@@ -12,17 +12,17 @@ import numpy as np
 import pytest
 
 from jaxvo.config import Config, Params, grid_shape, params_as_arrays
-from jaxvo.errors import InputError
-from jaxvo.flow import flows_for_sequence
-from jaxvo.odometry import Odometry, run_sequence
-from jaxvo.pipeline import (
+from jaxvo.core.pipeline import (
     batch_params,
     jit_step,
     run_scan,
     run_study,
 )
+from jaxvo.errors import InputError
+from jaxvo.host.flow import flows_for_sequence
+from jaxvo.odometry import Odometry, run_sequence
 from jaxvo.status import Status
-from jaxvo.synth import make_sequence
+from jaxvo.synth.scenes import make_sequence
 
 CFG = Config()
 FRAMES = 12
@@ -60,9 +60,9 @@ def test_scan_accuracy_is_near_what_was_measured_and_far_better_than_a_peer(scan
     12 frames, scene seed 3, run seed 7, 2-core CPU; 0.16 mm with run seed 0), bounded at
     0.5 mm; and relative to OpenCV's RGB-D odometry on the same frames (5.7 mm measured,
     jaxvo 0.028 of it), bounded at a tenth of it."""
-    from jaxvo.io import InMemorySequence
-    from jaxvo.metrics import ate
-    from jaxvo.peers import run_peer
+    from jaxvo.evaluation.metrics import ate
+    from jaxvo.host.io import InMemorySequence
+    from jaxvo.host.peers import run_peer
 
     jaxvo_ate = ate(seq.groundtruth, scan_result.trajectory).stats.rmse
     assert jaxvo_ate < 0.0005, jaxvo_ate
@@ -162,7 +162,7 @@ def test_streaming_drops_a_frame_of_another_size_and_pairs_across_it(seq):
 def test_streaming_and_scan_drop_the_same_frame_and_agree(seq):
     """A black frame: both modes drop it (no pose), pair the next frame with the last good
     one and give the same poses (float32 rounding, 1e-4 m)."""
-    from jaxvo.io import InMemorySequence
+    from jaxvo.host.io import InMemorySequence
 
     frames = list(InMemorySequence(seq, 8))
     frames[3] = frames[3]._replace(bgr=np.zeros_like(frames[3].bgr))
@@ -195,7 +195,7 @@ def test_fast_real_motion_keeps_the_background_identified(require_data):
     grid cells are reported moving (0 measured) and 2 % fall in the plug-in masks (0
     measured). Counting unmeasured retained cells in eq. (4.1) lost the match for 9 frames
     in a row here (frames 24-32) and called most cells moving."""
-    from jaxvo.io import InMemorySequence, open_sequence
+    from jaxvo.host.io import InMemorySequence, open_sequence
 
     seq = InMemorySequence(open_sequence(require_data("7scenes_static_0000_0299")), 36, step=4)
     out = run_sequence(seq, cfg=CFG, seed=0).outputs
@@ -238,7 +238,7 @@ BOX = (_C < 10) & (_R >= 1) & (_R < 11)
 
 
 def hand_flow(rng, box_moves, status=Status.OK, valid=True):
-    from jaxvo.flow import GridFlow
+    from jaxvo.host.flow import GridFlow
 
     uv = np.stack([(_C + 0.5) * CFG.cell, (_R + 0.5) * CFG.cell], 1)
     cx, cy = GRID_S[1] * CFG.cell / 2, GRID_S[0] * CFG.cell / 2
@@ -262,7 +262,7 @@ def hand_flow(rng, box_moves, status=Status.OK, valid=True):
 
 
 def run_hand(flows, seed=0):
-    from jaxvo.pipeline import init_pipeline
+    from jaxvo.core.pipeline import init_pipeline
 
     prm = params_as_arrays(Params())
     state = init_pipeline(cfg=CFG, grid=GRID_S, params=prm)
@@ -332,7 +332,7 @@ def test_a_box_over_half_the_view_never_takes_the_background(box_starts):
 
 
 def test_belief_weights_follow_the_evidence():
-    from jaxvo.pipeline import belief_weights
+    from jaxvo.core.pipeline import belief_weights
 
     L = np.log(0.99 / 0.01)  # logit of the confidence, 4.595
     prior = jnp.asarray([-6.0, -L - 1e-3, -L + 1e-3, 0.0, L - 1e-3, L + 1e-3, 6.0], jnp.float32)
@@ -344,7 +344,7 @@ def test_background_support_is_the_surface_explained_and_its_share_that_follows(
     """Support: the surface (z^2 per point, times its belief) of every point a segment's
     motion explains; consistency: 0.1 plus the share of it the predicted motion explains
     too (1.1 before any ego-motion)."""
-    from jaxvo.pipeline import background_support
+    from jaxvo.core.pipeline import background_support
 
     z = np.r_[np.full(6, 1.0), np.full(4, 3.0)]  # 6 near points, 4 far
     weights = np.r_[np.ones(9), 0.5]
@@ -378,7 +378,7 @@ def test_evidence_delta_signs_and_clip():
     an outlier, not motion); within +-evidence_step; 0 where invalid."""
     from scipy.stats import norm
 
-    from jaxvo.pipeline import evidence_delta
+    from jaxvo.core.pipeline import evidence_delta
 
     prm = params_as_arrays(Params())
     k, step_ = float(prm.evidence_effect), float(prm.evidence_step)
@@ -415,7 +415,7 @@ def test_grow_moving_spreads_only_into_open_cells():
     established background) cells, for one and two steps."""
     from scipy import ndimage
 
-    from jaxvo.pipeline import grow_moving
+    from jaxvo.core.pipeline import grow_moving
 
     rng = np.random.default_rng(12)
     grid = (12, 16)
@@ -438,7 +438,7 @@ def test_grow_moving_spreads_only_into_open_cells():
 
 
 def test_final_moving_is_the_final_evidence_above_the_confidence():
-    from jaxvo.pipeline import final_moving, init_pipeline
+    from jaxvo.core.pipeline import final_moving, init_pipeline
 
     prm = params_as_arrays(Params())
     state = init_pipeline(cfg=CFG, grid=(2, 3), params=prm)

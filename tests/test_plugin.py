@@ -1,4 +1,4 @@
-"""jaxvo.plugin: per-frame dynamic-pixel masks from a run's identifiers (shapes, anchoring)."""
+"""jaxvo.host.plugin: per-frame dynamic-pixel masks from a run's identifiers (shapes, anchoring)."""
 
 from __future__ import annotations
 
@@ -8,7 +8,7 @@ import numpy as np
 import pytest
 
 import jaxvo
-from jaxvo.plugin import dynamic_masks, iter_dynamic_masks, mask_png
+from jaxvo.host.plugin import dynamic_masks, iter_dynamic_masks, mask_png
 
 H, W, CELL = 48, 70, 16  # 3 x 4 cells; a 6-pixel strip right of the last column
 ROWS, COLS = H // CELL, W // CELL
@@ -79,10 +79,10 @@ def test_grow_dilates_by_whole_cells():
 
 def test_iterator_matches_array_and_a_real_step_output_gives_its_dynamic_cells():
     """A ``StepOutput``'s masks are its ``dynamic`` cells (the moving cells and their
-    unmeasured neighbours, jaxvo.pipeline.grow_moving), not its identifiers or its
+    unmeasured neighbours, jaxvo.core.pipeline.grow_moving), not its identifiers or its
     ``moving`` flags; by default nothing more is grown."""
-    from jaxvo.noise import NoiseScale
-    from jaxvo.pipeline import StepOutput
+    from jaxvo.core.noise import NoiseScale
+    from jaxvo.core.pipeline import StepOutput
 
     ids = ids_with_moving([[(0, 2)], [(2, 0), (2, 1)]])
     dynamic = ids_with_moving([[(0, 2), (0, 3)], [(2, 0), (2, 1), (1, 1)]]) >= 2

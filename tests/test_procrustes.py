@@ -8,7 +8,7 @@ import jax.numpy as jnp
 import numpy as np
 import pytest
 
-from jaxvo.procrustes import fit_rigid, fit_rigid_cols, residuals
+from jaxvo.core.procrustes import fit_rigid, fit_rigid_cols, residuals
 
 # float32 fit against a float64 reference: rotation entries and translations (metres) agree
 # to this for well-conditioned sets of points spread over ~1 m.

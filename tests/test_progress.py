@@ -2,8 +2,8 @@
 
 import io
 
-from jaxvo import progress as progress_mod
-from jaxvo.progress import Progress
+from jaxvo.host import progress as progress_mod
+from jaxvo.host.progress import Progress
 
 
 def test_time_left_follows_the_average_rate(monkeypatch):

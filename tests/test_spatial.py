@@ -9,9 +9,9 @@ import pytest
 from sklearn.cluster import DBSCAN
 from sklearn.metrics import pairwise_distances
 
-from jaxvo.cluster import dbscan, jaccard_distance
 from jaxvo.config import Config, Params, params_as_arrays
-from jaxvo.spatial import segment
+from jaxvo.core.cluster import dbscan, jaccard_distance
+from jaxvo.core.spatial import segment
 from jaxvo.status import Status
 
 GRID = (24, 32)  # rows, cols: 768 points, a 512 x 384 image at 16-pixel cells
@@ -253,7 +253,7 @@ def test_model_noise_at_every_depth_is_one_segment(seg, params):
     fewer (0.94 here, 0.73-0.98 over scene seeds 7-10): its motion is refitted with equal
     weights on its inliers (spatial._refine, _cluster_refine), so the far points' wide
     noise pulls it by a millimetre or two, beyond the near points' tight noise."""
-    from jaxvo.spatial import _res, frame_points
+    from jaxvo.core.spatial import _res, frame_points
 
     rng = np.random.default_rng(7)
     rows, cols = GRID
@@ -350,7 +350,7 @@ def test_samples_take_valid_neighbours_on_a_sparse_grid():
     """A fifth of the grid valid (as with motion blur): the m - 1 neighbours of a seed are
     valid cells within the sample radius, not offsets that mostly land on invalid cells
     (then about one sample in 125 had all its points valid)."""
-    from jaxvo.spatial import _draw_samples
+    from jaxvo.core.spatial import _draw_samples
 
     rows, cols = GRID
     valid = np.random.default_rng(0).uniform(size=rows * cols) < 0.2
@@ -370,7 +370,7 @@ def test_samples_take_valid_neighbours_on_a_sparse_grid():
 def test_seed_cells_follow_the_weights():
     """The two-level inverse CDF picks the cell a flat cumulative sum would, never a cell of
     weight 0, and with frequencies proportional to the weights."""
-    from jaxvo.spatial import _inverse_cdf
+    from jaxvo.core.spatial import _inverse_cdf
 
     rows, cols = GRID
     rng = np.random.default_rng(3)
@@ -405,7 +405,7 @@ def test_leftover_points_become_a_segment_only_when_they_move_apart(params, case
     """A moving block that no kept segment explains (as when joint refinement has lost it)
     becomes a segment of its own; leftovers that move as a kept segment does, or that are
     too few, do not."""
-    from jaxvo.spatial import _leftover_segment, _res, frame_points
+    from jaxvo.core.spatial import _leftover_segment, _res, frame_points
 
     prev, cur, valid, truth = make_scene(4, TWO)
     n_slots = CFG.max_segments
@@ -447,8 +447,8 @@ def test_ties_in_the_cluster_refinement_go_to_the_better_fit():
     keeps them with the segment of the most inliers. Residuals in noise units: the wall's
     own motion leaves chi-square noise, the object's adds an offset of 4, within the tie
     test (chi2_1 at 0.99, 6.6) of it."""
-    from jaxvo.noise import chi2_quantile
-    from jaxvo.spatial import _assign
+    from jaxvo.core.noise import chi2_quantile
+    from jaxvo.core.spatial import _assign
 
     n_wall, n_obj = 40, 60
     rng = np.random.default_rng(0)
@@ -481,10 +481,10 @@ def test_a_near_object_motion_does_not_swallow_the_far_wall():
     calibration is what separates them.) Before ties in the cluster refinement went by fit
     and the merge asked for the motions to explain each other's points both ways, 3 motions
     were found in 7 of the 16 runs and the wall was never apart."""
-    from jaxvo.flow import flows_for_sequence
-    from jaxvo.masks import ids_at_grid
-    from jaxvo.noise import NoiseScale
-    from jaxvo.synth import make_sequence
+    from jaxvo.core.noise import NoiseScale
+    from jaxvo.host.flow import flows_for_sequence
+    from jaxvo.host.masks import ids_at_grid
+    from jaxvo.synth.scenes import make_sequence
 
     seq = make_sequence("fixed_camera_2", frames=48, seed=0)
 

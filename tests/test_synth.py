@@ -1,14 +1,14 @@
-"""Tests of jaxvo.synth: determinism, exact ground truth, masks, bad input, file round trip."""
+"""Tests of jaxvo.synth.scenes: determinism, exact ground truth, masks, bad input, file round trip."""
 
 from __future__ import annotations
 
 import numpy as np
 import pytest
 
-from jaxvo import synth
-from jaxvo.camera import backproject, project
 from jaxvo.errors import InputError
-from jaxvo.io import TumSequence, data_root, read_trajectory
+from jaxvo.host.camera import backproject, project
+from jaxvo.host.io import TumSequence, data_root, read_trajectory
+from jaxvo.synth import scenes as synth
 
 IDEAL = synth.SensorOptions.ideal()
 
@@ -244,8 +244,8 @@ def test_write_sequence_round_trip(tmp_path):
 
 
 def test_cli_synth(tmp_path, capsys):
-    from jaxvo.cli import main
-    from jaxvo.commands.synth import SCENARIO_NAMES
+    from jaxvo.cli.main import main
+    from jaxvo.cli.synth import SCENARIO_NAMES
 
     assert SCENARIO_NAMES == tuple(synth.SCENARIOS)
 
@@ -256,7 +256,7 @@ def test_cli_synth(tmp_path, capsys):
 
 
 def test_render_does_not_retrace_across_frames():
-    from jaxvo.render import cast
+    from jaxvo.synth.render import cast
 
     seq = synth.make_sequence("handheld_slow", frames=4, seed=0)
     seq[0]

@@ -1,4 +1,4 @@
-"""Tests of jaxvo.temporal: label matching (thesis 4.1), the dual-mode grid model (4.2.1),
+"""Tests of jaxvo.core.temporal: label matching (thesis 4.1), the dual-mode grid model (4.2.1),
 forward-splat compensation (4.2.2), the background's choice and the moving evidence.
 
 Segmentations are built by hand on a 12 x 16 grid; a small NamedTuple stands in for the
@@ -16,7 +16,7 @@ import numpy as np
 import pytest
 
 from jaxvo.config import Config, Params, params_as_arrays
-from jaxvo.temporal import (
+from jaxvo.core.temporal import (
     TemporalOut,
     TemporalState,
     _swap_identifiers,
@@ -673,7 +673,7 @@ def test_the_evidence_bound_lets_a_steady_motion_pass_the_test_at_any_confidence
     """The bound follows the confidence: with a fixed bound of 6 a cell could never pass
     the moving test at confidence 0.999 (log-odds 6.9); with the bound at logit + margin
     a cell pushed every frame passes it at 0.9, 0.99, 0.999 and 0.9999."""
-    from jaxvo.temporal import moving_logodds
+    from jaxvo.core.temporal import moving_logodds
 
     for conf in (0.9, 0.99, 0.999, 0.9999):
         prm = params(evidence_decay=0.9, confidence=conf)

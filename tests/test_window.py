@@ -15,9 +15,8 @@ import numpy as np
 import pytest
 
 from jaxvo.config import Config, Params, params_as_arrays
-from jaxvo.flow import GridFlow
-from jaxvo.noise import NoiseScale
-from jaxvo.window import (
+from jaxvo.core.noise import NoiseScale
+from jaxvo.core.window import (
     ArrowCurvature,
     WindowOut,
     chain_tracks,
@@ -27,6 +26,7 @@ from jaxvo.window import (
     update_window,
     window_trajectory,
 )
+from jaxvo.host.flow import GridFlow
 
 F, CX, CY, H, W, CELL = 525.0, 319.5, 239.5, 480, 640, 16
 GRID = (H // CELL, W // CELL)
@@ -328,7 +328,7 @@ def test_window_trajectory_takes_each_frame_once_in_order():
 
 
 def test_an_outlier_track_is_ignored_by_the_robust_loss(monkeypatch):
-    from jaxvo import window
+    from jaxvo.core import window
 
     cfg = cfg_with(4)
     poses = trajectory(8, seed=8)
@@ -426,16 +426,16 @@ def test_wrong_shapes_are_caught_at_the_call():
 
 @pytest.fixture(scope="module")
 def short_sequence():
-    from jaxvo.synth import make_sequence
+    from jaxvo.synth.scenes import make_sequence
 
     return make_sequence("handheld_slow", frames=10, seed=3)
 
 
 def test_scan_streaming_and_study_agree_with_the_window(short_sequence):
     from jaxvo.config import grid_shape
-    from jaxvo.flow import flows_for_sequence
+    from jaxvo.core.pipeline import batch_params, run_study
+    from jaxvo.host.flow import flows_for_sequence
     from jaxvo.odometry import Odometry, run_sequence
-    from jaxvo.pipeline import batch_params, run_study
 
     seq = short_sequence
     cfg = cfg_with(4)
@@ -474,10 +474,10 @@ def test_without_the_window_the_step_is_unchanged(short_sequence):
 
 def test_jaxvo_run_writes_each_pose_when_its_frame_leaves_the_window(short_sequence, tmp_path,
                                                                      capsys):
-    from jaxvo.cli import main
-    from jaxvo.io import open_sequence, read_trajectory
+    from jaxvo.cli.main import main
+    from jaxvo.host.io import open_sequence, read_trajectory
     from jaxvo.odometry import run_sequence
-    from jaxvo.synth import write_sequence
+    from jaxvo.synth.scenes import write_sequence
 
     write_sequence(short_sequence, tmp_path / "seq")
     code = main(["run", str(tmp_path / "seq"), "--out", str(tmp_path / "t.txt"), "--window",
@@ -495,7 +495,7 @@ def test_jaxvo_run_writes_each_pose_when_its_frame_leaves_the_window(short_seque
 
 @pytest.mark.parametrize("window", ["1", "-2"])
 def test_jaxvo_run_rejects_a_window_no_run_can_use(window, tmp_path, capsys):
-    from jaxvo.cli import main
+    from jaxvo.cli.main import main
 
     code = main(["run", str(tmp_path), "--out", str(tmp_path / "t.txt"), "--window", window])
     assert code == 2
@@ -503,10 +503,10 @@ def test_jaxvo_run_rejects_a_window_no_run_can_use(window, tmp_path, capsys):
 
 
 def test_a_study_with_the_window_scores_the_final_poses(tmp_path):
-    from jaxvo import study
-    from jaxvo.evaluation import trajectory_scores
-    from jaxvo.io import Trajectory
-    from jaxvo.pipeline import batch_params, run_study
+    from jaxvo.core.pipeline import batch_params, run_study
+    from jaxvo.evaluation.scores import trajectory_scores
+    from jaxvo.host.io import Trajectory
+    from jaxvo.study import runner as study
 
     (tmp_path / "spec.toml").write_text(
         'name = "w"\nseeds = [0]\nbatch = 1\n[[sequences]]\nscene = "handheld_fast"\n'

@@ -1,0 +1,186 @@
+"""``jaxvo demo``: synthesise a dynamic scene, run jaxvo and its peers on it, score them.
+
+Needs no download: the scene comes from the built-in seeded generator, with exact ground
+truth for the camera and for which pixels move.
+"""
+
+from __future__ import annotations
+
+import argparse
+import json
+
+
+def add_arguments(p: argparse.ArgumentParser) -> None:
+    p.add_argument("--scenario", default="fixed_camera_2",
+                   help="synthetic scenario (see `jaxvo synth --help`; default fixed_camera_2)")
+    p.add_argument("--frames", type=int, default=90, help="frames to synthesise (default 90)")
+    p.add_argument("--seed", type=int, default=0,
+                   help="seed of the scene and of the sampling, 0 .. 2**32-1 (default 0)")
+    p.add_argument("--peers", default="opencv_rgb,opencv_rgbd",
+                   help="comma-separated peers to compare with, 'all' or 'none' "
+                   "(default opencv_rgb,opencv_rgbd)")
+    p.add_argument("--out", metavar="DIR",
+                   help="also write the trajectories (TUM format) and a few overlay panels "
+                   "(PNG named by timestamp, see `jaxvo run --help`) here (created)")
+    p.add_argument("--json", action="store_true", help="print the scores as JSON")
+    p.add_argument("--quiet", "-q", action="store_true", help="no progress lines")
+
+
+def _peer_list(text: str) -> list[str]:
+    from jaxvo.errors import InputError
+    from jaxvo.host.peers import available_peers
+
+    names = available_peers()
+    if text == "none":
+        return []
+    if text == "all":
+        return names
+    chosen = [s.strip() for s in text.split(",") if s.strip()]
+    bad = [s for s in chosen if s not in names]
+    if bad:
+        raise InputError(f"unknown peer(s) {', '.join(bad)}; available: {', '.join(names)}")
+    return chosen
+
+
+class _Anchors:
+    """The images a run's frame pairs label (``SequenceResult.frames[:-1]``), indexed by
+    pair: what :func:`jaxvo.evaluation.scores.segmentation_scores` reads, also when frames were
+    dropped."""
+
+    def __init__(self, seq, frames):
+        self.name, self._seq, self._frames = seq.name, seq, frames
+
+    def __getitem__(self, k: int):
+        return self._seq[int(self._frames[k])]
+
+
+def _check(args: argparse.Namespace, cfg) -> tuple[list[str], object]:
+    """The peers and the output folder (None without --out), after every option is checked
+    and the run is known to fit in memory, before any work."""
+    from pathlib import Path
+
+    from jaxvo.errors import InputError, check_seed
+    from jaxvo.host.io import check_outputs, output_folder
+    from jaxvo.host.memory import (
+        FRAME_BYTES_PER_PIXEL,
+        SYNTH_BYTES_PER_FRAME,
+        check_memory,
+        run_bytes,
+    )
+    from jaxvo.synth.scenes import SCENARIOS
+
+    peers = _peer_list(args.peers)
+    if args.scenario not in SCENARIOS:
+        raise InputError(f"unknown scenario {args.scenario!r}; choose one of {', '.join(SCENARIOS)}")
+    if args.frames < 2:
+        raise InputError(f"--frames must be at least 2, got {args.frames}")
+    check_seed(args.seed, name="--seed")
+    # the frames are rendered into memory, then scanned whole
+    check_memory(run_bytes(cfg, height=480, width=640, frames=args.frames, host_bytes=(
+        SYNTH_BYTES_PER_FRAME + FRAME_BYTES_PER_PIXEL * 480 * 640) * args.frames),
+        what=f"jaxvo demo --frames {args.frames}")
+    if not args.out:
+        return peers, None
+    # one file per method (a peer named twice: one file twice), and the overlays
+    methods = ("jaxvo", "groundtruth", *peers)
+    check_outputs((), files={f"the {name} trajectory (#{k + 1})": Path(args.out) / f"{name}.txt"
+                             for k, name in enumerate(methods)})
+    return peers, output_folder(args.out, what="--out")
+
+
+def run(args: argparse.Namespace) -> int:
+    from jaxvo.cli.main import interrupt_at_safe_points
+    from jaxvo.config import Config
+    from jaxvo.evaluation.scores import segmentation_scores, trajectory_scores
+    from jaxvo.host.io import InMemorySequence, write_image, write_trajectory
+    from jaxvo.host.masks import overlay_panel
+    from jaxvo.host.peers import run_peer
+    from jaxvo.host.progress import Progress
+    from jaxvo.odometry import run_sequence
+    from jaxvo.status import Status
+    from jaxvo.synth.scenes import make_sequence
+
+    cfg = Config()
+    peers, out = _check(args, cfg)
+    say = (lambda *a: None) if args.json else print
+    quiet = args.quiet or args.json
+    with interrupt_at_safe_points() as stop:
+
+        def progress(label: str):
+            """A progress line whose every update is also a safe point to stop at."""
+            line = Progress(label, enabled=not quiet)
+
+            def update(done: int, total: int) -> None:
+                stop()
+                line(done, total)
+
+            return update
+
+        say(f"jaxvo demo: scenario {args.scenario}, {args.frames} frames 640x480, seed {args.seed}")
+        # rendered once up front, so that every method is timed on the same frames in memory
+        seq = InMemorySequence(make_sequence(args.scenario, frames=args.frames, seed=args.seed))
+        stop()
+        res = run_sequence(seq, cfg=cfg, seed=args.seed, progress=progress("  grid flow"))
+        stop()
+        n_pairs = len(res.frames) - 1
+        rows = {"jaxvo": trajectory_scores(seq.groundtruth, res.trajectory)}
+        seg = segmentation_scores(_Anchors(seq, res.frames), res.outputs.moving, cfg.cell)
+        rows["jaxvo"]["f_measure"] = seg.f_measure
+        # steady state: flow on the host plus a second, already compiled run of the scan
+        import time
+
+        import jax
+        import jax.numpy as jnp
+
+        from jaxvo.config import Params, params_as_arrays
+        from jaxvo.core.pipeline import run_scan
+
+        t0 = time.perf_counter()
+        jax.block_until_ready(run_scan(res.flows, jax.random.key(args.seed),
+                                       params_as_arrays(Params()),
+                                       jnp.asarray(res.trajectory.poses[0], jnp.float32),
+                                       cfg=cfg, grid=res.grid))
+        scan_steady = time.perf_counter() - t0
+        rows["jaxvo"]["ms_per_frame"] = 1e3 * (res.flow_seconds + scan_steady) / n_pairs
+        skipped = int((res.outputs.status != Status.OK).sum())
+
+        for name in peers:
+            stop()
+            run = run_peer(seq, name, progress=progress(f"  {name}"))
+            rows[name] = trajectory_scores(seq.groundtruth, run.trajectory)
+            rows[name]["ms_per_frame"] = run.ms_per_frame
+            if out:
+                write_trajectory(out / f"{name}.txt", run.trajectory)
+        stop()
+
+    if out:
+        write_trajectory(out / "groundtruth.txt", seq.groundtruth)
+        write_trajectory(out / "jaxvo.txt", res.trajectory)
+        for k in range(0, n_pairs, max(1, n_pairs // 6)):
+            step_out = jax.tree.map(lambda a, k=k: a[k], res.outputs)
+            image = seq[int(res.frames[k])]  # the pair's labels lie on its first image
+            write_image(out / f"overlay_{image.timestamp:.6f}.png",
+                        overlay_panel(image.bgr, step_out, cfg.cell))
+
+    if args.json:
+        print(json.dumps({"scenario": args.scenario, "frames": len(seq), "seed": args.seed,
+                          "skipped": skipped, "dropped": len(res.dropped),
+                          "segmentation": seg.as_dict(), "methods": rows}, indent=1))
+        return 0
+    print()
+    print(f"  {'method':<13}{'ATE rmse':>10}{'RPE trans':>11}{'RPE rot':>10}{'F-measure':>11}{'ms/frame':>10}")
+    print(f"  {'':<13}{'[m]':>10}{'[m/frame]':>11}{'[deg/fr]':>10}{'(grid)':>11}{'':>10}")
+    for name, r in rows.items():
+        f = f"{r['f_measure']:.3f}" if "f_measure" in r else "-"
+        print(f"  {name:<13}{r['ate_rmse_m']:>10.4f}{r['rpe_trans_m_per_frame']:>11.4f}"
+              f"{r['rpe_rot_deg_per_frame']:>10.3f}{f:>11}{r['ms_per_frame']:>10.1f}")
+    print()
+    print(f"  segmentation: recall {seg.recall:.3f}, precision {seg.precision:.3f} "
+          f"(moving = positive, {seg.frames} frames, at grid points)")
+    print(f"  jaxvo: {skipped} of {n_pairs} frame pairs skipped, {len(res.dropped)} frames "
+          f"dropped; flow {res.flow_seconds:.2f} s on the host, scan {scan_steady:.2f} s "
+          f"({res.scan_seconds:.1f} s on the first call, compile included); ms/frame are "
+          "steady state")
+    if out:
+        print(f"  trajectories and overlays written to {out}")
+    return 0

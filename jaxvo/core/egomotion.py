@@ -1,0 +1,181 @@
+"""Ego-motion of the camera from the grid points labelled static background (device side).
+
+The camera's motion between two frames is the inverse of the apparent rigid motion of the
+static background: with ``p_cur = T_cur_prev p_prev`` for static points, the new camera
+pose is ``T_w_cur = T_w_prev @ inv(T_cur_prev)``.
+
+The fit is the weighted Procrustes of thesis eqs. (2.1), (2.2) on the static points,
+refined by iteratively re-weighted least squares with Huber weights on the residuals in
+units of the sensor noise (:mod:`jaxvo.core.noise`), so that a few points the temporal model
+mislabels (object edges, late-detected objects) cannot pull the pose.
+A last few Gauss-Newton steps (:func:`refine_reprojection`, our addition to the thesis)
+weigh the image-plane and depth parts of the error separately, because RGB-D depth noise
+lies along the viewing ray and biases the isotropic 3D fit.
+"""
+
+from __future__ import annotations
+
+import chex
+import jax
+import jax.numpy as jnp
+
+from jaxvo.config import Config, Params
+from jaxvo.core.geometry import make_pose, masked_median, masked_quantile, so3_exp
+from jaxvo.core.noise import chi2_quantile, init_noise, point_noise, residuals
+from jaxvo.core.procrustes import fit_rigid_cols
+from jaxvo.status import Status
+
+# The robust noise scale of a frame is the lower quartile of the normalised residual
+# lengths over that of a 3-D standard normal vector (sqrt of chi2_3's, 1.1081): a quarter
+# of the usable points on the background suffice.
+_QUARTILE = 0.25
+_CHI_3_Q25 = 1.1081
+# The frame's robust scale may differ from the noise model's by at most these factors:
+# a frame whose usable points are mostly mislabelled cannot inflate the Huber threshold
+# beyond twice the noise, nor shrink it below a quarter.
+_SCALE_RANGE = (0.25, 2.0)
+
+
+def _huber_threshold(x, mask):
+    """Twice the robust standard deviation of ``x[mask]`` (``x >= 0``): 1.4826 * median |x|
+    estimates the standard deviation of Gaussian residuals, and a fifth of outliers cannot
+    inflate it. The median to 1/4096 (13 of them a frame)."""
+    return 2.0 * 1.4826 * masked_median(x, mask, precision_bits=12)
+
+
+def _huber_weights(r, c, w):
+    """Weights ``w`` times Huber's ``min(1, c / r)`` for residual sizes ``r >= 0``; 0 beyond
+    three corners (``3 c``)."""
+    return jnp.where(r < 3.0 * c, w * jnp.minimum(1.0, c / jnp.maximum(r, 1e-20)), 0.0)
+
+
+def refine_reprojection(T, src, dst, weights, iters):
+    """Gauss-Newton on the image-plane and depth errors, each in units of its own scale.
+
+    The 3D-3D fit treats a point's error as isotropic, but the depth noise of an RGB-D
+    camera lies along the viewing ray and is several times the lateral error of the
+    tracked pixel; least squares on such points shortens the estimated motion (3 % with a
+    plain fit on the synthetic static scene). The tracked pixel carries no depth noise: its
+    direction is ``dst / dst_z``. So the pose is refined, from the 3D-3D estimate and on its
+    inliers, on the error of ``T src`` in the current view split into an image-plane part
+    (normalised image coordinates, the classic 3D-2D error) and a depth part, each divided
+    by its robust scale (Huber weights as in the 3D re-weighting): the data say how much
+    each is worth. Image error alone helped the synthetic scenes but not
+    7-Scenes, whose depth is not registered to its colour image exactly.
+
+    Args:
+      T: (4, 4) starting pose; src, dst: (3, n) columns; weights: (n,) bool or float.
+      iters: Gauss-Newton steps (static).
+    """
+    w = jnp.asarray(weights, jnp.float32)
+    m = dst[:2] / jnp.where(dst[2] > 0, dst[2], 1.0)  # (2, n) normalised image coordinates
+
+    def gn(_, T):
+        q = T[:3, :3] @ src + T[:3, 3:4]
+        z = jnp.where(q[2] > 1e-6, q[2], 1e-6)
+        u, v = q[0] / z, q[1] / z
+        ru, rv = u - m[0], v - m[1]
+        e = jnp.sqrt(ru * ru + rv * rv + 1e-20)
+        c = jnp.maximum(_huber_threshold(e, w > 0), 1e-5)
+        wr = _huber_weights(e, c, w)
+        # d(u, v)/d(q) times d(q)/d(xi) for a left perturbation xi = (omega, nu):
+        # dq = -[q]x omega + nu
+        iz = 1.0 / z
+        du = jnp.stack([-u * q[1] * iz, iz * q[2] + u * q[0] * iz, -q[1] * iz,
+                        iz, jnp.zeros_like(iz), -u * iz])
+        dv = jnp.stack([-iz * q[2] - v * q[1] * iz, v * q[0] * iz, q[0] * iz,
+                        jnp.zeros_like(iz), iz, -v * iz])
+        rz = q[2] - dst[2]
+        cz = jnp.maximum(_huber_threshold(jnp.abs(rz), wr > 0), 1e-6)
+        wz = _huber_weights(jnp.abs(rz), cz, wr)
+        dz = jnp.stack([q[1], -q[0], jnp.zeros_like(iz), jnp.zeros_like(iz),
+                        jnp.zeros_like(iz), jnp.ones_like(iz)])
+        a, b = 1.0 / (c * c), 1.0 / (cz * cz)
+        H = a * ((du * wr) @ du.T + (dv * wr) @ dv.T) + b * ((dz * wz) @ dz.T)
+        g = a * ((du * wr) @ ru + (dv * wr) @ rv) + b * ((dz * wz) @ rz)
+        H = H + 1e-9 * jnp.trace(H) * jnp.eye(6, dtype=H.dtype)
+        xi = -jnp.linalg.solve(H, g)
+        dR = so3_exp(xi[:3])
+        R = dR @ T[:3, :3]
+        t = dR @ T[:3, 3] + xi[3:]
+        good = jnp.all(jnp.isfinite(xi)) & (jnp.sum(wr > 0) >= 6)
+        return jnp.where(good, make_pose(R, t), T)
+
+    return jax.lax.fori_loop(0, iters, gn, T)
+
+
+def estimate_egomotion(pts_prev, pts_cur, weights, params: Params, *, cfg: Config,
+                       focal=525.0, scale=None, T_init=None):
+    """Robust rigid motion of the static background between two frames.
+
+    Each re-weighting iteration takes the residuals in units of the sensor noise
+    (:mod:`jaxvo.core.noise`), a robust scale of the frame from the lower quartile of their
+    lengths (so that mislabelled points cannot inflate it, and within ``_SCALE_RANGE`` of
+    the noise model), and refits with Huber weights whose corner is the inlier test
+    (``chi2_3(confidence)``) at that scale; points beyond three corners get weight 0.
+
+    Args:
+      pts_prev: (n, 3) previous-frame points, metres.
+      pts_cur: (n, 3) the same points in the current frame, metres.
+      weights: (n,) float, > 0 for points that may be used (static and valid).
+      params: numeric settings (``confidence``, ``min_static_points``).
+      cfg: static settings (``ego_iters`` re-weighting iterations).
+      focal: () focal length, pixels; scale: the current :class:`jaxvo.core.noise.NoiseScale`
+        (by default the starting values of ``params``).
+      T_init: optional (4, 4) starting motion (the background segment's); the first
+        weights are then taken from its residuals instead of a fit on all usable points,
+        so that the re-weighting converges to the background, not to a compromise with an
+        object not yet known to move.
+
+    Returns:
+      T_cur_prev: (4, 4) float32, maps previous-frame points into the current frame
+        (identity when the status is not OK).
+      status: () int32, ``Status.OK``, ``NO_STATIC`` or ``EGO_DEGENERATE``.
+      inliers: (n,) bool, points the final fit explains within the inlier test at the
+        frame's scale.
+    """
+    chex.assert_rank([pts_prev, pts_cur], 2)
+    chex.assert_equal_shape([pts_prev, pts_cur])
+    chex.assert_shape(weights, (pts_prev.shape[0],))
+    # columns (3, n): every coordinate a contiguous vector, which XLA's CPU backend
+    # vectorises far better than (n, 3) rows (see procrustes.fit_rigid_cols)
+    src, dst = pts_prev.T, pts_cur.T
+    usable = weights > 0
+    n_usable = jnp.sum(usable)
+    noise = point_noise(src, dst, jnp.asarray(focal, jnp.float32),
+                        init_noise(params) if scale is None else scale)
+    corner = jnp.sqrt(chi2_quantile(3, params.confidence))
+    # a point's weight falls with its depth noise (1/sigma rather than the statistically
+    # optimal 1/sigma^2: that let near, mislabelled object points pull the fit, fixed_camera_1
+    # ATE 0.6 -> 190 mm, while 1/sigma keeps most of the gain on static scenes, 6.6 -> 4.9 mm)
+    w_ray = jnp.sqrt(noise.w_ray)
+    w0 = jnp.where(usable, weights * w_ray / jnp.maximum(jnp.max(w_ray), 1e-12), 0.0)
+    w0 = w0.astype(jnp.float32)
+
+    def scaled_residuals(T):
+        r = jnp.sqrt(residuals(T, src, dst, noise)[0] + 1e-12)
+        q = masked_quantile(r, usable, _QUARTILE) / _CHI_3_Q25
+        return r, corner * jnp.clip(q, *_SCALE_RANGE)
+
+    def reweight(_, carry):
+        T, _ok = carry
+        r, c = scaled_residuals(T)
+        return fit_rigid_cols(src, dst, _huber_weights(r, c, w0))
+
+    if T_init is None:
+        T0, ok0 = fit_rigid_cols(src, dst, w0)
+    else:
+        T0, ok0 = reweight(0, (jnp.asarray(T_init, jnp.float32), jnp.bool_(True)))
+    T, ok = jax.lax.fori_loop(0, cfg.ego_iters, reweight, (T0, ok0))
+    r, c = scaled_residuals(T)
+    inliers = usable & (r <= c)
+    if cfg.ego_reprojection_iters > 0:
+        T = refine_reprojection(T, src, dst, inliers, cfg.ego_reprojection_iters)
+
+    status = jnp.where(
+        n_usable < params.min_static_points,
+        jnp.int32(Status.NO_STATIC),
+        jnp.where(ok & ok0, jnp.int32(Status.OK), jnp.int32(Status.EGO_DEGENERATE)),
+    )
+    T = jnp.where(status == Status.OK, T, jnp.eye(4, dtype=T.dtype))
+    return T, status, inliers

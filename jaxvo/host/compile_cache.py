@@ -1,0 +1,336 @@
+"""The persistent compilation cache: XLA programs compiled once per machine, not once per run
+(host only).
+
+Compiling the per-frame step takes 7-8 s on 2 cores and every ``jaxvo`` process paid it
+again; loading it from JAX's persistent cache takes about 0.3 s. The ``jaxvo`` commands turn
+the cache on by default (:func:`setup_compile_cache`), in a folder chosen by, first to last:
+
+1. ``--compile-cache DIR`` or ``--no-compile-cache`` (``setup_compile_cache(option)``);
+2. the environment variable ``JAXVO_COMPILE_CACHE`` (``off``, or a folder);
+3. JAX's own ``JAX_COMPILATION_CACHE_DIR``, left as JAX configures it (the user already
+   keeps a cache there, with its own size bound);
+4. ``$XDG_CACHE_HOME/jaxvo/xla``, else ``~/.cache/jaxvo/xla``.
+
+A jaxvo folder (1, 2, 4) holds one subfolder per jaxvo and JAX version
+(``jaxvo-0.1.0_jax-0.7.2``), so an upgrade starts a new one and an old one can be deleted
+whole. Within it JAX keys each program on the computation itself, the compile options, the
+XLA flags, the backend and jaxlib's version, so a new configuration (another grid size,
+hypothesis count) or changed code compiles afresh and never loads a stale program.
+
+Several processes may share the folder (``jaxvo run`` over many sequences at once, or
+``jaxvo study`` on several processes): the cache is bounded (:data:`MAX_BYTES`, least
+recently used entries evicted), which makes JAX take a file lock around every read and
+write, so no process reads an entry another is still writing, and only the first of two
+processes that compiled the same program stores it. An entry left empty by a process
+killed while writing it would be read, fail and never be rewritten; :func:`use_compile_cache`
+removes such entries (under the same lock) before the first compile.
+
+JAX trusts what it loads from the cache: keep it in a folder only you can write to.
+"""
+
+from __future__ import annotations
+
+import contextlib
+import os
+import sys
+import threading
+import time
+from collections.abc import Iterator, Mapping
+from pathlib import Path
+from typing import NamedTuple, TextIO
+
+from jaxvo.errors import InputError
+
+ENV = "JAXVO_COMPILE_CACHE"
+OFF = "off"
+# Larger than every configuration's programs together (the per-frame step is 0.6 MiB, a
+# scan about as much); bounded, so that JAX evicts old entries and locks the folder.
+MAX_BYTES = 1 << 30
+# Every program is stored, the tiny ones JAX compiles for eager operations too (about 20 of
+# them, 25 ms each to compile, 0.7 MiB together): loading them took the first frame of a
+# later run from 0.30 to 0.05 s here.
+MIN_COMPILE_SECONDS = 0.0
+# The lock file JAX's bounded cache takes (jax._src.lru_cache); the repair takes it too.
+_LOCK_NAME = ".lockfile"
+_ENTRY_SUFFIX = "-cache"
+
+
+class CacheChoice(NamedTuple):
+    """Where compiled programs are kept, and why there."""
+
+    folder: Path | None  # None: the cache is off
+    source: str  # which setting chose it, in words (e.g. "--compile-cache", "default")
+
+
+def choose_compile_cache(
+    option: str | os.PathLike | None = None, *, environ: Mapping[str, str] | None = None
+) -> CacheChoice:
+    """The compile cache's folder from the option, the environment and the defaults, in the
+    order of the module docstring (no file is touched).
+
+    Args:
+      option: ``--compile-cache`` (a folder), ``"off"`` (``--no-compile-cache``), or None
+        when neither was given.
+      environ: the environment (default ``os.environ``).
+    Returns:
+      :class:`CacheChoice`; a jaxvo folder gets its version subfolder appended.
+    """
+    env = os.environ if environ is None else environ
+    for value, source in ((option, "--compile-cache"), (env.get(ENV), ENV)):
+        if value is None or str(value) == "":
+            continue
+        if str(value).strip().lower() == OFF:
+            return CacheChoice(None, f"{source} off" if source == ENV else "--no-compile-cache")
+        return CacheChoice(_versioned(Path(value).expanduser()), source)
+    if env.get("JAX_COMPILATION_CACHE_DIR"):
+        return CacheChoice(Path(env["JAX_COMPILATION_CACHE_DIR"]).expanduser(),
+                           "JAX_COMPILATION_CACHE_DIR")
+    base = env.get("XDG_CACHE_HOME") or str(Path(env.get("HOME", "~")) / ".cache")
+    return CacheChoice(_versioned(Path(base).expanduser() / "jaxvo" / "xla"), "default")
+
+
+def _versioned(root: Path) -> Path:
+    """``root/jaxvo-<version>_jax-<version>``: one subfolder per release pair."""
+    import jax
+
+    from jaxvo import __version__
+
+    return root / f"jaxvo-{__version__}_jax-{jax.__version__}"
+
+
+def use_compile_cache(folder: str | os.PathLike | None) -> None:
+    """Point JAX's persistent compilation cache at ``folder`` (None: turn it off).
+
+    Call it before the first compile of the process: JAX opens its cache once. Entries
+    left empty by a killed process are removed first (see the module docstring).
+
+    Args:
+      folder: an existing, writable folder, or None.
+    """
+    import jax
+
+    if folder is None:
+        jax.config.update("jax_enable_compilation_cache", False)
+        return
+    _drop_empty_entries(Path(folder))
+    jax.config.update("jax_enable_compilation_cache", True)
+    jax.config.update("jax_compilation_cache_dir", str(folder))
+    jax.config.update("jax_persistent_cache_min_compile_time_secs", MIN_COMPILE_SECONDS)
+    jax.config.update("jax_compilation_cache_max_size", MAX_BYTES)
+
+
+def _drop_empty_entries(folder: Path) -> None:
+    """Remove zero-byte cache entries (a writer killed between creating and writing one),
+    under the lock JAX takes to write, so an entry being written now is never touched."""
+    import filelock
+
+    with filelock.FileLock(folder / _LOCK_NAME, timeout=10):
+        for entry in folder.glob(f"*{_ENTRY_SUFFIX}"):
+            with contextlib.suppress(OSError):  # another process removed it first
+                if entry.stat().st_size == 0:
+                    entry.unlink()
+
+
+def setup_compile_cache(
+    option: str | os.PathLike | None = None,
+    *,
+    environ: Mapping[str, str] | None = None,
+    stream: TextIO | None = None,
+) -> CacheChoice:
+    """Choose the compile cache's folder (:func:`choose_compile_cache`), create it and turn
+    the cache on there, or off.
+
+    A folder chosen by the option or the environment that cannot be written is an error;
+    the default one only turns the cache off, with a warning (a read-only home folder must
+    not stop a run).
+
+    Args:
+      option: ``--compile-cache`` DIR, ``"off"``, or None.
+      environ: the environment (default ``os.environ``).
+      stream: where the warning goes (default stderr).
+    Returns:
+      the :class:`CacheChoice` in force (``folder`` None when the cache is off).
+    Raises:
+      InputError: a folder given by the option or ``JAXVO_COMPILE_CACHE`` that cannot be
+        created or written.
+    """
+    choice = choose_compile_cache(option, environ=environ)
+    if choice.source == "JAX_COMPILATION_CACHE_DIR":
+        return choice  # JAX reads it itself; its size bound and thresholds are the user's
+    if choice.folder is not None:
+        from jaxvo.host.io import output_folder
+
+        try:
+            output_folder(choice.folder, what=f"compile cache ({choice.source})")
+        except InputError as exc:
+            if choice.source in ("--compile-cache", ENV):
+                raise
+            print(f"jaxvo: warning: {exc}; running without it", file=stream or sys.stderr)
+            choice = CacheChoice(None, f"off ({choice.source} folder not writable)")
+    use_compile_cache(choice.folder)
+    return choice
+
+
+def add_compile_cache_options(parser) -> None:
+    """``--compile-cache DIR`` and ``--no-compile-cache`` on an argparse parser (dest
+    ``compile_cache``: the folder, ``"off"``, or None when neither is given)."""
+    group = parser.add_mutually_exclusive_group()
+    group.add_argument(
+        "--compile-cache", metavar="DIR",
+        help="keep compiled XLA programs in DIR (a subfolder per jaxvo and JAX version), so "
+        f"later runs skip the compile (default: ${ENV}, else $XDG_CACHE_HOME/jaxvo/xla or "
+        f"~/.cache/jaxvo/xla; {ENV}=off turns it off)")
+    group.add_argument(
+        "--no-compile-cache", dest="compile_cache", action="store_const", const=OFF,
+        help="compile afresh and store nothing")
+
+
+# --- saying that a compile is under way ----------------------------------------------------
+
+# JAX's monitoring events (jax._src.dispatch.BACKEND_COMPILE_EVENT: a scalar when XLA's
+# compile of a program starts, a duration when it ends, a persistent cache lookup included;
+# jax._src.compiler: an event when the program came from the persistent cache, and the
+# compile time that saved, the stored compile time (whole seconds) less the load's).
+_COMPILE_EVENT = "/jax/core/compile/backend_compile_duration"
+_CACHE_HIT_EVENT = "/jax/compilation_cache/cache_hits"
+_SAVED_EVENT = "/jax/compilation_cache/compile_time_saved_sec"
+
+_watch: _Watch | None = None  # the announce_compile block in force, if any
+_listening = False
+
+
+class CompileNote(NamedTuple):
+    """A program that takes at least ``after`` seconds to compile: compiled now, or loaded
+    from the persistent cache."""
+
+    seconds: float  # the compile's or the load's
+    from_cache: bool
+
+
+class _Watch:
+    """The state of one :func:`announce_compile` block (compiles on its own thread)."""
+
+    def __init__(self, what: str, stream: TextIO | None, after: float, cached: bool):
+        self.what, self.stream, self.after, self.cached = what, stream, after, cached
+        self.thread = threading.get_ident()
+        self.lock = threading.Lock()
+        self.timer: threading.Timer | None = None
+        self.compiling = self.hit = self.said = False
+        self.saved = 0.0  # compile seconds a load from the cache saved
+        self.start = 0.0
+        self.notes: list[CompileNote] = []
+
+    def started(self) -> None:
+        with self.lock:
+            self.compiling, self.hit, self.saved = True, False, 0.0
+            self.start = time.perf_counter()
+        if self.stream is not None:
+            self.timer = threading.Timer(self.after, self._say)
+            self.timer.daemon = True
+            self.timer.start()
+
+    def _say(self) -> None:
+        """On the timer's thread: the compile goes on and no cached program came."""
+        with self.lock:
+            if not self.compiling or self.hit:
+                return
+            # a load from the cache is known only when it ends (JAX reports the hit
+            # then), and under load it can take seconds: the line says what is certain
+            if self.cached:
+                self.stream.write(f"jaxvo: preparing {self.what} (compiled once per machine "
+                                  "and cached) ...")
+            else:
+                self.stream.write(f"jaxvo: compiling {self.what} (the compile cache is "
+                                  "off) ...")
+            self.stream.flush()
+            self.said = True
+
+    def finished(self, seconds: float) -> None:
+        if self.timer is not None:
+            self.timer.cancel()
+        with self.lock:
+            self.compiling = False
+            # a load notes the programs that compiled slowly, not the tiny eager ones
+            if seconds + (self.saved if self.hit else 0.0) >= self.after:
+                self.notes.append(CompileNote(seconds, self.hit))
+            if self.said:
+                self.said = False
+                if self.hit:
+                    done = "loaded from the compile cache in"
+                elif self.cached:
+                    done = "compiled (first run with these settings on this machine) in"
+                else:
+                    done = "compiled in"
+                self.stream.write(f" {done} {seconds:.1f} s\n")
+                self.stream.flush()
+
+    def close(self) -> None:
+        if self.timer is not None:
+            self.timer.cancel()
+        with self.lock:
+            if self.said:  # the compile raised: end the line
+                self.stream.write("\n")
+                self.said = False
+
+
+def _on_scalar(event: str, value: float, **kwargs) -> None:
+    w = _watch
+    if event == _COMPILE_EVENT and w is not None and threading.get_ident() == w.thread:
+        w.started()
+
+
+def _on_event(event: str, **kwargs) -> None:
+    w = _watch
+    if event == _CACHE_HIT_EVENT and w is not None and threading.get_ident() == w.thread:
+        w.hit = True
+
+
+def _on_duration(event: str, duration: float, **kwargs) -> None:
+    w = _watch
+    if w is None or threading.get_ident() != w.thread:
+        return
+    if event == _SAVED_EVENT:
+        w.saved = duration
+    elif event == _COMPILE_EVENT:
+        w.finished(duration)
+
+
+@contextlib.contextmanager
+def announce_compile(
+    what: str, *, stream: TextIO | None = None, after: float = 1.0
+) -> Iterator[list[CompileNote]]:
+    """Say on ``stream`` that ``what`` is compiling, and how long it took, when a compile on
+    this thread inside the block goes on for ``after`` seconds: ``jaxvo: preparing the
+    per-frame step (compiled once per machine and cached) ... compiled (first run with these
+    settings on this machine) in 7.4 s``, or ``... loaded from the compile cache in 3.6 s``
+    where the persistent cache had it (0.05-0.3 s on a quiet machine, seconds on a busy
+    one; whether the cache has it is known only when the load ends). Nothing is said for a
+    program that is ready within ``after`` seconds, nor for the quick compiles of eager
+    operations.
+
+    Args:
+      what: what compiles, in words (``"the per-frame step"``).
+      stream: where to say it; None says nothing (the notes are still taken).
+      after: seconds a compile runs before it is announced.
+    Returns:
+      (as the ``with`` target) a list that gets a :class:`CompileNote` for each program
+      that took ``after`` seconds or more to compile, now or when it was stored (JAX stores
+      whole seconds: a program that compiled in under a second is not noted when loaded).
+    """
+    global _watch, _listening
+    import jax
+
+    if not _listening:  # listeners cannot be removed in every JAX: installed once
+        jax.monitoring.register_scalar_listener(_on_scalar)
+        jax.monitoring.register_event_listener(_on_event)
+        jax.monitoring.register_event_duration_secs_listener(_on_duration)
+        _listening = True
+    cached = bool(jax.config.jax_enable_compilation_cache
+                  and jax.config.jax_compilation_cache_dir)
+    watch = _Watch(what, stream, after, cached)
+    outer, _watch = _watch, watch
+    try:
+        yield watch.notes
+    finally:
+        watch.close()
+        _watch = outer

@@ -1,0 +1,796 @@
+"""Grid-based 3D optical flow, the host front end (thesis section 2.2).
+
+A fixed grid of points (the centres of ``cfg.cell``-pixel cells) is tracked from the previous
+to the current image with pyramidal Lucas-Kanade. A track is kept only if
+
+* LK converged both ways and the point stays inside the image,
+* the forward-backward (bi-directional) error is at most ``cfg.fb_max`` pixels,
+* the correlation coefficient of the ``cfg.patch``-pixel patches around the original and the
+  tracked point is at least ``cfg.min_similarity``,
+* both ends have a trustworthy depth after refinement (see :func:`refine_depth`).
+
+Kept tracks are back-projected into previous and current 3D points (metres). Shapes are
+fixed: ``n = rows * cols`` points whatever passes, invalid ones zeroed.
+
+The pyramid follows the motion: when the last pair's median track is longer than
+``cfg.lk_fast_px``, the next pair's LK uses one level more (``cfg.lk_levels + 1``), as the
+thesis's LK did always; a third level on every pair cost the synthetic fixed-camera scene
+some of its slow object (see ``Config.lk_fast_px``).
+
+Speed (LK, 1-2 us per point and direction here, is most of the time per pair):
+
+* the checks run cheapest first, each on the points that passed the ones before: no depth
+  at the grid point, then forward LK, then the image bounds and similarity, then depth at
+  the tracked point together with backward LK, then the forward-backward error. LK tracks
+  each point on its own, so the flow is the same as checking every point (tests compare bit
+  for bit);
+* depth is refined only at the pixels the bilinear lookups read (:func:`depth_at`), with
+  the same values as refining the whole image (:func:`refine_depth`);
+* each frame is converted to grey and its depth looked up at the grid once; the tracker
+  keeps that for the next pair;
+* depth runs beside LK: the new frame's grid depth (needed by the next pair only) while this
+  pair's forward LK runs, and the tracked points' depth while backward LK runs, on one
+  helper thread (numpy and OpenCV's LK both release the GIL). On 2 cores that is 6-16 %
+  less time per pair, with the same flow. With ``cv2.setNumThreads(1)`` (or 0) the tracker
+  stays on the calling thread.
+
+OpenCV 5.0's Python binding still takes no pyramid from ``cv2.buildOpticalFlowPyramid``
+in ``cv2.calcOpticalFlowPyrLK`` (images only: opencv/opencv#4777), so each LK call
+rebuilds both pyramids (about 0.3 ms a call); its LK runs on the calling thread whatever
+``cv2.setNumThreads`` says.
+
+Host only: numpy and OpenCV, never traced.
+"""
+
+from __future__ import annotations
+
+import os
+from collections.abc import Callable
+from concurrent.futures import Future, ThreadPoolExecutor
+from typing import NamedTuple
+
+import cv2
+import numpy as np
+
+from jaxvo.config import Config, Params, grid_shape
+from jaxvo.errors import InputError
+from jaxvo.host.camera import Intrinsics, backproject, grid_pixels
+from jaxvo.host.prefetch import READ_AHEAD, read_ahead
+from jaxvo.status import Status
+
+DEFAULT_CONFIG = Config()
+
+# Stand-in for "no reading" when taking a neighbourhood minimum, metres (far beyond any sensor).
+_FAR = np.float32(1e6)
+
+_helper: ThreadPoolExecutor | None = None
+
+
+def _forget_helper() -> None:
+    global _helper
+    _helper = None  # a forked child has no helper thread: it starts its own
+
+
+os.register_at_fork(after_in_child=_forget_helper)
+
+
+def _beside(fn, *args) -> Future:
+    """``fn(*args)`` on the helper thread, to run beside the caller's next steps; inline
+    (already done) when OpenCV is told to use one thread. The caller takes ``.result()``."""
+    global _helper
+    if cv2.getNumThreads() <= 1:
+        done: Future = Future()
+        done.set_result(fn(*args))
+        return done
+    if _helper is None:
+        _helper = ThreadPoolExecutor(max_workers=1, thread_name_prefix="jaxvo-flow")
+    return _helper.submit(fn, *args)
+
+
+class GridFlow(NamedTuple):
+    """Grid flow of one image pair (host -> device); see docs/architecture.md."""
+
+    pts_prev: np.ndarray  # (n, 3) float32 metres, previous camera frame (0 where invalid)
+    pts_cur: np.ndarray  # (n, 3) float32 metres, current camera frame (0 where invalid)
+    uv_prev: np.ndarray  # (n, 2) float32 pixels, grid cell centres in the previous image
+    uv_cur: np.ndarray  # (n, 2) float32 pixels, tracked positions (= uv_prev where invalid)
+    valid: np.ndarray  # (n,) bool, passed LK, forward-backward, similarity and depth checks
+    status: np.ndarray  # () int32 Status code: OK, or BAD_INPUT
+    focal: np.ndarray  # () float32 pixels, the camera's mean focal length (jaxvo.core.noise)
+
+
+def invalid_flow(uv_grid: np.ndarray, status: int = Status.BAD_INPUT, *,
+                 focal: float = 1.0) -> GridFlow:
+    """An all-invalid :class:`GridFlow` on the grid ``uv_grid`` (n, 2) with ``status``."""
+    n = uv_grid.shape[0]
+    uv = np.asarray(uv_grid, np.float32)
+    return GridFlow(
+        pts_prev=np.zeros((n, 3), np.float32),
+        pts_cur=np.zeros((n, 3), np.float32),
+        uv_prev=uv.copy(),
+        uv_cur=uv.copy(),
+        valid=np.zeros(n, bool),
+        status=np.int32(status),
+        focal=np.float32(focal),
+    )
+
+
+def stack_flows(flows: list[GridFlow]) -> GridFlow:
+    """Stack per-pair flows along a new leading frame axis."""
+    return GridFlow(*(np.stack(field) for field in zip(*flows)))
+
+
+# ----------------------------------------------------------------------------- depth
+
+
+def refine_depth(depth: np.ndarray, cfg: Config = DEFAULT_CONFIG) -> np.ndarray:
+    """Refined depth image: holes filled from similar neighbours, flying pixels dropped.
+
+    The definition, on the whole image with OpenCV box / morphology filters. The tracker
+    needs it only at the pixels that its bilinear lookups read and computes just those with
+    :func:`depth_at`, which gives the same values.
+
+    1. Readings outside ``[cfg.depth_min, cfg.depth_max]`` or not finite become 0.
+    2. A hole is filled with the mean of the valid pixels in its ``(2 r + 1)^2`` window
+       (``r = cfg.fill_radius``) if at least ``cfg.fill_min_valid`` are valid and they agree:
+       their range is at most ``cfg.depth_jump`` times their mean (no filling across edges).
+       With ``cfg.depth_smooth`` a valid pixel whose window agrees takes the mean too: the
+       frame-to-frame depth noise of the sensor (which grows with z^2 and is several times
+       the per-frame motion of a slow object at 2-3 m) shrinks by about the window's side,
+       while windows across an edge, which do not agree, keep their raw readings.
+    3. A pixel whose 3x3 neighbourhood spans more than ``cfg.depth_jump`` times its depth is
+       dropped: depth discontinuities and the flying pixels between the two sides.
+
+    Args:
+        depth: (H, W) float metres, 0 = no reading.
+        cfg: thresholds (flow section of :class:`Config`).
+
+    Returns:
+        (H, W) float32 metres, 0 = no trustworthy depth.
+    """
+    d = np.asarray(depth, np.float32)
+    jump = np.float32(cfg.depth_jump)
+    trusted = cv2.inRange(d, cfg.depth_min, cfg.depth_max)  # 255 / 0; NaN fails
+    out = np.zeros_like(d)
+    cv2.copyTo(d, trusted, out)
+    far = np.full_like(d, _FAR)  # the same depths, holes far away, so a minimum filter skips them
+    cv2.copyTo(d, trusted, far)
+
+    k = 2 * cfg.fill_radius + 1
+    box = np.ones((k, k), np.uint8)
+    border = cv2.BORDER_CONSTANT
+    total = cv2.boxFilter(out, -1, (k, k), normalize=False, borderType=border)
+    # 255 per valid neighbour
+    count = cv2.boxFilter(trusted, cv2.CV_32F, (k, k), normalize=False, borderType=border)
+    mean = total / np.maximum(count, np.float32(1)) * np.float32(255)
+    spread = cv2.dilate(out, box) - cv2.erode(far, box)  # range of the valid neighbours
+    fill = (spread <= mean * jump) & (count >= np.float32(255 * cfg.fill_min_valid))
+    if not cfg.depth_smooth:
+        fill &= trusted == 0
+    np.copyto(out, mean, where=fill)
+    np.copyto(far, mean, where=fill)
+
+    three = np.ones((3, 3), np.uint8)
+    spread = cv2.dilate(out, three) - cv2.erode(far, three)
+    out[spread > out * jump] = 0  # also true at holes next to readings: they stay 0
+    return out
+
+
+def _window_1d(a: np.ndarray, k: int, op: np.ufunc, axis: int, dtype=None) -> np.ndarray:
+    """``op`` over every run of ``k`` entries along ``axis`` (0 or 1), computed in ``dtype``.
+
+    Runs of 1, 2, 4, ... entries are combined by doubling and the binary digits of ``k``
+    picked from them: 3 operations for k = 5 instead of 4.
+    """
+    m = a.shape[axis] - k + 1
+
+    def part(x: np.ndarray, start: int, stop: int) -> np.ndarray:
+        return x[start:stop] if axis == 0 else x[:, start:stop]
+
+    runs, span, offset, out = a, 1, 0, None  # runs[i] = op over a[i : i + span]
+    while True:
+        if k & span:
+            piece = part(runs, offset, offset + m)
+            out = piece if out is None else op(out, piece)
+            offset += span
+        if offset == k:
+            return out
+        runs = op(part(runs, 0, runs.shape[axis] - span), part(runs, span, None), dtype=dtype)
+        span *= 2
+
+
+def _windows(a: np.ndarray, k: int, op: np.ufunc, dtype=None) -> np.ndarray:
+    """``op`` over every k x k window of the leading two axes: (s, s, ...) -> (s-k+1, s-k+1, ...)."""
+    return _window_1d(_window_1d(a, k, op, 0, dtype), k, op, 1, dtype)
+
+
+def _refine_blocks(raw: np.ndarray, inside: np.ndarray | None, cfg: Config) -> np.ndarray:
+    """:func:`refine_depth` at the central 2x2 pixels of raw depth blocks.
+
+    A refined pixel depends on the step-2 values of its 3x3 neighbourhood, and each of
+    those on its ``(2 r + 1)^2`` window of raw readings, so a 2x2 block needs the
+    ``s = 2 + 2 (r + 1)`` square of raw pixels around it. The operations and their float32
+    rounding are those of :func:`refine_depth`; the window sums are exact in float64 (as in
+    OpenCV's box filter), so the results are equal bit for bit. Selections are written as
+    arithmetic: ``np.where`` costs several times more on these arrays.
+
+    Args:
+        raw: (s, s, n) raw depth, metres; the point axis last keeps the slices contiguous.
+        inside: (s, s, n) bool, the pixel lies in the image (pixels outside count as the
+            image border does in :func:`refine_depth`); ``None`` if all do.
+        cfg: thresholds.
+
+    Returns:
+        (2, 2, n) float32 refined depth, 0 = none.
+    """
+    r = cfg.fill_radius
+    jump = np.float32(cfg.depth_jump)
+    d = raw.astype(np.float32, copy=False)
+    trusted = (d >= np.float32(cfg.depth_min)) & (d <= np.float32(cfg.depth_max))  # NaN fails
+    if inside is not None:
+        trusted &= inside
+    out = d * trusted
+    out[np.isnan(out)] = 0  # NaN and inf readings (untrusted, times 0)
+    far = out + _FAR * ~trusted  # holes far away, so a minimum filter skips them
+
+    k = 2 * r + 1
+    total = _windows(out.astype(np.float64), k, np.add).astype(np.float32)
+    count = _windows(trusted, k, np.add, np.uint16) * np.float32(255)
+    mean = total / np.maximum(count, np.float32(1)) * np.float32(255)
+    spread = _windows(out, k, np.maximum) - _windows(far, k, np.minimum)
+    fill = (spread <= mean * jump) & (count >= np.float32(255 * cfg.fill_min_valid))
+    inner = (slice(r, -r), slice(r, -r))
+    if inside is not None:
+        fill &= inside[inner]  # outside the image there is no pixel to fill
+    if not cfg.depth_smooth:
+        fill &= ~trusted[inner]
+    out = np.where(fill, mean, out[inner])
+    far = np.where(fill, mean, far[inner])
+
+    spread = _windows(out, 3, np.maximum) - _windows(far, 3, np.minimum)
+    centre = out[1:-1, 1:-1]
+    return centre * ~(spread > centre * jump)
+
+
+class _Lookup(NamedTuple):
+    """Where a bilinear depth lookup at points ``uv`` reads, set up once per point set."""
+
+    ax: np.ndarray  # (n,) float32 bilinear weight of the right-hand column
+    ay: np.ndarray  # (n,) float32 bilinear weight of the lower row
+    inside: np.ndarray  # (n,) bool, the 2x2 footprint lies in the image
+    x0: np.ndarray  # (n,) intp top-left pixel of the footprint (0 where not inside)
+    y0: np.ndarray  # (n,) intp
+    raw_index: np.ndarray  # (s, s, n) intp flat indices of the raw pixels refinement reads
+    raw_inside: np.ndarray | None  # (s, s, n) bool, that raw pixel lies in the image; None: all
+
+
+def _lookup(uv: np.ndarray, height: int, width: int, cfg: Config) -> _Lookup:
+    x = uv[:, 0].astype(np.float32)
+    y = uv[:, 1].astype(np.float32)
+    finite = np.isfinite(x) & np.isfinite(y)
+    x = np.where(finite, x, -1.0)
+    y = np.where(finite, y, -1.0)
+    x0 = np.floor(x)
+    y0 = np.floor(y)
+    inside = finite & (x0 >= 0) & (y0 >= 0) & (x0 <= width - 2) & (y0 <= height - 2)
+    xi = np.where(inside, x0, 0).astype(np.intp)
+    yi = np.where(inside, y0, 0).astype(np.intp)
+
+    reach = cfg.fill_radius + 1
+    offsets = np.arange(2 + 2 * reach) - reach
+    # Usually every block lies in the image: one broadcast add. Points without a footprint
+    # read some block in the image; their values are never used.
+    bx = np.where(inside, xi, reach)
+    by = np.where(inside, yi, reach)
+    if ((bx >= reach) & (bx <= width - 2 - reach)).all() and (
+        (by >= reach) & (by <= height - 2 - reach)
+    ).all():
+        raw_index = (by * width + bx) + (offsets[:, None, None] * width + offsets[None, :, None])
+        raw_inside = None
+    else:
+        ys, xs = yi + offsets[:, None], xi + offsets[:, None]  # (s, n)
+        raw_inside = ((ys >= 0) & (ys < height))[:, None] & ((xs >= 0) & (xs < width))[None]
+        raw_index = np.clip(ys, 0, height - 1)[:, None] * width + np.clip(xs, 0, width - 1)[None]
+    return _Lookup(
+        ax=(x - x0).astype(np.float32),
+        ay=(y - y0).astype(np.float32),
+        inside=inside,
+        x0=xi,
+        y0=yi,
+        raw_index=raw_index,
+        raw_inside=raw_inside,
+    )
+
+
+def _bilinear(taps: np.ndarray, look: _Lookup, cfg: Config) -> tuple[np.ndarray, np.ndarray]:
+    """Bilinear depth from (2, 2, n) refined taps, valid where they agree (see bilinear_depth)."""
+    d00, d01, d10, d11 = taps[0, 0], taps[0, 1], taps[1, 0], taps[1, 1]
+    ax, ay = look.ax, look.ay
+    lo = np.minimum(np.minimum(d00, d01), np.minimum(d10, d11))
+    hi = np.maximum(np.maximum(d00, d01), np.maximum(d10, d11))
+    ok = look.inside & (lo > 0) & (hi - lo <= cfg.depth_jump * lo)
+    z = (1 - ay) * ((1 - ax) * d00 + ax * d01) + ay * ((1 - ax) * d10 + ax * d11)
+    return np.where(ok, z, np.float32(0)).astype(np.float32), ok
+
+
+def bilinear_depth(
+    depth: np.ndarray, uv: np.ndarray, cfg: Config = DEFAULT_CONFIG
+) -> tuple[np.ndarray, np.ndarray]:
+    """Depth at sub-pixel points by bilinear interpolation of a refined depth image.
+
+    A tap is valid only if its 4 neighbours lie in the image, all hold a reading, and their
+    range is at most ``cfg.depth_jump`` times the smallest (no blending across an edge).
+
+    Args:
+        depth: (H, W) float32 metres from :func:`refine_depth`, 0 = none.
+        uv: (n, 2) pixels (x, y).
+        cfg: thresholds.
+
+    Returns:
+        ``(z, ok)``: (n,) float32 metres (0 where not ok) and (n,) bool.
+    """
+    look = _lookup(uv, *depth.shape, cfg)
+    rows = look.y0 + np.arange(2)[:, None, None]
+    cols = look.x0 + np.arange(2)[None, :, None]
+    return _bilinear(depth[rows, cols], look, cfg)
+
+
+def _depth_at(depth: np.ndarray, look: _Lookup, cfg: Config) -> tuple[np.ndarray, np.ndarray]:
+    raw = np.asarray(depth).reshape(-1).take(look.raw_index)
+    return _bilinear(_refine_blocks(raw, look.raw_inside, cfg), look, cfg)
+
+
+def depth_at(
+    depth: np.ndarray, uv: np.ndarray, cfg: Config = DEFAULT_CONFIG
+) -> tuple[np.ndarray, np.ndarray]:
+    """``bilinear_depth(refine_depth(depth), uv)``, refining only the pixels it reads.
+
+    Each point reads the refined 2x2 pixels around it, which depend on the
+    ``(2 + 2 (r + 1))^2`` raw pixels around those (8x8 for ``r = cfg.fill_radius = 2``):
+    for the 1200 grid points that is about a quarter of a 640x480 image, gathered and
+    refined in a few numpy operations instead of whole-image filters.
+
+    Args:
+        depth: (H, W) float metres, raw (0 = no reading).
+        uv: (n, 2) pixels (x, y).
+        cfg: thresholds.
+
+    Returns:
+        ``(z, ok)``: (n,) float32 metres (0 where not ok) and (n,) bool.
+    """
+    return _depth_at(depth, _lookup(uv, *np.shape(depth), cfg), cfg)
+
+
+# ----------------------------------------------------------------------------- patches
+
+
+def _patch_offsets(side: int) -> tuple[np.ndarray, np.ndarray]:
+    r = (side - 1) / 2.0
+    o = np.arange(side, dtype=np.float32) - np.float32(r)
+    oy, ox = np.meshgrid(o, o, indexing="ij")
+    return ox.ravel(), oy.ravel()
+
+
+def sample_patches(grey: np.ndarray, uv: np.ndarray, side: int) -> np.ndarray:
+    """Bilinear ``side`` x ``side`` patches centred on ``uv`` (n, 2), one ``cv2.remap``.
+
+    Returns:
+        (n, side * side) float32 grey values (borders replicated).
+    """
+    if len(uv) == 0:
+        return np.zeros((0, side * side), np.float32)  # cv2.remap rejects empty maps
+    ox, oy = _patch_offsets(side)
+    map_x = np.add(uv[:, 0:1], ox, dtype=np.float32)
+    map_y = np.add(uv[:, 1:2], oy, dtype=np.float32)
+    src = grey if grey.dtype == np.float32 else grey.astype(np.float32)
+    return cv2.remap(src, map_x, map_y, cv2.INTER_LINEAR, borderMode=cv2.BORDER_REPLICATE)
+
+
+def patch_correlation(a: np.ndarray, b: np.ndarray) -> np.ndarray:
+    """Correlation coefficient of matching rows of (n, m) patches; 0 for a flat patch."""
+    a = a - a.mean(axis=1, keepdims=True)
+    b = b - b.mean(axis=1, keepdims=True)
+    num = np.einsum("ij,ij->i", a, b)
+    den2 = np.einsum("ij,ij->i", a, a) * np.einsum("ij,ij->i", b, b)
+    # A flat patch (std < ~0.1 grey level) carries no evidence: similarity 0, never NaN.
+    flat = den2 <= np.float32(1e-2) ** 2 * a.shape[1] ** 2
+    return np.where(flat, 0.0, num / np.sqrt(np.where(flat, 1.0, den2))).astype(np.float32)
+
+
+# ----------------------------------------------------------------------------- front end
+
+
+class _Frame(NamedTuple):
+    """What the tracker keeps of a frame so that it is processed once."""
+
+    grey: np.ndarray  # (H, W) uint8, for LK
+    grey_f: np.ndarray  # (H, W) float32, for the similarity patches
+    z_grid: np.ndarray  # (n,) float32 metres at the grid centres (0 = none)
+    z_grid_ok: np.ndarray  # (n,) bool
+
+
+def _as_grey(bgr, height: int, width: int) -> np.ndarray | None:
+    if not isinstance(bgr, np.ndarray) or bgr.dtype != np.uint8:
+        return None
+    if bgr.shape == (height, width, 3):
+        return cv2.cvtColor(bgr, cv2.COLOR_BGR2GRAY)
+    if bgr.shape == (height, width):
+        return bgr
+    return None
+
+
+def _as_depth(depth, height: int, width: int) -> np.ndarray | None:
+    if not isinstance(depth, np.ndarray) or depth.shape != (height, width):
+        return None
+    if not np.issubdtype(depth.dtype, np.floating):
+        return None  # raw sensor units would need a scale: the contract is float metres
+    return depth
+
+
+class GridFlowTracker:
+    """Streaming grid flow: feed frames in order, get the flow of each consecutive pair.
+
+    Each frame is converted to grey and its refined depth looked up at the grid once; the
+    tracker keeps that as the previous frame. A frame that is unreadable or of the wrong
+    size yields an all-invalid ``BAD_INPUT`` flow and is skipped: the previous frame stays,
+    so the next pair spans the gap (consistent with a pose carried over the skipped frame).
+
+    Args:
+        K: intrinsics of the (depth-registered) camera, pixels.
+        cfg: settings (flow section).
+        height, width: image size, pixels; sets the grid and so ``n``.
+    """
+
+    def __init__(self, K: Intrinsics, cfg: Config = DEFAULT_CONFIG, *, height: int, width: int):
+        self.K = K
+        self.cfg = cfg
+        self.height, self.width = int(height), int(width)
+        self.grid = grid_shape(self.height, self.width, cfg.cell)
+        self.uv_grid = grid_pixels(self.height, self.width, cfg.cell)  # (n, 2) float32
+        self.n = self.uv_grid.shape[0]
+        self._grid_lookup = _lookup(self.uv_grid, self.height, self.width, cfg)
+        # Float grey images for the patches. A fresh 1.2 MB array per frame cost ~370 page
+        # faults per pair (~1 ms here: the heap is trimmed and regrown each time); instead
+        # two buffers take turns, the previous frame holding the other one.
+        self._grey_f = tuple(np.empty((self.height, self.width), np.float32) for _ in range(2))
+        self._win = (cfg.lk_window, cfg.lk_window)
+        self._criteria = (cv2.TERM_CRITERIA_COUNT | cv2.TERM_CRITERIA_EPS, cfg.lk_iters, cfg.lk_eps)
+        self._prev: _Frame | None = None
+        self._levels = cfg.lk_levels  # pyramid levels of the next pair's LK
+        self._before: tuple[_Frame | None, int] = (None, cfg.lk_levels)  # see drop_last
+
+    @property
+    def has_previous(self) -> bool:
+        return self._prev is not None
+
+    def reset(self) -> None:
+        """Forget the previous frame (the next frame starts a new pair chain)."""
+        self._prev = None
+        self._levels = self.cfg.lk_levels
+
+    def drop_last(self) -> None:
+        """Forget the frame last pushed: the next frame pairs with the one before it, as
+        if the dropped frame had never come (see :class:`FrameChain`)."""
+        self._prev, self._levels = self._before
+
+    def push(self, bgr, depth) -> GridFlow | None:
+        """Add the next frame; the flow from the previous frame to it.
+
+        Args:
+            bgr: (H, W, 3) uint8 BGR (or (H, W) uint8 grey).
+            depth: (H, W) float32 metres, 0 = no reading.
+
+        Returns:
+            The pair's :class:`GridFlow`; ``None`` if there was no previous frame (this
+            frame is kept as the previous one); an all-invalid flow with ``BAD_INPUT`` if this
+            frame is unreadable or of another size.
+        """
+        grey = _as_grey(bgr, self.height, self.width)
+        d = _as_depth(depth, self.height, self.width)
+        if grey is None or d is None:
+            return invalid_flow(self.uv_grid, Status.BAD_INPUT, focal=self.K.focal)
+        # this frame's depth at the grid is read by the next pair only: refined beside LK
+        grid_depth = _beside(_depth_at, d, self._grid_lookup, self.cfg)
+        prev = self._prev
+        self._before = (prev, self._levels)
+        held = prev.grey_f if prev is not None else None
+        grey_f = self._grey_f[1] if held is self._grey_f[0] else self._grey_f[0]
+        np.copyto(grey_f, grey)
+        flow = None if prev is None else self._track(prev, grey, grey_f, d)
+        self._prev = _Frame(grey, grey_f, *grid_depth.result())
+        return flow
+
+    def _lk(self, src: np.ndarray, dst: np.ndarray, pts: np.ndarray):
+        """LK positions in ``dst`` of ``pts`` (m, 2) in ``src``, and whether each converged."""
+        if len(pts) == 0:
+            return pts, np.zeros(0, bool)
+        # The flag makes LK report the minimum eigenvalue it has already computed as the
+        # error, instead of a last pass over each window for a residual nobody reads: ~7 %
+        # less time, the same positions and status.
+        found, st, _ = cv2.calcOpticalFlowPyrLK(
+            src, dst, pts, None,
+            winSize=self._win, maxLevel=self._levels, criteria=self._criteria,
+            flags=cv2.OPTFLOW_LK_GET_MIN_EIGENVALS,
+        )  # fmt: skip
+        return found, st[:, 0] == 1
+
+    def _track(
+        self, prev: _Frame, grey: np.ndarray, grey_f: np.ndarray, depth: np.ndarray
+    ) -> GridFlow:
+        """The checks of the module docstring, cheapest first, each on the survivors of the
+        last: LK costs 1-2 us per point and direction, most of the time per pair, and
+        tracks each point on its own, so following only the points that can still pass
+        gives the same flow as checking every point. ``grey``, ``grey_f`` and ``depth`` are
+        the current frame's."""
+        cfg = self.cfg
+        uv0 = self.uv_grid
+        idx = np.flatnonzero(prev.z_grid_ok)  # no depth at the start: never a valid track
+
+        uv1, ok = self._lk(prev.grey, grey, uv0[idx])
+        ok &= np.isfinite(uv1).all(axis=1)
+        ok &= (
+            (uv1[:, 0] >= 0) & (uv1[:, 1] >= 0)
+            & (uv1[:, 0] <= self.width - 1) & (uv1[:, 1] <= self.height - 1)
+        )  # fmt: skip
+        idx, uv1 = idx[ok], uv1[ok]
+
+        sim = patch_correlation(
+            sample_patches(prev.grey_f, uv0[idx], cfg.patch),
+            sample_patches(grey_f, uv1, cfg.patch),
+        )
+        ok = sim >= cfg.min_similarity  # rejects more than the depth check, for less
+        idx, uv1 = idx[ok], uv1[ok]
+
+        # depth at the tracked points beside backward LK (which then also tracks the few
+        # points the depth check drops: the two take about as long)
+        tracked_depth = _beside(_depth_at, depth, _lookup(uv1, self.height, self.width, cfg), cfg)
+        uv_back, ok = self._lk(grey, prev.grey, uv1)
+        ok &= np.hypot(*(uv_back - uv0[idx]).T) <= cfg.fb_max  # NaN fails
+        z1, has_depth = tracked_depth.result()
+        ok &= has_depth
+        idx, uv1, z1 = idx[ok], uv1[ok], z1[ok]
+
+        valid = np.zeros(self.n, bool)
+        valid[idx] = True
+        # fast motion: the next pair's LK gets one pyramid level more
+        fast = len(idx) > 0 and np.median(np.hypot(*(uv1 - uv0[idx]).T)) > cfg.lk_fast_px
+        self._levels = cfg.lk_levels + int(fast)
+        pts_prev = np.zeros((self.n, 3), np.float32)
+        pts_cur = np.zeros((self.n, 3), np.float32)
+        pts_prev[idx] = backproject(uv0[idx], prev.z_grid[idx], self.K)
+        pts_cur[idx] = backproject(uv1, z1, self.K)
+        uv_cur = uv0.copy()
+        uv_cur[idx] = uv1
+        return GridFlow(
+            pts_prev=pts_prev,
+            pts_cur=pts_cur,
+            uv_prev=uv0.copy(),
+            uv_cur=uv_cur,
+            valid=valid,
+            status=np.int32(Status.OK),
+            focal=np.float32(self.K.focal),
+        )
+
+
+def _frame_size(*arrays) -> tuple[int, int] | None:
+    for a in arrays:
+        if isinstance(a, np.ndarray) and a.ndim >= 2:
+            return int(a.shape[0]), int(a.shape[1])
+    return None
+
+
+def grid_flow(
+    prev_bgr: np.ndarray,
+    prev_depth: np.ndarray,
+    cur_bgr: np.ndarray,
+    cur_depth: np.ndarray,
+    K: Intrinsics,
+    cfg: Config = DEFAULT_CONFIG,
+    *,
+    image_size: tuple[int, int] | None = None,
+) -> GridFlow:
+    """Grid flow of one image pair (thesis 2.2).
+
+    Args:
+        prev_bgr, cur_bgr: (H, W, 3) uint8 BGR.
+        prev_depth, cur_depth: (H, W) float32 metres, 0 = no reading.
+        K: intrinsics, pixels.
+        cfg: settings.
+        image_size: ``(H, W)`` that sets the grid; default the previous image's size. Only
+            needed when neither image is an array at all.
+
+    Returns:
+        :class:`GridFlow` with ``n = rows * cols`` points; ``BAD_INPUT`` and all invalid if
+        the frames differ in size or one is unreadable.
+
+    Raises:
+        InputError: no image size can be told (neither image is an array, no ``image_size``).
+    """
+    size = image_size or _frame_size(prev_bgr, cur_bgr, prev_depth, cur_depth)
+    if size is None:
+        raise InputError("grid_flow: neither frame is an image and no image_size was given")
+    tracker = GridFlowTracker(K, cfg, height=size[0], width=size[1])
+    first = tracker.push(prev_bgr, prev_depth)
+    if first is not None:  # the previous frame itself is unreadable
+        return first
+    return tracker.push(cur_bgr, cur_depth)
+
+
+_READ_ERRORS = (OSError, ValueError)
+
+# Frames dropped in a row before the chain starts again from the current frame: after that
+# many the camera has likely moved too far from the last good frame for LK to find it
+# again (at 30 Hz, 1/6 s), and the device's skip is the better answer.
+MAX_DROPPED = 5
+
+
+def min_valid_flow(cfg: Config = DEFAULT_CONFIG, *, params: Params | None = None) -> int:
+    """Fewest valid flow vectors a pair needs: below this the spatial stage reports
+    ``TOO_FEW_FLOW`` (``spatial.segment``: a minimal sample of ``cfg.sample_size`` points,
+    and more than ``params.min_segment_points`` for a segment).
+
+    Args:
+      cfg: static settings.
+      params: numeric settings (default :class:`Params`); batched fields take their largest.
+    Returns:
+      the count, grid points.
+    """
+    p = params if params is not None else Params()
+    most = float(np.max(np.asarray(p.min_segment_points)))
+    return max(cfg.sample_size, 3, int(np.floor(most)) + 1)
+
+
+class FrameChain:
+    """Pairs each frame with the last good one, and drops the frames that cannot be used.
+
+    A frame is dropped when it cannot be read, its size differs from the first frame's, or
+    its flow with the last good frame has fewer than ``min_valid`` valid vectors (a black,
+    saturated, noise or badly blurred image). Its pair never reaches the device and the next
+    frame pairs with the last good frame, so a useless frame costs its own pose only, not
+    the motion of the two pairs it belongs to.
+
+    Two cases keep such a frame, and its pair goes to the device, which skips it: the last
+    good frame has not yet been part of a good pair (it may be the useless one itself, e.g.
+    a black first frame), or ``max_dropped`` frames in a row were dropped (the camera may
+    have moved beyond what LK can track from the last good frame): the chain goes on from
+    the current frame.
+
+    Args:
+      tracker: the :class:`GridFlowTracker` of the stream (its image size is the stream's).
+      min_valid: fewest valid vectors of a usable pair (:func:`min_valid_flow`).
+      max_dropped: most frames dropped in a row.
+    """
+
+    def __init__(self, tracker: GridFlowTracker, *, min_valid: int, max_dropped: int = MAX_DROPPED):
+        self.tracker = tracker
+        self.min_valid = int(min_valid)
+        self.max_dropped = int(max_dropped)
+        self._confirmed = False  # the last good frame has been part of a good pair
+        self._in_a_row = 0  # frames dropped since the last kept one
+
+    def push(
+        self, bgr, depth, *, unreadable: str | None = None
+    ) -> tuple[GridFlow | None, str | None]:
+        """Add the next frame.
+
+        Args:
+          bgr: (H, W, 3) uint8 BGR (or (H, W) grey); ignored when ``unreadable``.
+          depth: (H, W) float32 metres, 0 = no reading.
+          unreadable: why the frame could not be read, if it could not: it is dropped.
+        Returns:
+          ``(flow, dropped)``: the pair's :class:`GridFlow` for the device (None for the
+          first frame of the chain or a dropped frame), and why the frame was dropped
+          (None when it is kept).
+        """
+        t = self.tracker
+        if unreadable is not None:
+            return self._drop(f"unreadable frame ({unreadable})")
+        sizes = [np.shape(a)[:2] for a in (bgr, depth)]
+        if any(size != (t.height, t.width) for size in sizes):
+            got = ", ".join(f"{what} {'x'.join(map(str, size[::-1])) or 'none'}"
+                            for what, size in zip(("colour", "depth"), sizes))
+            return self._drop(f"image size ({got}) differs from the first frame's "
+                              f"{t.width}x{t.height}")
+        flow = t.push(bgr, depth)
+        if flow is None:  # the chain's first frame
+            self._confirmed, self._in_a_row = False, 0
+            return None, None
+        if flow.status != Status.OK:
+            return self._drop("frame unreadable (not a uint8 colour image with float depth)")
+        n_valid = int(np.count_nonzero(flow.valid))
+        if n_valid >= self.min_valid:
+            self._confirmed, self._in_a_row = True, 0
+            return flow, None
+        if self._confirmed and self._in_a_row < self.max_dropped:
+            t.drop_last()
+            return self._drop(
+                f"too few valid flow vectors with the last good frame (fewer than "
+                f"{self.min_valid}: black, saturated, noise or blurred image)"
+            )
+        self._confirmed, self._in_a_row = False, 0  # the chain goes on from this frame
+        return flow, None
+
+    def _drop(self, reason: str) -> tuple[None, str]:
+        self._in_a_row += 1
+        return None, reason
+
+
+class SequenceFlows(NamedTuple):
+    """The grid flow of a recorded sequence, over the frames kept (see :class:`FrameChain`)."""
+
+    flows: GridFlow  # stacked over the T pairs the device steps
+    # (T + 1,) int, indices of the frames kept: pair k is frames[k] -> frames[k + 1]
+    frames: np.ndarray
+    dropped: dict[int, str]  # index of each dropped frame -> why
+
+
+def sequence_flows(
+    seq,
+    cfg: Config = DEFAULT_CONFIG,
+    *,
+    params: Params | None = None,
+    progress: Callable[[int, int], None] | None = None,
+    max_dropped: int = MAX_DROPPED,
+    ahead: int = READ_AHEAD,
+) -> SequenceFlows:
+    """Grid flow of every pair of consecutive kept frames of a sequence, for the scan.
+
+    A frame that cannot be read (``OSError`` / ``ValueError`` from ``seq[i]``), has the
+    wrong size, or whose flow with the last good frame is unusable is dropped, and the next
+    frame pairs with the last good one (:class:`FrameChain`).
+
+    Args:
+        seq: a sequence per docs/architecture.md (``len``, ``seq[i] -> Frame``,
+            ``intrinsics``, ``height``, ``width``).
+        cfg: settings.
+        params: the run's numeric settings (they set :func:`min_valid_flow`).
+        progress: called as ``progress(frames_done, frames_total)`` after each frame after
+            the first (``frames_total = len(seq) - 1``).
+        max_dropped: most frames dropped in a row (:class:`FrameChain`).
+        ahead: frames read (decoded, rendered) ahead on other threads while the flow of
+            the current pair is computed (:func:`jaxvo.host.prefetch.read_ahead`); 0 reads
+            each frame when its turn comes.
+
+    Returns:
+        :class:`SequenceFlows`.
+    """
+    n_frames = len(seq)
+    height, width = getattr(seq, "height", None), getattr(seq, "width", None)
+    if height is None or width is None:
+        first = seq[0]
+        height, width = first.bgr.shape[:2]
+    tracker = GridFlowTracker(seq.intrinsics, cfg, height=height, width=width)
+    chain = FrameChain(tracker, min_valid=min_valid_flow(cfg, params=params),
+                       max_dropped=max_dropped)
+    flows: list[GridFlow] = []
+    frames: list[int] = []
+    dropped: dict[int, str] = {}
+    for i, read in read_ahead(seq.__getitem__, range(n_frames), ahead=ahead):
+        try:
+            frame = read.result()
+        except _READ_ERRORS as exc:
+            flow, why = chain.push(None, None, unreadable=str(exc))
+        else:
+            flow, why = chain.push(frame.bgr, frame.depth)
+        if why is not None:
+            dropped[i] = why
+        else:
+            frames.append(i)
+            if flow is not None:
+                flows.append(flow)
+        if i and progress is not None:
+            progress(i, n_frames - 1)
+    if not flows:
+        empty = invalid_flow(tracker.uv_grid, focal=seq.intrinsics.focal)
+        stacked = GridFlow(*(np.zeros((0, *np.shape(f)), np.asarray(f).dtype) for f in empty))
+    else:
+        stacked = stack_flows(flows)
+    return SequenceFlows(stacked, np.asarray(frames, np.int64), dropped)
+
+
+def flows_for_sequence(
+    seq, cfg: Config = DEFAULT_CONFIG, *, progress: Callable[[int, int], None] | None = None
+) -> GridFlow:
+    """:func:`sequence_flows`'s stacked flow alone: one pair per pair of consecutive kept
+    frames (``len(seq) - 1`` pairs when no frame is dropped)."""
+    return sequence_flows(seq, cfg, progress=progress).flows

@@ -1,0 +1,926 @@
+"""Reading and writing RGB-D sequences and trajectories in the TUM RGB-D formats (host side)."""
+
+from __future__ import annotations
+
+import os
+import re
+from pathlib import Path
+from typing import NamedTuple
+
+import numpy as np
+
+from jaxvo.errors import InputError
+from jaxvo.host.camera import (
+    PRESETS,
+    Intrinsics,
+    check_intrinsics,
+    depth_metres,
+    preset,
+    read_calibration_file,
+    read_camera_file,
+)
+
+
+def data_root() -> Path:
+    """Where the real sequences live: ``$JAXVO_DATA``, else ``../shared/data`` beside the repo."""
+    env = os.environ.get("JAXVO_DATA")
+    if env:
+        return Path(env)
+    import jaxvo
+
+    checkout = Path(jaxvo.__file__).resolve().parent.parent  # the folder holding jaxvo/
+    return checkout.parent / "shared" / "data"
+
+
+class Frame(NamedTuple):
+    """One RGB-D frame on the host."""
+
+    index: int
+    timestamp: float  # seconds
+    bgr: np.ndarray  # (H, W, 3) uint8, OpenCV channel order
+    depth: np.ndarray  # (H, W) float32 metres, 0 = no reading
+    mask: np.ndarray | None = None  # (H, W) uint8 moving-object id, 0 = static (synthetic only)
+
+
+def frame_index(index: int, n: int) -> int:
+    """``index`` into a sequence of ``n`` frames as 0 .. n-1 (negative counts from the end).
+
+    Raises:
+      IndexError: out of range.
+    """
+    if not -n <= index < n:
+        raise IndexError(f"frame {index} out of range for {n} frames")
+    return int(index) % n
+
+
+def check_frame_size(where: str, image: np.ndarray, height: int, width: int) -> None:
+    """Raise :class:`InputError` when ``image`` (H, W, ...) is not the sequence's size."""
+    if image.shape[:2] != (height, width):
+        raise InputError(f"{where}: image is {image.shape[1]}x{image.shape[0]}, the sequence "
+                         f"is {width}x{height}")
+
+
+def given_camera(camera) -> tuple[Intrinsics, str] | None:
+    """The intrinsics a caller gave (an :class:`Intrinsics`, or a preset name) and where they
+    came from, in words; None when ``camera`` is None."""
+    if isinstance(camera, Intrinsics):
+        return camera, "given"
+    if camera is None:
+        return None
+    try:
+        return preset(camera), f"preset {camera}"
+    except ValueError as exc:
+        raise InputError(str(exc)) from None
+
+
+class Trajectory(NamedTuple):
+    """Timestamped camera poses, camera-to-world (``T_w_c``), float64."""
+
+    timestamps: np.ndarray  # (N,) seconds
+    poses: np.ndarray  # (N, 4, 4)
+
+    def __len__(self) -> int:
+        return len(self.timestamps)
+
+
+# --- trajectories: TUM format "timestamp tx ty tz qx qy qz qw", camera-to-world ---------
+
+# Printed precision of write_trajectory: timestamps to the microsecond (as TUM files), metres
+# and quaternion components to 1e-9 (well below any sensor's accuracy).
+_TIME_FMT = "%.6f"
+_VALUE_FMT = "%.9f"
+# A quaternion whose norm is further than this from 1 is not a rotation that was merely
+# rounded when printed: the file is wrong, and guessing would hide it.
+QUAT_NORM_TOL = 1e-3
+
+
+def _read_text(path: Path) -> str:
+    if not path.exists():
+        raise InputError(f"file not found: {path}")
+    if not path.is_file():
+        raise InputError(f"not a file: {path}")
+    try:
+        return path.read_text()
+    except UnicodeDecodeError:
+        raise InputError(f"{path}: not a text file") from None
+    except OSError as exc:
+        raise InputError(f"{path}: cannot read ({exc.strerror})") from None
+
+
+def _data_lines(path: Path) -> list[tuple[int, list[str]]]:
+    """Non-empty, non-comment lines of a text file, split on whitespace or commas."""
+    out = []
+    for lineno, raw in enumerate(_read_text(path).splitlines(), start=1):
+        line = raw.split("#", 1)[0].replace(",", " ").strip()
+        if line:
+            out.append((lineno, line.split()))
+    return out
+
+
+def read_trajectory(path: str | Path) -> Trajectory:
+    """Read a TUM trajectory file ``timestamp tx ty tz qx qy qz qw`` (``#`` comments).
+
+    Poses are sorted by time. Raises :class:`InputError` (``file:line: ...``) for a line
+    that is not eight numbers, a non-finite value, a quaternion whose norm is not 1 within
+    :data:`QUAT_NORM_TOL`, a repeated timestamp, or a file with no poses.
+
+    Args:
+      path: the file.
+    Returns:
+      a :class:`Trajectory`, timestamps (N,) seconds, poses (N, 4, 4) ``T_w_c`` metres.
+    """
+    from jaxvo.host.transforms import pose_from_tq
+
+    path = Path(path)
+    rows, linenos = [], []
+    for lineno, parts in _data_lines(path):
+        if len(parts) != 8:
+            raise InputError(
+                f"{path}:{lineno}: expected 8 values 'timestamp tx ty tz qx qy qz qw', "
+                f"got {len(parts)}"
+            )
+        try:
+            values = [float(p) for p in parts]
+        except ValueError:
+            bad = next(p for p in parts if not _is_float(p))
+            raise InputError(f"{path}:{lineno}: {bad!r} is not a number") from None
+        if not all(np.isfinite(values)):
+            raise InputError(f"{path}:{lineno}: non-finite value")
+        norm = float(np.linalg.norm(values[4:]))
+        if abs(norm - 1.0) > QUAT_NORM_TOL:
+            raise InputError(
+                f"{path}:{lineno}: quaternion qx qy qz qw has norm {norm:.6g}, not 1 "
+                f"(tolerance {QUAT_NORM_TOL:g})"
+            )
+        rows.append(values)
+        linenos.append(lineno)
+    if not rows:
+        raise InputError(f"{path}: empty trajectory (no pose lines)")
+    data = np.asarray(rows, np.float64)
+    order = np.argsort(data[:, 0], kind="stable")
+    data = data[order]
+    dup = np.flatnonzero(np.diff(data[:, 0]) == 0)
+    if dup.size:
+        lineno = linenos[order[dup[0] + 1]]
+        raise InputError(f"{path}:{lineno}: repeated timestamp {data[dup[0], 0]:.6f}")
+    return Trajectory(data[:, 0].copy(), pose_from_tq(data[:, 1:4], data[:, 4:8]))
+
+
+def _is_float(text: str) -> bool:
+    try:
+        float(text)
+    except ValueError:
+        return False
+    return True
+
+
+def write_trajectory(path: str | Path, traj: Trajectory, *, comment: str = "") -> None:
+    """Write a TUM trajectory file: timestamps ``%.6f`` s, translation and quaternion ``%.9f``.
+
+    Reading the file back gives timestamps within 5e-7 s, translations within 5e-10 m and
+    rotations within about 1e-9 of the written ones (the printed precision).
+
+    Args:
+      path: the file to write (overwritten).
+      traj: timestamps (N,) seconds, poses (N, 4, 4) ``T_w_c``.
+      comment: an optional first line (written after ``# ``).
+    """
+    from jaxvo.host.transforms import rotation_to_quat
+
+    poses = np.asarray(traj.poses, np.float64)
+    stamps = np.asarray(traj.timestamps, np.float64)
+    if poses.ndim != 3 or poses.shape[1:] != (4, 4) or len(stamps) != len(poses):
+        raise ValueError(
+            f"trajectory needs (N,) timestamps and (N, 4, 4) poses, got {stamps.shape} "
+            f"and {poses.shape}"
+        )
+    q = rotation_to_quat(poses[:, :3, :3])
+    lines = [f"# {line}" for line in comment.splitlines()] if comment else []
+    lines.append("# timestamp tx ty tz qx qy qz qw")
+    fmt = " ".join([_TIME_FMT] + [_VALUE_FMT] * 7)
+    for t, T, qi in zip(stamps, poses, q):
+        lines.append(fmt % (t, *T[:3, 3], *qi))
+    Path(path).write_text("\n".join(lines) + "\n")
+
+
+def associate(
+    t_a: np.ndarray,
+    t_b: np.ndarray,
+    max_diff: float,
+    *,
+    names: tuple[str, str] = ("first", "second"),
+) -> tuple[np.ndarray, np.ndarray]:
+    """Pair timestamps of two lists by nearest time, one-to-one (TUM ``associate.py``).
+
+    Every pair of stamps closer than ``max_diff`` is a candidate; candidates are taken in
+    order of increasing time difference, skipping any whose stamp is already used. Where
+    the stamps of each list are further apart than ``2 * max_diff`` this is the same as
+    evo's nearest-neighbour association.
+
+    Args:
+      t_a: (N,) seconds.
+      t_b: (M,) seconds.
+      max_diff: largest accepted time difference, seconds.
+      names: what to call the two lists in the error message (e.g. the file names).
+    Returns:
+      ``(idx_a, idx_b)``, int arrays of equal length, sorted by ``t_a``.
+    Raises:
+      InputError: no pair matches; the message gives both time ranges.
+    """
+    t_a = np.asarray(t_a, np.float64)
+    t_b = np.asarray(t_b, np.float64)
+    if max_diff < 0:
+        raise InputError(f"max time difference must be >= 0 s, got {max_diff}")
+    order_b = np.argsort(t_b, kind="stable")
+    sb = t_b[order_b]
+    lo = np.searchsorted(sb, t_a - max_diff, side="left")
+    hi = np.searchsorted(sb, t_a + max_diff, side="right")
+    counts = hi - lo
+    ia = np.repeat(np.arange(len(t_a)), counts)
+    starts = np.repeat(lo - np.concatenate([[0], np.cumsum(counts)[:-1]]), counts)
+    ib = order_b[np.arange(len(ia)) + starts] if len(ia) else np.zeros(0, np.int64)
+    diff = np.abs(t_a[ia] - t_b[ib])
+    keep = diff <= max_diff
+    ia, ib, diff = ia[keep], ib[keep], diff[keep]
+    used_a = np.zeros(len(t_a), bool)
+    used_b = np.zeros(len(t_b), bool)
+    pairs = []
+    for k in np.lexsort((ib, ia, diff)):
+        a, b = ia[k], ib[k]
+        if not used_a[a] and not used_b[b]:
+            used_a[a] = used_b[b] = True
+            pairs.append((a, b))
+    if not pairs:
+        raise InputError(
+            f"no timestamps match within {max_diff:g} s: {names[0]} spans "
+            f"{_time_range(t_a)}, {names[1]} spans {_time_range(t_b)}"
+        )
+    pairs.sort()
+    out = np.asarray(pairs, np.int64)
+    return out[:, 0], out[:, 1]
+
+
+def pose_at(traj: Trajectory, t: float, *, max_diff: float = 0.02) -> np.ndarray | None:
+    """The pose of ``traj`` nearest in time to ``t``, or None when none lies within ``max_diff``.
+
+    Args:
+      traj: timestamps (N,) seconds, poses (N, 4, 4).
+      t: seconds.
+      max_diff: largest time difference, seconds.
+    Returns:
+      (4, 4) float64, or None.
+    """
+    stamps = np.asarray(traj.timestamps, np.float64)
+    if len(stamps) == 0:
+        return None
+    k = int(np.argmin(np.abs(stamps - t)))
+    if abs(stamps[k] - t) > max_diff:
+        return None
+    return np.asarray(traj.poses[k], np.float64)
+
+
+def _time_range(t: np.ndarray) -> str:
+    if len(t) == 0:
+        return "nothing (0 stamps)"
+    return f"{t.min():.6f} .. {t.max():.6f} s ({len(t)} stamps)"
+
+
+# --- RGB-D sequences in the TUM layout -------------------------------------------------
+
+
+def _read_list(path: Path, columns: int, warnings: list[str]) -> tuple[np.ndarray, list[list[str]]]:
+    """A TUM list file (``timestamp filename`` or ``t_rgb rgb t_depth depth``) in time order.
+
+    Lines out of time order are sorted, and a line repeating an earlier line's timestamp
+    is dropped (the first one stays); each is reported in ``warnings``, as recorders and
+    hand edits produce both, and processing them as written sends the trajectory's time
+    backwards or repeats a pose.
+
+    Args:
+      path: the file.
+      columns: 2 or 4.
+      warnings: list the warnings are appended to.
+    Returns:
+      ``(timestamps (N,) float64 seconds, rows)``, rows the split lines, both sorted.
+    Raises:
+      InputError: a line without the columns, or a timestamp that is not a finite number.
+    """
+    want = "timestamp filename" if columns == 2 else "timestamp rgb timestamp depth"
+    stamps, rows, linenos = [], [], []
+    for lineno, parts in _data_lines(path):
+        if len(parts) < columns or not all(_is_float(parts[c]) for c in range(0, columns, 2)):
+            raise InputError(f"{path}:{lineno}: expected '{want}', got {' '.join(parts)!r}")
+        if not all(np.isfinite(float(parts[c])) for c in range(0, columns, 2)):
+            raise InputError(f"{path}:{lineno}: timestamp is not a finite number")
+        stamps.append(float(parts[0]))
+        rows.append(parts)
+        linenos.append(lineno)
+    t = np.asarray(stamps, np.float64)
+    order = np.argsort(t, kind="stable")
+    if np.any(np.diff(t) < 0):
+        k = int(np.flatnonzero(np.diff(t) < 0)[0])
+        warnings.append(
+            f"{path}: lines not in time order (line {linenos[k + 1]} at {t[k + 1]:.6f} s "
+            f"follows line {linenos[k]} at {t[k]:.6f} s); sorted by timestamp"
+        )
+    t = t[order]
+    repeat = np.zeros(len(t), bool)
+    repeat[1:] = np.diff(t) == 0
+    for k in np.flatnonzero(repeat):
+        warnings.append(
+            f"{path}:{linenos[order[k]]}: timestamp {t[k]:.6f} s repeats an earlier line; "
+            "line dropped"
+        )
+    keep = order[~repeat]
+    return t[~repeat], [rows[i] for i in keep]
+
+
+def _read_image(path: Path, flags: int) -> np.ndarray:
+    import cv2  # only where images are read: `jaxvo eval` never pays for OpenCV
+
+    if not path.is_file():
+        raise InputError(f"image not found: {path}")
+    img = cv2.imread(str(path), flags)
+    if img is None:
+        raise InputError(f"cannot read image: {path}")
+    return img
+
+
+def preset_from_name(name: str) -> str | None:
+    """The calibration a folder's name points to, as the benchmarks name their downloads:
+    TUM RGB-D (``rgbd_dataset_freiburg3_walking_xyz``, or short ``fr3_walking_xyz``) and
+    Bonn RGB-D Dynamic (``rgbd_bonn_balloon``); ``None`` if the name names neither."""
+    low = name.lower()
+    if re.search(r"(?:^|[^a-z0-9])bonn(?:[^a-z0-9]|$)", low):
+        return "bonn"
+    m = re.search(r"freiburg([123])|(?:^|[^a-z0-9])fr([123])(?:[^0-9]|$)", low)
+    return None if m is None else f"tum_fr{m.group(1) or m.group(2)}"
+
+
+class TumSequence:
+    """An RGB-D sequence in the TUM layout, frames read from disk only when asked for.
+
+    The folder holds ``rgb.txt`` and ``depth.txt`` (``timestamp filename``), optionally
+    ``associations.txt`` (``t_rgb rgb t_depth depth``; otherwise colour and depth are
+    paired by nearest timestamp within ``max_diff``), ``groundtruth.txt`` (TUM
+    trajectory), ``camera.txt`` (see :func:`jaxvo.host.camera.read_camera_file`) and, for
+    synthetic data, ``mask.txt`` (``timestamp filename`` of uint8 object-id images, the
+    same timestamps as ``rgb.txt``).
+
+    Lines out of time order are sorted and repeated timestamps dropped; frames that find
+    no partner within ``max_diff`` are left out. Each is said in :attr:`warnings`
+    (``jaxvo run`` prints them), with the counts in :attr:`frames_listed`.
+
+    Args:
+      path: the folder.
+      camera: a preset name of :data:`jaxvo.host.camera.PRESETS` or an :class:`Intrinsics`;
+        overrides ``camera.txt`` (a warning says so where the two differ). Without either, a
+        folder named as the TUM and Bonn benchmarks name their downloads
+        (``..._freiburg3_...``, ``rgbd_bonn_...``) takes that camera's preset; otherwise
+        one of the two is required.
+      max_diff: largest colour-depth time difference when pairing them, seconds.
+      depth_scale: raw depth units per metre, overriding the camera's (``--depth-scale``).
+
+    Depth images are 16-bit PNGs of raw units (divided by the depth scale), or float
+    metres: 32-bit float TIFF or ``.npy`` files.
+
+    Attributes:
+      warnings: list of one-line warnings about the folder's files (empty when clean).
+      frames_listed: colour frames listed (after dropping repeats), associated or not.
+      camera_source: where the intrinsics came from, in words.
+    """
+
+    def __init__(
+        self,
+        path: str | Path,
+        *,
+        camera: str | Intrinsics | None = None,
+        max_diff: float = 0.02,
+        depth_scale: float | None = None,
+    ) -> None:
+        root = Path(path)
+        if not root.is_dir():
+            raise InputError(f"sequence folder not found: {root}")
+        if not max_diff >= 0:  # also NaN
+            raise InputError(f"max time difference must be >= 0 s, got {max_diff}")
+        self.path = root
+        self.name = root.resolve().name
+        self.warnings: list[str] = []
+        self.float_depth = False  # set when a frame is read: float depth is stored metres
+        self.intrinsics, self.camera_source = self._intrinsics(root, camera)
+        if depth_scale is not None:
+            self.intrinsics = self.intrinsics._replace(depth_scale=float(depth_scale))
+            self.camera_source += f", depth_scale {float(depth_scale):g} given"
+            check_intrinsics(self.intrinsics, where=self.camera_source)
+
+        assoc = root / "associations.txt"
+        if assoc.is_file():
+            self.timestamps, rows = _read_list(assoc, 4, self.warnings)
+            self._rgb = [root / p[1] for p in rows]
+            self._depth = [root / p[3] for p in rows]
+            self.frames_listed = len(rows)
+        else:
+            t_rgb, rgb = _read_list(root / "rgb.txt", 2, self.warnings)
+            t_depth, depth = _read_list(root / "depth.txt", 2, self.warnings)
+            for name, rows in (("rgb.txt", rgb), ("depth.txt", depth)):
+                if not rows:
+                    raise InputError(f"{root / name}: no images listed")
+            ia, ib = associate(
+                t_rgb, t_depth, max_diff, names=(str(root / "rgb.txt"), str(root / "depth.txt"))
+            )
+            self.timestamps = t_rgb[ia]
+            self._rgb = [root / rgb[i][1] for i in ia]
+            self._depth = [root / depth[j][1] for j in ib]
+            self.frames_listed = len(rgb)
+            for name, count in (("rgb.txt", len(rgb)), ("depth.txt", len(depth))):
+                if count > len(ia):
+                    self.warnings.append(
+                        f"{root / name}: {count - len(ia)} of {count} images have no "
+                        f"{'depth' if name == 'rgb.txt' else 'colour'} image within "
+                        f"{max_diff:g} s (--max-diff) and are left out"
+                    )
+        if len(self.timestamps) == 0:
+            raise InputError(f"{root}: no frames listed")
+
+        self._mask: list[Path] | None = None
+        mask_list = root / "mask.txt"
+        if mask_list.is_file():
+            t_mask, rows = _read_list(mask_list, 2, self.warnings)
+            # Masks carry the colour image's own stamps: match them to the microsecond.
+            ia, ib = associate(self.timestamps, t_mask, 5e-7, names=("frames", str(mask_list)))
+            if len(ia) != len(self.timestamps):
+                missing = self.timestamps[np.setdiff1d(np.arange(len(self)), ia)[0]]
+                raise InputError(f"{mask_list}: no mask for the frame at {missing:.6f} s")
+            self._mask = [root / rows[j][1] for j in ib]
+
+        gt = root / "groundtruth.txt"
+        self.groundtruth = read_trajectory(gt) if gt.is_file() else None
+
+        first = _read_image(self._rgb[0], _imread_color())
+        self.height, self.width = first.shape[:2]
+        check_intrinsics(self.intrinsics, where=self.camera_source, width=self.width,
+                         height=self.height)
+
+    def _intrinsics(self, root: Path, camera: str | Intrinsics | None) -> tuple[Intrinsics, str]:
+        """The intrinsics and where they came from (said in ``jaxvo run``'s summary): the
+        ``camera`` given, else ``camera.txt``, else the folder's name."""
+        cam_file = root / "camera.txt"
+        given = given_camera(camera)
+        if given is not None:
+            K, source = given
+        elif cam_file.exists():
+            return read_camera_file(cam_file), str(cam_file)
+        elif (root / "calibration.txt").is_file():  # ETH3D SLAM's layout
+            return read_calibration_file(root / "calibration.txt"), str(root / "calibration.txt")
+        else:
+            # a TUM or Bonn download as it unpacks: no camera.txt, the camera in its name
+            guess = preset_from_name(root.resolve().name)
+            if guess is None:
+                raise InputError(
+                    f"{root}: no camera.txt; pass a camera preset ({', '.join(sorted(PRESETS))}) "
+                    "or the intrinsics (--intrinsics fx,fy,cx,cy), or write a camera.txt"
+                )
+            return preset(guess), f"preset {guess}, from the folder name"
+        if cam_file.is_file():
+            try:
+                in_folder = read_camera_file(cam_file)
+            except InputError:
+                in_folder = None  # overridden anyway; its faults are not this run's
+            if in_folder != K:
+                self.warnings.append(
+                    f"the camera {source} ({_describe(K)}) overrides {cam_file} "
+                    f"({_describe(in_folder) if in_folder else 'unreadable'})"
+                )
+        return K, source
+
+    def __len__(self) -> int:
+        return len(self.timestamps)
+
+    def __getitem__(self, index: int) -> Frame:
+        """Read frame ``index`` from disk (negative indices count from the end)."""
+        index = frame_index(index, len(self))
+        bgr = _read_image(self._rgb[index], _imread_color())
+        raw = _read_depth(self._depth[index])
+        if raw.shape != bgr.shape[:2]:
+            raise InputError(
+                f"{self._depth[index]}: depth {raw.shape[1]}x{raw.shape[0]} does not match "
+                f"colour {bgr.shape[1]}x{bgr.shape[0]} ({self._rgb[index].name})"
+            )
+        check_frame_size(str(self._rgb[index]), bgr, self.height, self.width)
+        self.float_depth = raw.dtype.kind == "f"  # metres as stored, no depth scale applied
+        depth = depth_metres(raw, self.intrinsics)
+        mask = self._read_mask(index) if self._mask is not None else None
+        return Frame(index, float(self.timestamps[index]), bgr, depth, mask)
+
+    def files(self, frames: int | None = None) -> list[Path]:
+        """Every file reading the first ``frames`` frames (default all) touches: the lists,
+        the camera, the ground truth and the images (what no output may overwrite)."""
+        names = ("rgb.txt", "depth.txt", "associations.txt", "groundtruth.txt", "camera.txt",
+                 "calibration.txt", "mask.txt")
+        out = [self.path / name for name in names if (self.path / name).exists()]
+        n = len(self) if frames is None else min(frames, len(self))
+        for paths in (self._rgb, self._depth, self._mask or []):
+            out += paths[:n]
+        return out
+
+    def _read_mask(self, index: int) -> np.ndarray:
+        path = self._mask[index]
+        mask = _read_image(path, _imread_unchanged())
+        if mask.ndim != 2 or mask.shape != (self.height, self.width):
+            raise InputError(
+                f"{path}: mask must be a single-channel {self.width}x{self.height} image, "
+                f"got shape {mask.shape}"
+            )
+        if mask.dtype != np.uint8:
+            if not np.issubdtype(mask.dtype, np.integer) or mask.max() > 255:
+                raise InputError(f"{path}: mask ids must fit in uint8, got {mask.dtype}")
+            mask = mask.astype(np.uint8)
+        return mask
+
+    def __iter__(self):
+        for i in range(len(self)):
+            yield self[i]
+
+    def __repr__(self) -> str:
+        gt = "with" if self.groundtruth is not None else "without"
+        return (
+            f"TumSequence({self.name!r}, {len(self)} frames, {self.width}x{self.height}, "
+            f"{gt} ground truth)"
+        )
+
+
+def _read_depth(path: Path) -> np.ndarray:
+    """A depth image as stored: (H, W) uint16 raw units (PNG) or float metres (32-bit float
+    TIFF, ``.npy``).
+
+    Raises:
+      InputError: naming the file and why it is no depth image (missing, undecodable,
+        8-bit, several channels, another type).
+    """
+    if path.suffix.lower() == ".npy":
+        if not path.is_file():
+            raise InputError(f"image not found: {path}")
+        try:
+            raw = np.load(path, allow_pickle=False)
+        except (OSError, ValueError) as exc:
+            raise InputError(f"cannot read depth {path}: {exc}") from None
+    else:
+        raw = _read_image(path, _imread_unchanged())
+    want = "depth must be 16-bit raw units or float metres, single-channel"
+    if raw.ndim != 2:
+        raise InputError(f"{path}: depth has {raw.shape[2] if raw.ndim == 3 else raw.ndim} "
+                         f"channels (a colour or JPEG image?); {want}")
+    if raw.dtype == np.uint8:
+        raise InputError(f"{path} is 8-bit; {want}")
+    if raw.dtype != np.uint16 and not np.issubdtype(raw.dtype, np.floating):
+        raise InputError(f"{path}: depth is {raw.dtype}; {want}")
+    return raw
+
+
+def _imread_color() -> int:
+    import cv2
+
+    return cv2.IMREAD_COLOR
+
+
+def _imread_unchanged() -> int:
+    import cv2
+
+    return cv2.IMREAD_UNCHANGED
+
+
+def _describe(K: Intrinsics) -> str:
+    return f"fx {K.fx:g} fy {K.fy:g} cx {K.cx:g} cy {K.cy:g} depth_scale {K.depth_scale:g}"
+
+
+def open_sequence(path: str | Path, *, rgb_topic: str | None = None,
+                  depth_topic: str | None = None, **kwargs) -> TumSequence:
+    """Open the RGB-D sequence at ``path``: a folder in the TUM layout, or a ROS bag (a
+    ``.bag`` file or a ROS 2 bag folder, :class:`jaxvo.host.rosbag.BagSequence`, whose image
+    topics ``rgb_topic`` / ``depth_topic`` choose); ``kwargs`` go to the reader."""
+    from jaxvo.host.rosbag import BagSequence, is_bag
+
+    if is_bag(path):
+        if kwargs.pop("depth_scale", None) is not None:
+            raise InputError(f"{path}: --depth-scale is for folders; a bag's depth says its unit "
+                             "(32FC1 metres, 16UC1 millimetres)")
+        return BagSequence(path, rgb_topic=rgb_topic, depth_topic=depth_topic, **kwargs)
+    if rgb_topic or depth_topic:
+        raise InputError(f"{path}: not a ROS bag; --rgb-topic and --depth-topic are for bags")
+    root = Path(path)
+    if not root.is_dir():
+        raise InputError(f"sequence folder not found: {root}")
+    if not (root / "associations.txt").is_file() and not (root / "rgb.txt").is_file():
+        raise InputError(f"{root}: not a TUM RGB-D sequence (no rgb.txt or associations.txt)")
+    return TumSequence(root, **kwargs)
+
+
+def check_outputs(reads, *, files: dict[str, Path] | None = None,
+                  folders: dict[str, Path] | None = None) -> None:
+    """Refuse outputs that would overwrite what a command reads, or each other.
+
+    Checked before any work, with paths resolved (symbolic links followed): no output file
+    is a file the command reads or another output file; no output folder (where the command
+    names the files it writes: masks by timestamp, a study's tables) holds a file the
+    command reads, is another output folder, or holds an output file.
+
+    Args:
+      reads: the files (and folders) the command reads.
+      files: option -> output file (e.g. ``{"--out": Path("traj.txt")}``).
+      folders: option -> output folder (e.g. ``{"--masks": Path("masks")}``).
+    Raises:
+      InputError: one line naming the options, the paths and the clash.
+    """
+    files, folders = dict(files or {}), dict(folders or {})
+    read = {Path(os.path.realpath(p)): Path(p) for p in reads}
+    parents = {}
+    for real, given in read.items():
+        parents.setdefault(real.parent, given)
+    seen_files: dict[Path, str] = {}
+    for what, p in files.items():
+        real = Path(os.path.realpath(p))
+        if real in read:
+            raise InputError(f"{what} {p} would overwrite the input {read[real]}")
+        if real in seen_files:
+            raise InputError(f"{what} and {seen_files[real]} are the same file {p}; each "
+                             "output needs its own")
+        seen_files[real] = what
+    seen_folders: dict[Path, str] = {}
+    for what, p in folders.items():
+        real = Path(os.path.realpath(p))
+        if real in read or real in parents:
+            held = parents.get(real, read.get(real))
+            raise InputError(f"{what} {p} holds {held}, which this command reads; writing "
+                             "there could overwrite it: choose another folder")
+        if real in seen_folders:
+            raise InputError(f"{what} and {seen_folders[real]} are the same folder {p}; each "
+                             "output needs its own")
+        seen_folders[real] = what
+    for real, what in seen_files.items():
+        if real.parent in seen_folders:
+            other = seen_folders[real.parent]
+            raise InputError(f"{what} {files[what]} lies in the folder of {other}, which "
+                             f"{other} writes into; put it elsewhere")
+
+
+def output_file(path: str | Path, *, what: str) -> Path:
+    """``path`` as a file this run can write, checked before any work is done (what it must
+    not overwrite: :func:`check_outputs`).
+
+    Args:
+      path: the file (it may exist; it is not changed here).
+      what: how to name it in a message (e.g. ``--out``).
+    Returns:
+      the path.
+    Raises:
+      InputError: the path is a folder, its folder does not exist, or it cannot be written.
+    """
+    p = Path(path)
+    if p.is_dir():
+        raise InputError(f"{what} {p}: is a folder, not a file")
+    if not p.parent.is_dir():
+        raise InputError(f"{what} {p}: folder {p.parent} does not exist")
+    existed = p.exists()
+    try:
+        with open(p, "a"):  # "a": an existing file stays as it is
+            pass
+    except OSError as exc:
+        raise InputError(f"{what} {p}: cannot write ({exc.strerror})") from None
+    if not existed:
+        p.unlink()
+    return p
+
+
+def output_folder(path: str | Path, *, what: str, empty: bool = False) -> Path:
+    """``path`` as a folder this run can write into, created if missing.
+
+    Args:
+      path: the folder.
+      what: how to name it in a message (e.g. ``--masks``).
+      empty: refuse a folder that already holds anything (a command that writes a whole
+        folder, whose old files would be left mixed with the new ones or overwritten).
+    Returns:
+      the path.
+    Raises:
+      InputError: it exists and is not a folder (or, with ``empty``, is not empty), or
+        cannot be created or written into.
+    """
+    import tempfile
+
+    p = Path(path)
+    if p.exists() and not p.is_dir():
+        raise InputError(f"{what} {p}: exists and is not a folder")
+    if empty and p.is_dir() and any(p.iterdir()):
+        raise InputError(f"{what} {p}: the folder is not empty; give a new or empty folder "
+                         "(nothing in it is changed)")
+    try:
+        p.mkdir(parents=True, exist_ok=True)
+        tempfile.TemporaryFile(dir=p).close()
+    except OSError as exc:
+        raise InputError(f"{what} {p}: cannot write there ({exc.strerror})") from None
+    return p
+
+
+def write_image(path: str | Path, image: np.ndarray) -> None:
+    """``cv2.imwrite`` that raises ``OSError`` when nothing was written (OpenCV only returns
+    False, and a run would go on writing nothing).
+
+    Args:
+      path: the file; its extension picks the format (``.png``).
+      image: (H, W) or (H, W, 3) array as OpenCV writes it.
+    """
+    import cv2
+
+    if not cv2.imwrite(str(path), image):
+        raise OSError(f"{path}: could not write the image")
+
+
+class TrajectoryWriter:
+    """Writes a TUM trajectory one pose at a time, flushed, so nothing computed is lost
+    when a long run is interrupted. Same format as :func:`write_trajectory`.
+
+    Example::
+
+        with TrajectoryWriter("traj.txt") as w:
+            for t, T in poses:
+                w.write(t, T)
+    """
+
+    def __init__(self, path: str | Path, *, comment: str = ""):
+        self.path = Path(path)
+        if self.path.parent and not self.path.parent.exists():
+            raise InputError(f"folder of the output trajectory does not exist: {self.path.parent}")
+        self._fh = open(self.path, "w")  # noqa: SIM115 (held open across writes; closed by close())
+        for line in comment.splitlines():
+            self._fh.write(f"# {line}\n")
+        self._fh.write("# timestamp tx ty tz qx qy qz qw\n")
+        self._fmt = " ".join([_TIME_FMT] + [_VALUE_FMT] * 7) + "\n"
+
+    def write(self, timestamp: float, T_w_c: np.ndarray) -> None:
+        from jaxvo.host.transforms import rotation_to_quat
+
+        T = np.asarray(T_w_c, np.float64)
+        q = rotation_to_quat(T[:3, :3])
+        self._fh.write(self._fmt % (timestamp, *T[:3, 3], *q))
+        self._fh.flush()
+
+    def close(self) -> None:
+        self._fh.close()
+
+    def __enter__(self):
+        return self
+
+    def __exit__(self, *exc):
+        self.close()
+
+
+# Median depth of a frame, metres: outside the hard band no RGB-D sensor reads (the depth
+# scale is wrong, e.g. 1000 for millimetres against TUM's 5000, or float depth that is not
+# metres); outside the soft band it is possible but unusual for the structured-light and
+# time-of-flight cameras of these datasets (0.5 m: the nearest range of the Kinect and
+# Xtion sensors of TUM, Bonn and ICL-style data), so it is said but run.
+_DEPTH_HARD_M = (0.1, 15.0)
+_DEPTH_SOFT_M = (0.5, 8.0)
+# The depth scales of the sensors' files: TUM, Bonn, ETH3D 5000 per metre; millimetres 1000.
+# A wrong one of these is the usual mistake, and it can stay inside the soft band (a room
+# 2-4 m deep in millimetres read at 5000 per metre: median 0.4-0.6 m). So the median is
+# also compared with the typical indoor median, the soft band's geometric centre (2 m):
+# when another common scale puts it nearer (in ratio), that scale is the likelier one.
+_COMMON_SCALES = (5000.0, 1000.0)
+_TYPICAL_M = float(np.sqrt(_DEPTH_SOFT_M[0] * _DEPTH_SOFT_M[1]))
+
+
+class DepthScaleWarning(UserWarning):
+    """A frame's depth is possible but unusual for an RGB-D sensor (see
+    :func:`check_depth_scale`): the depth scale may be wrong."""
+
+
+def check_depth_scale(depth: np.ndarray, K, *, where: str, raw_units: bool = True) -> str | None:
+    """Check the median of a frame's valid depth readings against what RGB-D sensors see.
+
+    Args:
+      depth: (H, W) float metres, 0 = no reading.
+      K: the intrinsics whose ``depth_scale`` made ``depth`` (named in the messages).
+      where: the frame, for the messages.
+      raw_units: the depth was raw units divided by ``K.depth_scale`` (else it was given as
+        float metres, and the message says so).
+    Returns:
+      a one-line warning when the median lies outside 0.5 to 8 m, or when another common
+      depth scale (5000 or 1000 per metre) puts it nearer the typical 2 m; else None (also
+      for a frame without readings, which the pipeline reports per frame).
+    Raises:
+      InputError: the median lies outside 0.1 to 15 m.
+    """
+    valid = depth[np.isfinite(depth) & (depth > 0)]
+    if valid.size == 0:
+        return None
+    med = float(np.median(valid))
+    likelier = []
+    if raw_units:
+        at = {s: med * K.depth_scale / s for s in _COMMON_SCALES if s != K.depth_scale}
+        likelier = [s for s, m in at.items()
+                    if abs(np.log(m / _TYPICAL_M)) < abs(np.log(med / _TYPICAL_M))]
+        hint = (f"median depth is {med:.3g} m with depth_scale {K.depth_scale:g} ("
+                + ", ".join(f"{m:.3g} m at {s:g}" for s, m in at.items())
+                + "; TUM uses 5000 per metre, millimetre sensors 1000)")
+    else:
+        hint = (f"median of the float depth is {med:.3g}, read as metres (millimetres or "
+                "raw units? give float depth in metres, or uint16 raw units with the "
+                "intrinsics' depth_scale)")
+    if not _DEPTH_HARD_M[0] <= med <= _DEPTH_HARD_M[1]:
+        raise InputError(f"{where}: {hint}: the depth scale looks wrong")
+    if likelier:
+        return (f"{where}: {hint}: depth_scale {likelier[0]:g} is likelier (--depth-scale): "
+                "check the depth scale")
+    if not _DEPTH_SOFT_M[0] <= med <= _DEPTH_SOFT_M[1]:
+        return f"{where}: {hint}: check the depth scale"
+    return None
+
+
+def first_readable(reads, *, where: str, total: int):
+    """The first frame that can be read, and the reads taken to find it.
+
+    Args:
+      reads: ``(index, get)`` pairs in frame order, ``get()`` returning the frame or
+        raising :class:`InputError` (a read-ahead future's ``result``, or a read).
+      where: the sequence, for the message.
+      total: how many frames ``reads`` holds, for the message.
+    Returns:
+      ``(frame, taken)``: ``taken`` the pairs consumed (the unreadable ones, then the
+      frame's), for a loop over all frames to go through again.
+    Raises:
+      InputError: no frame can be read, naming the first one's file and why.
+    """
+    taken, first_error = [], None
+    for i, get in reads:
+        taken.append((i, get))
+        try:
+            return get(), taken
+        except InputError as exc:
+            first_error = first_error or exc
+    raise InputError(f"{where}: none of the {total} frames can be read (first: {first_error})")
+
+
+def first_pose(seq) -> np.ndarray:
+    """(4, 4) float64 pose of a sequence's first camera: its first ground-truth pose when it
+    has one a frame (estimated and true trajectories then share a frame without
+    alignment), else the identity."""
+    gt = getattr(seq, "groundtruth", None)
+    if gt is not None and len(gt) == len(seq):
+        return np.asarray(gt.poses[0], np.float64)
+    return np.eye(4)
+
+
+def groundtruth_of_frames(seq, idx: np.ndarray) -> Trajectory | None:
+    """The ground truth of frames ``idx`` of ``seq``: the same poses when it has one a
+    frame, else the trajectory as it is (the metrics associate it by timestamp)."""
+    gt = getattr(seq, "groundtruth", None)
+    if gt is not None and len(gt) == len(seq):
+        return Trajectory(np.asarray(gt.timestamps)[idx], np.asarray(gt.poses)[idx])
+    return gt
+
+
+class InMemorySequence:
+    """``frames`` frames of a sequence from ``start`` on, read (or rendered) once and kept in
+    memory.
+
+    With ``step`` k, every k-th frame (start, start + k, ...): the same images with k times
+    the motion between frames, a fast-motion test with the sequence's own ground truth.
+
+    jaxvo and every peer then read the same frames, and rendering a synthetic frame (about
+    0.1 s) is paid once instead of once per method.
+    """
+
+    def __init__(self, seq, frames: int | None = None, *, step: int = 1, start: int = 0):
+        if int(step) < 1:
+            raise InputError(f"frame step must be at least 1, got {step}")
+        if int(start) < 0:
+            raise InputError(f"start frame must be 0 or more, got {start}")
+        idx = np.arange(int(start), len(seq), int(step))
+        idx = idx if frames is None else idx[: max(int(frames), 0)]
+        self.name = seq.name if step == 1 else f"{seq.name}_every{int(step)}"
+        self.intrinsics = seq.intrinsics
+        self.height, self.width = seq.height, seq.width
+        self.timestamps = np.asarray(seq.timestamps, np.float64)[idx]
+        self._frames = [seq[int(i)] for i in idx]
+        self.groundtruth = groundtruth_of_frames(seq, idx)
+        self.has_masks = self._frames[0].mask is not None
+        # a synthetic sequence's moving objects, on the frames kept
+        self.scenario = getattr(seq, "scenario", None)
+        self.object_trajectories = {
+            k: Trajectory(np.asarray(t.timestamps)[idx], np.asarray(t.poses)[idx])
+            for k, t in getattr(seq, "object_trajectories", {}).items()}
+
+    def __len__(self) -> int:
+        return len(self._frames)
+
+    def __getitem__(self, index: int):
+        return self._frames[index]
+
+    def __iter__(self):
+        return iter(self._frames)
+
+    @property
+    def duration(self) -> float:
+        """Seconds from the first to the last frame."""
+        return float(self.timestamps[-1] - self.timestamps[0]) if len(self) > 1 else 0.0

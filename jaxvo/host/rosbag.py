@@ -1,0 +1,260 @@
+"""RGB-D sequences from ROS bags: ROS 1 ``.bag`` files and ROS 2 bag folders (host side).
+
+Read with ``rosbags`` (pure Python, no ROS install). A :class:`BagSequence` is a sequence as
+``io.TumSequence`` is (``name``, ``intrinsics``, ``height``, ``width``, ``timestamps``,
+``groundtruth``, ``__len__``, ``__getitem__ -> Frame``, lazy), so ``jaxvo run``, studies and
+everything downstream take a bag as they take a folder; :func:`jaxvo.host.io.open_sequence`
+opens one when given a ``.bag`` file or a folder with ``metadata.yaml``.
+
+Topics: the TUM RGB-D bags' by default (:data:`TUM_TOPICS`); the camera info is the one
+beside the colour topic (``/camera/rgb/image_color`` -> ``/camera/rgb/camera_info``).
+Encodings (``sensor_msgs/Image``): colour ``rgb8``, ``bgr8``, ``rgba8``, ``bgra8``, ``mono8``;
+depth ``32FC1`` metres (TUM's bags; NaN = no reading) or ``16UC1`` / ``mono16``
+millimetres (ROS REP 118). Frames are the colour images, each paired with the depth image
+nearest in time within ``max_diff`` (:func:`jaxvo.host.io.associate`, as for folders), both
+timed by their header stamps (sensor time, as TUM's ``rgb.txt``), not by when they were
+recorded. Opening reads the two image topics once to learn the stamps; frames are decoded
+only when asked for.
+"""
+
+from __future__ import annotations
+
+import threading
+from pathlib import Path
+
+import numpy as np
+
+from jaxvo.errors import InputError
+from jaxvo.host.camera import Intrinsics, check_intrinsics, depth_metres, preset
+from jaxvo.host.io import (
+    Frame,
+    associate,
+    check_frame_size,
+    frame_index,
+    given_camera,
+    preset_from_name,
+)
+
+# colour, depth and camera-info topics of the TUM RGB-D benchmark's bags
+TUM_TOPICS = ("/camera/rgb/image_color", "/camera/depth/image", "/camera/rgb/camera_info")
+IMAGE_TYPE = "sensor_msgs/msg/Image"
+INFO_TYPE = "sensor_msgs/msg/CameraInfo"
+# ROS REP 118: 16-bit depth images are millimetres
+ROS_DEPTH_UNITS_PER_METRE = 1000.0
+# colour encodings -> (channels, the channel order that makes BGR)
+_COLOUR = {"rgb8": (3, [2, 1, 0]), "bgr8": (3, [0, 1, 2]), "rgba8": (4, [2, 1, 0]),
+           "bgra8": (4, [0, 1, 2]), "mono8": (1, [0, 0, 0])}
+
+
+def is_bag(path: str | Path) -> bool:
+    """Whether ``path`` is a ROS 1 bag (a ``.bag`` file) or a ROS 2 bag (a folder with
+    ``metadata.yaml``)."""
+    p = Path(path)
+    return (p.is_file() and p.suffix == ".bag") or (p.is_dir() and (p / "metadata.yaml").is_file())
+
+
+def _open_reader(path: Path):
+    try:
+        from rosbags.highlevel import AnyReader, AnyReaderError
+    except ImportError:
+        raise InputError("reading ROS bags needs rosbags: pip install 'rosbags>=0.11'") from None
+    try:
+        reader = AnyReader([path])
+        reader.open()
+    except AnyReaderError as exc:  # rosbags wraps each format's reader errors in it
+        raise InputError(f"{path}: cannot read the bag ({exc})") from None
+    return reader
+
+
+def _stamp(msg) -> float:
+    """A message's header stamp, seconds."""
+    return msg.header.stamp.sec + msg.header.stamp.nanosec * 1e-9
+
+
+def _pixels(msg, channels: int, dtype: str) -> np.ndarray:
+    """The (H, W, channels) pixel array of a ``sensor_msgs/Image``, rows padded to ``step``."""
+    dt = np.dtype(dtype).newbyteorder(">" if msg.is_bigendian else "<")
+    row_bytes = msg.width * channels * dt.itemsize
+    data = np.frombuffer(msg.data, np.uint8)
+    if msg.step < row_bytes or data.size < msg.step * msg.height:
+        raise InputError(f"{msg.encoding} image of {msg.width}x{msg.height} with step "
+                         f"{msg.step} holds {data.size} bytes: truncated")
+    rows = data[: msg.step * msg.height].reshape(msg.height, msg.step)[:, :row_bytes]
+    return rows.copy().view(dt).reshape(msg.height, msg.width, channels).astype(dtype)
+
+
+def colour_bgr(msg) -> np.ndarray:
+    """(H, W, 3) uint8 BGR from a colour ``sensor_msgs/Image`` (see the module docstring)."""
+    enc = msg.encoding.lower()
+    if enc not in _COLOUR:
+        raise InputError(f"colour encoding {msg.encoding!r} is not read "
+                         f"({', '.join(_COLOUR)} are)")
+    channels, order = _COLOUR[enc]
+    return np.ascontiguousarray(_pixels(msg, channels, "uint8")[..., order])
+
+
+def depth_m(msg) -> np.ndarray:
+    """(H, W) float32 metres, 0 = no reading, from a depth ``sensor_msgs/Image``
+    (``32FC1`` metres, or ``16UC1`` / ``mono16`` millimetres)."""
+    enc = msg.encoding.upper()
+    if enc == "32FC1":
+        d = _pixels(msg, 1, "float32")[..., 0]
+        return np.where(np.isfinite(d) & (d > 0), d, np.float32(0)).astype(np.float32)
+    if enc in ("16UC1", "MONO16"):
+        raw = _pixels(msg, 1, "uint16")[..., 0]
+        return depth_metres(raw, Intrinsics(1, 1, 0, 0, ROS_DEPTH_UNITS_PER_METRE))
+    raise InputError(f"depth encoding {msg.encoding!r} is not read (32FC1 metres, 16UC1 "
+                     "millimetres are)")
+
+
+def info_intrinsics(msg) -> Intrinsics | None:
+    """Pinhole intrinsics (pixels) from a ``sensor_msgs/CameraInfo`` (ROS 1 ``K``, ROS 2
+    ``k``), or None when it holds no calibration (all zero)."""
+    K = np.asarray(msg.K if hasattr(msg, "K") else msg.k, np.float64)
+    if K.size != 9 or K[0] <= 0 or K[4] <= 0:
+        return None
+    return Intrinsics(float(K[0]), float(K[4]), float(K[2]), float(K[5]),
+                      ROS_DEPTH_UNITS_PER_METRE)
+
+
+class BagSequence:
+    """An RGB-D sequence in a ROS 1 or ROS 2 bag, frames decoded only when asked for.
+
+    Args:
+      path: a ``.bag`` file (ROS 1) or a ROS 2 bag folder.
+      camera: a preset name or :class:`Intrinsics`; overrides the bag's camera info. Without
+        either, a bag named as TUM and Bonn name theirs takes that camera's preset.
+      max_diff: largest colour-depth time difference when pairing them, seconds.
+      rgb_topic: the colour topic (default TUM's ``/camera/rgb/image_color``).
+      depth_topic: the depth topic (default TUM's ``/camera/depth/image``).
+
+    Attributes:
+      warnings: one-line warnings (frames left out, camera info against the name's preset).
+      frames_listed: colour images in the bag, paired or not.
+      camera_source: where the intrinsics came from, in words.
+    """
+
+    groundtruth = None  # bags carry the motion capture as tf frames, not read here
+
+    def __init__(self, path: str | Path, *, camera: str | Intrinsics | None = None,
+                 max_diff: float = 0.02, rgb_topic: str | None = None,
+                 depth_topic: str | None = None) -> None:
+        self.path = Path(path)
+        if not max_diff >= 0:  # also NaN
+            raise InputError(f"max time difference must be >= 0 s, got {max_diff}")
+        self.name = self.path.resolve().name.removesuffix(".bag")
+        self.warnings: list[str] = []
+        rgb_topic = rgb_topic or TUM_TOPICS[0]
+        depth_topic = depth_topic or TUM_TOPICS[1]
+        self._lock = threading.Lock()  # frames are read from several threads (read_ahead)
+        self._reader = _open_reader(self.path)
+        self._conns = {t: self._connection(t, IMAGE_TYPE, option)
+                       for t, option in ((rgb_topic, "--rgb-topic"),
+                                         (depth_topic, "--depth-topic"))}
+        t_rgb, at_rgb = self._stamps(rgb_topic)
+        t_depth, at_depth = self._stamps(depth_topic)
+        ia, ib = associate(t_rgb, t_depth, max_diff, names=(rgb_topic, depth_topic))
+        self.timestamps = t_rgb[ia]
+        self._at = [(rgb_topic, at_rgb[i], depth_topic, at_depth[j]) for i, j in zip(ia, ib)]
+        self.frames_listed = len(t_rgb)
+        for topic, count, other in ((rgb_topic, len(t_rgb), "depth"),
+                                    (depth_topic, len(t_depth), "colour")):
+            if count > len(ia):
+                self.warnings.append(f"{self.path} {topic}: {count - len(ia)} of {count} "
+                                     f"images have no {other} image within {max_diff:g} s "
+                                     "(--max-diff) and are left out")
+        first = colour_bgr(self._message(rgb_topic, at_rgb[ia[0]]))
+        self.height, self.width = first.shape[:2]
+        info_topic = rgb_topic.rsplit("/", 1)[0] + "/camera_info"
+        self.intrinsics, self.camera_source = self._intrinsics(camera, info_topic)
+        check_intrinsics(self.intrinsics, where=self.camera_source, width=self.width,
+                         height=self.height)
+
+    def _connection(self, topic: str, msgtype: str, option: str):
+        conns = [c for c in self._reader.connections if c.topic == topic]
+        if not conns:
+            images = sorted({c.topic for c in self._reader.connections if c.msgtype == msgtype})
+            raise InputError(f"{self.path}: no topic {topic} (pass {option}; image topics: "
+                             f"{', '.join(images) or 'none'})")
+        if conns[0].msgtype != msgtype:
+            raise InputError(f"{self.path} {topic}: {conns[0].msgtype}, not {msgtype}")
+        return conns[0]
+
+    def _stamps(self, topic: str) -> tuple[np.ndarray, np.ndarray]:
+        """Header stamps (N,) seconds of a topic's images in time order, and the bag times
+        (N,) int nanoseconds to read each again; a repeated stamp keeps the first image."""
+        stamps, at = [], []
+        for conn, t_ns, raw in self._reader.messages(connections=[self._conns[topic]]):
+            stamps.append(_stamp(self._reader.deserialize(raw, conn.msgtype)))
+            at.append(t_ns)
+        if not stamps:
+            raise InputError(f"{self.path} {topic}: no images")
+        t = np.asarray(stamps, np.float64)
+        order = np.argsort(t, kind="stable")
+        keep = order[np.concatenate([[True], np.diff(t[order]) > 0])]
+        if len(keep) < len(t):
+            self.warnings.append(f"{self.path} {topic}: {len(t) - len(keep)} images repeat an "
+                                 "earlier image's stamp; left out")
+        return t[keep], np.asarray(at, np.int64)[keep]
+
+    def _message(self, topic: str, t_ns: int):
+        """The image of ``topic`` recorded at bag time ``t_ns`` nanoseconds, deserialised."""
+        conn = self._conns[topic]
+        t_ns = int(t_ns)  # a NumPy integer binds as no time at all in ROS 2's SQLite query
+        with self._lock:
+            for c, _, raw in self._reader.messages(connections=[conn], start=t_ns,
+                                                   stop=t_ns + 1):
+                return self._reader.deserialize(raw, c.msgtype)
+        raise InputError(f"{self.path} {topic}: no image at bag time {t_ns} ns")
+
+    def _intrinsics(self, camera, info_topic: str) -> tuple[Intrinsics, str]:
+        """The ``camera`` given, else the bag's camera info, else the name's preset."""
+        given = given_camera(camera)
+        if given is not None:
+            return given
+        guess = preset_from_name(self.name)
+        conns = [c for c in self._reader.connections
+                 if c.topic == info_topic and c.msgtype == INFO_TYPE]
+        K = None
+        if conns:
+            with self._lock:
+                for c, _, raw in self._reader.messages(connections=conns[:1]):
+                    K = info_intrinsics(self._reader.deserialize(raw, c.msgtype))
+                    break
+        if K is not None:
+            if guess is not None and preset(guess)[:4] != K[:4]:
+                self.warnings.append(
+                    f"{self.path} {info_topic}: fx {K.fx:g} fy {K.fy:g} cx {K.cx:g} cy "
+                    f"{K.cy:g}, not the {guess} preset its name points to (--camera {guess} "
+                    "takes the preset)")
+            return K, f"{self.path} {info_topic}"
+        if guess is None:
+            raise InputError(f"{self.path}: no camera info on {info_topic}; pass --camera")
+        return preset(guess), f"preset {guess}, from the bag's name"
+
+    def files(self, frames: int | None = None) -> list[Path]:
+        """What reading the bag touches (any number of frames): a ROS 1 bag file, or the
+        files of a ROS 2 bag folder (what no output may overwrite)."""
+        if self.path.is_file():
+            return [self.path]
+        return sorted(p for p in self.path.iterdir() if p.is_file())
+
+    def __len__(self) -> int:
+        return len(self.timestamps)
+
+    def __getitem__(self, index: int) -> Frame:
+        """Decode frame ``index`` from the bag (negative indices count from the end)."""
+        index = frame_index(index, len(self))
+        rgb_topic, at_rgb, depth_topic, at_depth = self._at[index]
+        bgr = colour_bgr(self._message(rgb_topic, at_rgb))
+        depth = depth_m(self._message(depth_topic, at_depth))
+        for topic, img in ((rgb_topic, bgr), (depth_topic, depth)):
+            check_frame_size(f"{self.path} {topic} frame {index}", img, self.height, self.width)
+        return Frame(index, float(self.timestamps[index]), bgr, depth, None)
+
+    def __iter__(self):
+        for i in range(len(self)):
+            yield self[i]
+
+    def __repr__(self) -> str:
+        return f"BagSequence({self.name!r}, {len(self)} frames, {self.width}x{self.height})"

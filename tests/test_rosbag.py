@@ -1,0 +1,215 @@
+"""ROS bags in: sequences written with rosbags' own ROS 1 and ROS 2 writers read back as the
+frames written, through ``open_sequence`` and ``jaxvo run``; a bag of the shared TUM clip
+gives the folder's trajectory."""
+
+from __future__ import annotations
+
+import json
+from pathlib import Path
+
+import numpy as np
+import pytest
+
+pytest.importorskip("rosbags", reason="rosbags is not installed (a dependency of jaxvo)")
+
+from rosbags.rosbag1 import Writer as Writer1
+from rosbags.rosbag2 import Writer as Writer2
+from rosbags.typesys import Stores, get_typestore
+
+from jaxvo.cli.main import main
+from jaxvo.errors import InputError
+from jaxvo.host.camera import Intrinsics
+from jaxvo.host.io import open_sequence, read_trajectory
+from jaxvo.host.rosbag import TUM_TOPICS, BagSequence, colour_bgr, depth_m
+from jaxvo.synth.scenes import make_sequence
+
+K_INFO = Intrinsics(535.4, 539.2, 320.1, 247.6, 1000.0)
+
+
+def image_msg(ts, stamp: float, img: np.ndarray, encoding: str, ros1: bool):
+    """A sensor_msgs/Image of ``img`` ((H, W) or (H, W, C)) at header time ``stamp`` s."""
+    T = ts.types
+    sec, usec = divmod(round(stamp * 1e6), 1_000_000)  # TUM's stamps are whole microseconds
+    nsec = usec * 1000
+    stamp_msg = T["builtin_interfaces/msg/Time"](sec=sec, nanosec=nsec)
+    header = (T["std_msgs/msg/Header"](seq=0, stamp=stamp_msg, frame_id="cam") if ros1
+              else T["std_msgs/msg/Header"](stamp=stamp_msg, frame_id="cam"))
+    h, w = img.shape[:2]
+    data = np.ascontiguousarray(img).view(np.uint8).reshape(-1)
+    return T["sensor_msgs/msg/Image"](header=header, height=h, width=w, encoding=encoding,
+                                      is_bigendian=0, step=data.size // h, data=data)
+
+
+def info_msg(ts, stamp: float, K: Intrinsics, h: int, w: int, ros1: bool):
+    T = ts.types
+    img = image_msg(ts, stamp, np.zeros((1, 1), np.uint8), "mono8", ros1)
+    kmat = np.array([K.fx, 0, K.cx, 0, K.fy, K.cy, 0, 0, 1], np.float64)
+    roi = T["sensor_msgs/msg/RegionOfInterest"](x_offset=0, y_offset=0, height=0, width=0,
+                                                do_rectify=False)
+    fields = {"D" if ros1 else "d": np.zeros(5), "K" if ros1 else "k": kmat,
+              "R" if ros1 else "r": np.eye(3).ravel(),
+              "P" if ros1 else "p": np.zeros(12)}
+    return T["sensor_msgs/msg/CameraInfo"](header=img.header, height=h, width=w,
+                                           distortion_model="plumb_bob", binning_x=0,
+                                           binning_y=0, roi=roi, **fields)
+
+
+def write_bag(path: Path, frames, *, ros1: bool, rgb_encoding="rgb8", depth_encoding="32FC1",
+              K: Intrinsics | None = K_INFO, topics=TUM_TOPICS, depth_offset=1e-5):
+    """Write ``frames`` (``Frame``s: BGR uint8, depth float32 metres) as a TUM-like bag:
+    colour at the frame's time, depth ``depth_offset`` s later, camera info once."""
+    ts = get_typestore(Stores.ROS1_NOETIC if ros1 else Stores.ROS2_HUMBLE)
+    writer = Writer1(path) if ros1 else Writer2(path, version=9)
+    serialize = ts.serialize_ros1 if ros1 else ts.serialize_cdr
+    with writer as w:
+        c_rgb = w.add_connection(topics[0], "sensor_msgs/msg/Image", typestore=ts)
+        c_depth = w.add_connection(topics[1], "sensor_msgs/msg/Image", typestore=ts)
+        c_info = w.add_connection(topics[2], "sensor_msgs/msg/CameraInfo", typestore=ts)
+        for k, f in enumerate(frames):
+            bgr = f.bgr
+            colour = {"rgb8": bgr[..., ::-1], "bgr8": bgr, "mono8": bgr[..., 1]}[rgb_encoding]
+            depth = (f.depth if depth_encoding == "32FC1"
+                     else np.round(f.depth * 1000).astype(np.uint16))
+            t_ns = int(f.timestamp * 1e9) + 1000  # recorded a moment after the stamp
+            if k == 0 and K is not None:
+                h, w_ = bgr.shape[:2]
+                w.write(c_info, t_ns, serialize(info_msg(ts, f.timestamp, K, h, w_, ros1),
+                                                "sensor_msgs/msg/CameraInfo"))
+            w.write(c_rgb, t_ns, serialize(image_msg(ts, f.timestamp, colour, rgb_encoding,
+                                                     ros1), "sensor_msgs/msg/Image"))
+            w.write(c_depth, t_ns + 2000, serialize(
+                image_msg(ts, f.timestamp + depth_offset, depth, depth_encoding, ros1),
+                "sensor_msgs/msg/Image"))
+    return path
+
+
+@pytest.fixture(scope="module")
+def frames():
+    seq = make_sequence("handheld_fast", frames=4, seed=2)
+    return [seq[i] for i in range(len(seq))]
+
+
+@pytest.mark.parametrize("ros1", [True, False], ids=["ros1", "ros2"])
+def test_bag_reads_back_the_frames(tmp_path, frames, ros1):
+    path = write_bag(tmp_path / ("seq.bag" if ros1 else "seq"), frames, ros1=ros1)
+    seq = open_sequence(path)
+    assert isinstance(seq, BagSequence) and len(seq) == len(frames) and seq.warnings == []
+    assert seq.name == "seq" and (seq.height, seq.width) == frames[0].bgr.shape[:2]
+    assert seq.intrinsics == K_INFO and "camera_info" in seq.camera_source
+    np.testing.assert_allclose(seq.timestamps, [f.timestamp for f in frames], atol=1e-6)
+    for f, g in zip(frames, seq):
+        np.testing.assert_array_equal(g.bgr, f.bgr)  # rgb8 -> BGR, exact
+        np.testing.assert_array_equal(g.depth, f.depth)  # float32 metres, exact
+        assert g.mask is None and g.depth.dtype == np.float32
+    assert seq.groundtruth is None
+
+
+def test_encodings_and_camera_override(tmp_path, frames):
+    """bgr8 colour, 16UC1 millimetre depth, no camera info: --camera is then required."""
+    path = write_bag(tmp_path / "enc.bag", frames, ros1=True, rgb_encoding="bgr8",
+                     depth_encoding="16UC1", K=None)
+    with pytest.raises(InputError, match="no camera info on /camera/rgb/camera_info"):
+        open_sequence(path)
+    seq = open_sequence(path, camera="tum_fr3")
+    assert seq.camera_source == "preset tum_fr3"
+    g = seq[1]
+    np.testing.assert_array_equal(g.bgr, frames[1].bgr)
+    # millimetres: within half a millimetre of the float depth written
+    assert np.max(np.abs(g.depth - frames[1].depth)) <= 5e-4 + 1e-6  # tol 0.5 mm
+
+
+def test_topics_and_association(tmp_path, frames):
+    """Other topics by option; colour and depth paired by nearest stamp within max_diff."""
+    topics = ("/cam/color", "/cam/depth", "/cam/camera_info")
+    path = write_bag(tmp_path / "t.bag", frames, ros1=True, topics=topics)
+    with pytest.raises(InputError, match=r"no topic /camera/rgb/image_color \(pass --rgb-topic;"
+                                         r" image topics: /cam/color, /cam/depth\)"):
+        open_sequence(path)
+    seq = open_sequence(path, rgb_topic="/cam/color", depth_topic="/cam/depth")
+    assert len(seq) == len(frames) and seq.intrinsics == K_INFO
+    # depth k at t_k + 0.05 s lies 0.0167 s from colours k + 1 and k + 2 (30 Hz): one-to-one,
+    # colours 1..3 pair and colour 0 and the last depth are left out
+    far = write_bag(tmp_path / "far.bag", frames, ros1=True, depth_offset=0.05)
+    seq = open_sequence(far)
+    assert len(seq) == 3 and len(seq.warnings) == 2
+    np.testing.assert_allclose(seq.timestamps, [f.timestamp for f in frames[1:]], atol=1e-6)
+    assert "1 of 4 images have no depth image within 0.02 s" in seq.warnings[0]
+    with pytest.raises(InputError, match="no timestamps match within 0.01 s"):
+        open_sequence(far, max_diff=0.01)
+
+
+def test_decoders_reject_unknown_encodings(frames):
+    ts = get_typestore(Stores.ROS1_NOETIC)
+    msg = image_msg(ts, 1.0, frames[0].bgr, "yuv422", True)
+    with pytest.raises(InputError, match="colour encoding 'yuv422'"):
+        colour_bgr(msg)
+    with pytest.raises(InputError, match="depth encoding 'yuv422'"):
+        depth_m(msg)
+
+
+def cli(capsys, *argv):
+    code = main([str(a) for a in argv])
+    out, err = capsys.readouterr()
+    return code, out, err
+
+
+def test_bad_bags_are_one_line(tmp_path, frames, capsys):
+    junk = tmp_path / "junk.bag"
+    junk.write_bytes(b"not a bag at all")
+    for argv, expect in (
+        (["run", junk, "--out", tmp_path / "t.txt"], "cannot read the bag"),
+        (["run", write_bag(tmp_path / "ok.bag", frames, ros1=True), "--out", tmp_path / "t.txt",
+          "--rgb-topic", "/nope"], "no topic /nope"),
+        (["run", tmp_path, "--out", tmp_path / "t.txt", "--depth-topic", "/d"], "not a ROS bag"),
+        (["run", tmp_path / "ok.bag", "--out", tmp_path / "ok.bag"], "would overwrite the input"),
+    ):
+        code, _, err = cli(capsys, *argv)
+        assert code == 2 and err.count("\n") == 1 and err.startswith("jaxvo: error: "), err
+        assert expect in err, err
+
+
+def test_tum_clip_bag_gives_the_folders_trajectory(require_data, tmp_path, capsys):
+    """The shared TUM clip written as a ROS 1 bag (colour rgb8, depth 32FC1 metres, as TUM's
+    bags) and as a ROS 2 bag: ``jaxvo run`` gives the folder's trajectory."""
+    folder = require_data("tum_fr3_walking_halfsphere_50")
+    seq = open_sequence(folder)
+    n = 12  # enough pairs to compare trajectories; the run's cost is in the compile
+    frames = [seq[i] for i in range(n)]
+    trajs = {}
+    for name, path in (("folder", folder),
+                       ("ros1", write_bag(tmp_path / "clip.bag", frames, ros1=True,
+                                          K=seq.intrinsics, depth_offset=0.0)),
+                       ("ros2", write_bag(tmp_path / "clip2", frames, ros1=False,
+                                          K=seq.intrinsics, depth_offset=0.0))):
+        out = tmp_path / f"{name}.txt"
+        code, stdout, err = cli(capsys, "run", path, "--out", out, "--frames", n, "--json",
+                                "--quiet")
+        assert code == 0, err
+        assert json.loads(stdout)["poses_written"] == n
+        trajs[name] = read_trajectory(out)
+    for name in ("ros1", "ros2"):
+        np.testing.assert_allclose(trajs[name].timestamps, trajs["folder"].timestamps,
+                                   atol=1e-6)  # tol 1 us: stamps via sec + nanosec
+        np.testing.assert_allclose(trajs[name].poses, trajs["folder"].poses,
+                                   atol=1e-9)  # tol 1e-9: the file's printed precision
+
+
+def test_a_study_takes_a_bag(tmp_path, frames):
+    """A study spec names a bag as it names a folder; the flow cache's key changes when the
+    bag is written anew."""
+    import os
+
+    from jaxvo.config import Config
+    from jaxvo.study import runner as study
+
+    bag = write_bag(tmp_path / "seq.bag", frames, ros1=True)
+    spec = tmp_path / "spec.toml"
+    spec.write_text('[[sequences]]\npath = "seq.bag"\nframes = 3\n')
+    (s,) = study.load_spec(spec).sequences
+    assert s.path == str(bag.resolve())
+    data, cached = study.sequence_data(s, Config(), None)  # the study's frames and flow
+    assert not cached and data.flows.valid.shape[0] == 2 and len(data.timestamps) == 3
+    key = study.sequence_key(s, Config())
+    os.utime(bag, ns=(0, 0))  # as if written again
+    study.sequence_key.cache_clear()  # memoised within a process; a new run computes it anew
+    assert study.sequence_key(s, Config()) != key
