@@ -1027,3 +1027,17 @@ def test_study_folder_with_jpeg_depth_is_one_line_naming_the_file(base, tmp_path
     assert_one_line_error(cli(capsys, "study", spec, "--out", tmp_path / "r", "-q"),
                           "none of the 6 frames can be read", ".jpg is 8-bit")
     assert not (tmp_path / "r").exists()
+
+
+def test_eval_outputs_never_go_over_its_trajectories_or_each_other(base, tmp_path, capsys):
+    gt = tmp_path / "gt.txt"
+    shutil.copy(base / "groundtruth.txt", gt)
+    before = gt.read_bytes()
+    for option in ("--save_results", "--plot"):
+        res = cli(capsys, "eval", "ate", gt, gt, option, gt)
+        assert_one_line_error(res, option, "would overwrite the input")
+        assert gt.read_bytes() == before
+    res = cli(capsys, "eval", "ate", gt, gt, "--save_results", tmp_path / "r", "--plot",
+              tmp_path / "r")
+    assert_one_line_error(res, "--plot and --save_results are the same file")
+    assert not (tmp_path / "r").exists()
