@@ -13,6 +13,7 @@ import numpy as np
 
 import jaxvo
 
+jaxvo.setup_compile_cache()  # later runs load the compiled programs (~20 s saved)
 cfg = jaxvo.Config()
 seq = jaxvo.make_sequence("fixed_camera_1", frames=60, seed=0)
 flows = jaxvo.flows_for_sequence(seq, cfg)

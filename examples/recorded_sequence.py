@@ -2,8 +2,9 @@
 
     python examples/recorded_sequence.py [SEQ_DIR]
 
-Defaults to the dynamic TUM sequence of the shared data (two people walking). Writes the
-trajectory and one overlay image per 10 frames.
+Defaults to the dynamic TUM sequence of the shared data (two people walking; the data root
+is ``$JAXVO_DATA``, else ``../shared/data`` beside the checkout). Writes the trajectory and
+one overlay image per 10 frames.
 """
 
 import sys
@@ -16,7 +17,12 @@ from jaxvo.host.masks import overlay_panel
 
 default = jaxvo.host.io.data_root() / "tum_fr3_walking_halfsphere_50"
 root = Path(sys.argv[1]) if len(sys.argv) > 1 else default
-seq = jaxvo.open_sequence(root)  # intrinsics from its camera.txt (or camera="tum_fr3")
+jaxvo.setup_compile_cache()  # later runs load the compiled step (~20 s saved)
+try:
+    seq = jaxvo.open_sequence(root)  # intrinsics from its camera.txt (or camera="tum_fr3")
+except jaxvo.InputError as exc:  # one line, no traceback: say what to pass
+    sys.exit(f"recorded_sequence.py: {exc}; pass a TUM-layout folder, or set JAXVO_DATA to the "
+             "folder holding tum_fr3_walking_halfsphere_50")
 odo = jaxvo.Odometry(seq.intrinsics, seed=0)
 out = Path("recorded_out")
 out.mkdir(exist_ok=True)

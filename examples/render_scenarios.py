@@ -1,6 +1,9 @@
 """Render every jaxvo.synth.scenes scenario: one picture each and a table of what it contains.
 
-Usage: .venv/bin/python examples/render_scenarios.py [--out docs/images] [--frames 90]
+Usage: .venv/bin/python examples/render_scenarios.py [--out DIR] [--frames 90]
+
+Writes into ``synth_scenarios/`` by default; ``--out docs/images`` refreshes the
+pictures in the docs (each file there is replaced).
 
 Pictures: three frames per scenario (rows), each as colour | depth (turbo colour map,
 0-4 m, black = no reading) | object mask over the dimmed colour. Table (markdown, on
@@ -104,7 +107,9 @@ def stats(name: str, frames: int) -> dict:
 
 def main() -> int:
     parser = argparse.ArgumentParser(description=__doc__.splitlines()[0])
-    parser.add_argument("--out", default="docs/images")
+    parser.add_argument("--out", default="synth_scenarios",
+                        help="folder for the pictures (default synth_scenarios; docs/images "
+                        "replaces the docs' pictures)")
     parser.add_argument("--frames", type=int, default=synth.DEFAULT_FRAMES)
     args = parser.parse_args()
     out = Path(args.out)

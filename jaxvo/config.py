@@ -48,7 +48,10 @@ class Config:
     depth_smooth: bool = True  # also average valid depth over agreeing (2r+1)^2 windows
 
     # --- spatial segmentation (thesis chapter 3, Algorithms 1 and 2) ---
-    num_hypotheses: int = 20  # H
+    # H, the most hypotheses a frame pair may take: a cap. The search stops earlier, once
+    # the points are explained (Params.s_min) or too few are left unexplained, so 10, 20
+    # and 40 gave bit-identical runs in 35 of 36 cells of examples/thesis_parameters.toml
+    num_hypotheses: int = 20
     sample_size: int = 4  # m, points per minimal sample
     sample_radius: int = 3  # neighbourhood of the seed point, in grid cells
     # candidate samples drawn (vmapped) per hypothesis step; on the synthetic scenes the
@@ -83,7 +86,17 @@ class Config:
 
 
 class Params(NamedTuple):
-    """Numeric settings a parameter study may batch over (any field may be an array)."""
+    """Numeric settings a parameter study may batch over (any field may be an array).
+
+    What each field still changes is measured by ``bench/params_effect.py``
+    (``docs/report/params_effect.md``: six built-in scenes, each field halved and doubled):
+    ``confidence``, ``pixel_sigma``, ``cluster_min_samples`` and the evidence fields move
+    the moving-object F-measure (by 0.07-0.9), ``noise_rate`` and ``confidence`` the ATE;
+    ``lam``, ``delta``, ``cluster_eps`` and ``min_segment_points`` change labels in some
+    frames and F by 0.01-0.02; ``s_min``, ``min_match_corr``, ``max_age`` and
+    ``min_static_points`` change labels or statuses in some frames but no score;
+    ``id_retention`` changes nothing there (see its comment).
+    """
 
     # spatial segmentation
     lam: float = 1e3  # lambda of the entropy, thesis eq. (3.1), 1/m^2
@@ -122,7 +135,10 @@ class Params(NamedTuple):
     # saturation of the grid-model age, frames: a new motion shows in the temporal labels
     # after about this many frames, a stopped object turns static after as many
     max_age: float = 15.0
-    id_retention: float = 15.0  # frames before an unseen identifier may be reused
+    # frames before an unseen identifier may be reused. It only matters once all max_ids
+    # identifiers have been used and a new motion needs one (objects that come and go
+    # over a long sequence): on the built-in scenes it changes no bit of any run
+    id_retention: float = 15.0
     # moving evidence of a cell (pipeline.evidence_delta, temporal.update_evidence): a
     # point that moves has residuals about evidence_effect times the noise; one frame
     # shifts the log-odds by at most evidence_step; the evidence decays by evidence_decay

@@ -15,7 +15,9 @@ trajectory for the same seed.
 from __future__ import annotations
 
 import time
+import warnings
 from collections.abc import Callable
+from pathlib import Path
 from typing import NamedTuple
 
 import jax
@@ -26,7 +28,7 @@ from jaxvo.config import Config, Params, check_config, check_params, grid_shape,
 from jaxvo.core.pipeline import StepOutput, init_pipeline, jit_step, run_scan
 from jaxvo.core.window import window_trajectory
 from jaxvo.errors import InputError
-from jaxvo.host.camera import Intrinsics, check_intrinsics, depth_metres
+from jaxvo.host.camera import Intrinsics, as_intrinsics, check_intrinsics, depth_metres
 from jaxvo.host.flow import (
     MAX_DROPPED,
     FrameChain,
@@ -34,7 +36,8 @@ from jaxvo.host.flow import (
     min_valid_flow,
     sequence_flows,
 )
-from jaxvo.host.io import Trajectory, pose_at
+from jaxvo.host.io import DepthScaleWarning, Trajectory, check_depth_scale, pose_at
+from jaxvo.host.memory import check_memory, run_bytes
 from jaxvo.status import Status
 
 
@@ -80,9 +83,16 @@ class Odometry:
             r = odo.process(bgr, depth, t)
             print(r.T_w_c[:3, 3], r.status.reason)
 
+    The first frame's depth is checked against what RGB-D sensors see
+    (:func:`jaxvo.host.io.check_depth_scale`): a median depth no sensor reads (float depth in
+    millimetres or raw units, a wrong depth scale) raises a ``ValueError``, an unusual one
+    gives a :class:`jaxvo.host.io.DepthScaleWarning` (also kept in :attr:`warnings`).
+
     Args:
-      intrinsics: the (depth-registered) camera, pixels; its ``depth_scale`` converts
-        ``uint16`` depth to metres.
+      intrinsics: the (depth-registered) camera, pixels, as an :class:`Intrinsics`, a
+        preset name, ``(fx, fy, cx, cy[, depth_scale])``, a dict of those keys or a 3x3
+        camera matrix (depth_scale 5000); its ``depth_scale`` converts ``uint16`` depth to
+        metres.
       cfg: static settings.
       params: numeric settings (default :class:`Params`).
       seed: PRNG seed of the hypothesis sampling.
@@ -91,13 +101,13 @@ class Odometry:
       device: where the per-frame step runs (see ``__init__``).
       max_dropped: most frames dropped in a row (:class:`jaxvo.host.flow.FrameChain`).
     Raises:
-      ValueError: intrinsics no camera has, settings no run can use, or a ``T_w_c0`` that
-        is not a finite rigid transform.
+      ValueError: intrinsics of another type or that no camera has, settings no run can
+        use, or a ``T_w_c0`` that is not a finite rigid transform.
     """
 
     def __init__(
         self,
-        intrinsics: Intrinsics,
+        intrinsics: Intrinsics | tuple | dict | np.ndarray | str,
         *,
         cfg: Config = Config(),
         params: Params | None = None,
@@ -106,9 +116,11 @@ class Odometry:
         device: jax.Device | str | None = None,
         max_dropped: int = MAX_DROPPED,
     ):
+        intrinsics = as_intrinsics(intrinsics)
         check_intrinsics(intrinsics, where="intrinsics")
         check_config(cfg)
         self.intrinsics = intrinsics
+        self.warnings: list[str] = []  # one-line notes on the input (the depth scale)
         self.cfg = cfg
         # One frame's step is a long chain of small dependent operations, bound by launch
         # latency on an accelerator: on an H100 it took 19-25 ms a frame against 9 ms on 2
@@ -169,7 +181,9 @@ class Odometry:
           completed first).
         Raises:
           ValueError: a colour or depth image of the wrong type or shape, images of
-            different sizes, or a timestamp that is not finite or does not increase.
+            different sizes, a timestamp that is not finite or does not increase; on the
+            first frame, depth no sensor reads or settings that need more memory than the
+            machine has (:mod:`jaxvo.host.memory`).
         """
         self.flush()
         return self._finish(self._dispatch(bgr, depth, timestamp))
@@ -205,11 +219,19 @@ class Odometry:
             raise ValueError(
                 f"timestamp {t:.6f} s does not follow the previous frame's {self._last_t:.6f} s"
             )
+        raw_units = getattr(depth, "dtype", None) == np.uint16
         bgr, depth = _frame_arrays(bgr, depth, self.intrinsics)
         if self._chain is None:  # the first frame sets the image size and the grid
+            note = check_depth_scale(depth, self.intrinsics, where="the first frame",
+                                     raw_units=raw_units)
+            if note:
+                self.warnings.append(note)
+                warnings.warn(note, DepthScaleWarning, stacklevel=3)
             h, w = depth.shape
             check_intrinsics(self.intrinsics, where="intrinsics", width=w, height=h)
             check_config(self.cfg, height=h, width=w)
+            check_memory(run_bytes(self.cfg, height=h, width=w),
+                         what=f"Odometry with {_shape_settings(self.cfg)}")
             tracker = GridFlowTracker(self.intrinsics, self.cfg, height=h, width=w)
             self._chain = FrameChain(tracker, min_valid=self._min_valid,
                                      max_dropped=self._max_dropped)
@@ -352,7 +374,8 @@ def run_sequence(
     window ended), and ``SequenceResult.immediate`` the poses as each step gave them.
 
     Args:
-      seq: a sequence per docs/architecture.md.
+      seq: a sequence per docs/architecture.md (:func:`jaxvo.open_sequence`,
+        :func:`jaxvo.make_sequence`), or the path of a TUM-layout folder.
       cfg: static settings.
       params: numeric settings (default :class:`Params`).
       seed: PRNG seed of the hypothesis sampling.
@@ -364,13 +387,18 @@ def run_sequence(
     Returns:
       :class:`SequenceResult`.
     Raises:
-      InputError: fewer than 2 frames, or fewer than 2 that can be used.
+      InputError: fewer than 2 frames, or fewer than 2 that can be used, or a run that
+        needs more memory than the machine has (:mod:`jaxvo.host.memory`).
+      ValueError: ``seq`` is neither a sequence nor a folder path.
     """
+    seq = _as_sequence(seq)
     if len(seq) < 2:
         raise InputError(f"sequence {seq.name!r} has {len(seq)} frame(s); odometry needs 2 or more")
     check_config(cfg, height=seq.height, width=seq.width)
     if params is not None:
         check_params(params)
+    check_memory(run_bytes(cfg, height=seq.height, width=seq.width, frames=len(seq)),
+                 what=f"run_sequence of {len(seq)} frames with {_shape_settings(cfg)}")
     grid = grid_shape(seq.height, seq.width, cfg.cell)
 
     t0 = time.perf_counter()
@@ -398,6 +426,31 @@ def run_sequence(
         poses[0] = T0  # float64, as without the window
     return SequenceResult(Trajectory(stamps, poses), outs, chain.flows, flow_s, scan_s, grid,
                           chain.frames, chain.dropped, start, immediate)
+
+
+def _shape_settings(cfg: Config) -> str:
+    """The settings that size a run's memory, for messages."""
+    return f"num_hypotheses {cfg.num_hypotheses}, window {cfg.window}, cell {cfg.cell}"
+
+
+def _as_sequence(seq):
+    """A sequence object from what users pass :func:`run_sequence`: the object itself, or
+    a folder path opened as a TUM-layout sequence; else a ValueError saying what is
+    expected (a list of frames has no camera and no timestamps of its own)."""
+    if isinstance(seq, str | Path):
+        from jaxvo.host.io import open_sequence
+
+        return open_sequence(seq)
+    needed = ("intrinsics", "height", "width", "timestamps", "name")
+    missing = [a for a in needed if not hasattr(seq, a)]
+    if missing or not hasattr(seq, "__getitem__"):
+        raise ValueError(
+            "seq must be a sequence (jaxvo.open_sequence(folder), jaxvo.make_sequence(...): "
+            f"frames with {', '.join(needed)}) or a folder path; got {type(seq).__name__}"
+            + (" without " + ", ".join(missing) if missing else "")
+            + ("; for frames in a list, feed them to jaxvo.Odometry" if isinstance(
+                seq, list | tuple) else ""))
+    return seq
 
 
 def choose_start_pose(

@@ -15,6 +15,7 @@ from __future__ import annotations
 
 import json
 import os
+import re
 import shutil
 import signal
 import subprocess
@@ -409,8 +410,8 @@ def test_frames_without_a_depth_partner_are_counted(base, tmp_path, capsys):
 def test_camera_preset_overrides_camera_txt_with_a_warning(base, tmp_path, capsys):
     """The folder's camera.txt says millimetre depth (depth_scale 1000, and so its images
     are); --camera tum_fr3 (5000 per metre) overrides it, as the help says, and the summary
-    says so naming both depth scales (the depths, 5x too short at a 0.57 m median, are not
-    implausible in themselves)."""
+    says so naming both depth scales; the depths, 5x too short at a 0.57 m median, are
+    inside the sensors' band but nearer the typical 2 m at 1000: that is said too."""
     seq = copy_seq(base, tmp_path / "seq", images=("depth",))
     (seq / "camera.txt").write_text(GOOD_CAMERA + "depth_scale 1000\n")
     for png in (seq / "depth").iterdir():
@@ -418,7 +419,8 @@ def test_camera_preset_overrides_camera_txt_with_a_warning(base, tmp_path, capsy
         cv2.imwrite(str(png), np.round(raw / 5).astype(np.uint16))
     res = run_json(capsys, seq, tmp_path / "t.txt", "--camera", "tum_fr3")
     assert res.summary["camera"] == "preset tum_fr3"
-    (warning,) = res.summary["warnings"]
+    warning, scale = res.summary["warnings"]
+    assert "depth_scale 1000 is likelier" in scale
     assert "preset tum_fr3 (fx 535.4" in warning and "depth_scale 5000) overrides" in warning
     assert "camera.txt (fx 525" in warning and warning.endswith("depth_scale 1000)")
     # the same folder without --camera takes its camera.txt, and says nothing
@@ -676,3 +678,366 @@ def test_a_useless_frame_costs_its_own_pose_only(base_seq):
     # measured (not aligned, both from the true first pose): clean 0.29 mm, dropped 0.21 mm;
     # before, the two pairs touching the black frame carried as identity: 2.1 mm
     assert e_drop < e_clean + 0.0005, (e_drop, e_clean)  # within 0.5 mm of the clean run
+
+
+# --- issue 29: no output over an input, or over another output ----------------------------
+
+
+def _digest(folder: Path) -> dict[str, bytes]:
+    return {p.name: p.read_bytes() for p in sorted(folder.iterdir()) if p.is_file()}
+
+
+@pytest.mark.parametrize("option", ["--masks", "--dynamic-masks", "--overlays"])
+def test_run_never_writes_images_into_a_folder_it_reads(base, tmp_path, capsys, option):
+    """Masks are named by the RGB timestamp, TUM's image name: into SEQ/rgb they replaced
+    5 of 6 colour images, exit 0."""
+    seq = copy_seq(base, tmp_path / "seq", images=("rgb",))
+    before = _digest(seq / "rgb")
+    res = cli(capsys, "run", seq, "--out", tmp_path / "t.txt", option, seq / "rgb")
+    assert_one_line_error(res, option, "which this command reads", "choose another folder")
+    assert _digest(seq / "rgb") == before and not (tmp_path / "t.txt").exists()
+    # the sequence's own folder holds its lists: refused too
+    assert_one_line_error(cli(capsys, "run", seq, "--out", tmp_path / "t.txt", option, seq),
+                          option, "rgb.txt")
+
+
+def test_run_out_is_never_an_input_image(base, tmp_path, capsys):
+    seq = copy_seq(base, tmp_path / "seq", images=("rgb",))
+    first = min((seq / "rgb").iterdir())
+    before = first.read_bytes()
+    assert_one_line_error(cli(capsys, "run", seq, "--out", first),
+                          "--out", "would overwrite the input", first.name)
+    assert first.read_bytes() == before
+    # through a link to the same folder: the same file
+    (tmp_path / "link").symlink_to(seq / "rgb", target_is_directory=True)
+    assert_one_line_error(cli(capsys, "run", seq, "--out", tmp_path / "link" / first.name),
+                          "would overwrite the input")
+
+
+def test_run_outputs_never_share_a_folder(base, tmp_path, capsys):
+    x = tmp_path / "x"
+    res = cli(capsys, "run", base, "--out", tmp_path / "t.txt", "--masks", x,
+              "--dynamic-masks", x, "--overlays", x)
+    assert_one_line_error(res, "--dynamic-masks and --masks are the same folder")
+    assert not x.exists()  # refused before any folder was made
+    res = cli(capsys, "run", base, "--out", x / "t.txt", "--masks", x)
+    assert_one_line_error(res, "--out", "lies in the folder of --masks")
+
+
+def test_synth_never_writes_into_a_folder_with_files(base, tmp_path, capsys):
+    """It overwrote rgb.txt, depth.txt, groundtruth.txt and camera.txt of an existing
+    sequence and left the old images beside the new lists."""
+    seq = copy_seq(base, tmp_path / "seq")
+    before = _digest(seq)
+    res = cli(capsys, "synth", "handheld_fast", seq, "--frames", "2")
+    assert_one_line_error(res, "OUT_DIR", "is not empty")
+    assert _digest(seq) == before
+    res = cli(capsys, "synth", "handheld_fast", seq, "--composite", seq, "--frames", "2")
+    assert_one_line_error(res, "OUT_DIR", "which this command reads")
+    assert _digest(seq) == before
+    (tmp_path / "empty").mkdir()  # an empty folder is a new one
+    assert cli(capsys, "synth", "static", tmp_path / "empty", "--frames", "2").rc == 0
+    assert (tmp_path / "empty" / "rgb.txt").is_file()
+
+
+def test_demo_outputs_are_distinct_files(tmp_path, capsys):
+    res = cli(capsys, "demo", "--frames", "3", "--peers", "opencv_rgb,opencv_rgb",
+              "--out", tmp_path / "d")
+    assert_one_line_error(res, "the opencv_rgb trajectory (#4) and the opencv_rgb trajectory "
+                          "(#3) are the same file")
+    assert not (tmp_path / "d").exists()
+
+
+def test_study_results_never_go_over_the_spec_or_a_sequence(base, tmp_path, capsys):
+    spec = tmp_path / "spec.json"  # what a study writes as its record in --out
+    spec.write_text(json.dumps({"sequences": [{"path": str(base), "frames": 3}]}))
+    before = spec.read_bytes()
+    assert_one_line_error(cli(capsys, "study", spec, "--out", tmp_path, "-q"),
+                          "--out", "spec.json, which this command reads")
+    assert spec.read_bytes() == before
+    assert_one_line_error(cli(capsys, "study", spec, "--out", tmp_path / "r", "--flow-cache",
+                              base, "-q"), "--flow-cache", "which this command reads")
+    assert not (tmp_path / "r").exists()
+
+
+def test_check_outputs_refuses_one_file_twice(tmp_path):
+    from jaxvo.host.io import check_outputs
+
+    with pytest.raises(InputError, match="b and a are the same file"):
+        check_outputs((), files={"a": tmp_path / "t.txt", "b": tmp_path / "." / "t.txt"})
+    check_outputs([tmp_path / "in.txt"], files={"a": tmp_path / "t.txt"},
+                  folders={"m": tmp_path / "m"})  # apart: fine
+
+
+# --- issue 29: depth scale, intrinsics and the files cameras write -------------------------
+
+
+def _rewrite_depth(seq: Path, write) -> None:
+    """Every depth image of ``seq`` replaced by ``write(png_path, metres) -> new path``, and
+    associations.txt pointing at the new files."""
+    K = read_camera_file(seq / "camera.txt")
+    names = {}
+    for png in sorted((seq / "depth").iterdir()):
+        raw = cv2.imread(str(png), cv2.IMREAD_UNCHANGED)
+        new = write(png, raw.astype(np.float32) / np.float32(K.depth_scale))
+        if new != png:
+            png.unlink()
+        names[f"depth/{png.name}"] = f"depth/{new.name}"
+    assoc = seq / "associations.txt"
+    assoc.write_text(re.sub(r"\S+", lambda m: names.get(m[0], m[0]), assoc.read_text()))
+
+
+def _write(path: Path, image: np.ndarray) -> Path:
+    assert cv2.imwrite(str(path), image)
+    return path
+
+
+def test_millimetre_depth_at_5000_per_metre_is_warned_and_depth_scale_fixes_it(
+        base, tmp_path, capsys):
+    """Millimetres read at TUM's 5000 per metre: a median of 0.57 m, inside the old 0.3-8 m
+    band, so nothing was said and the trajectory came out 5 times too short."""
+    seq = copy_seq(base, tmp_path / "seq", images=("depth",))
+    _rewrite_depth(seq, lambda p, m: _write(p, np.round(m * 1000).astype(np.uint16)))
+    res = run_json(capsys, seq, tmp_path / "t.txt")
+    (warning,) = res.summary["warnings"]
+    assert "median depth is 0.575 m with depth_scale 5000 (2.87 m at 1000" in warning
+    assert "depth_scale 1000 is likelier (--depth-scale)" in warning
+    res = run_json(capsys, seq, tmp_path / "u.txt", "--depth-scale", "1000")
+    assert res.summary["warnings"] == [] and "depth_scale 1000 given" in res.summary["camera"]
+    assert res.summary["ate_rmse_m"] < 0.002  # measured 0.45 mm at the right scale
+    assert_one_line_error(cli(capsys, "run", seq, "--out", tmp_path / "v.txt",
+                              "--depth-scale", "0"), "--depth-scale must be a positive number")
+
+
+@pytest.mark.parametrize("suffix", [".tiff", ".npy"])
+def test_float_depth_in_tiff_and_npy_is_read_as_metres(base, tmp_path, capsys, suffix):
+    """The same depths as float32 metres give the same trajectory, bit for bit."""
+    seq = copy_seq(base, tmp_path / "seq", images=("depth",))
+
+    def write(png: Path, metres: np.ndarray) -> Path:
+        new = png.with_suffix(suffix)
+        if suffix == ".npy":
+            np.save(new, metres)
+        else:
+            assert cv2.imwrite(str(new), metres)
+        return new
+
+    _rewrite_depth(seq, write)
+    res = run_json(capsys, seq, tmp_path / "t.txt")
+    assert res.rc == 0 and res.summary["warnings"] == [] and res.summary["dropped"] == {}
+    run_json(capsys, base, tmp_path / "png.txt")
+    np.testing.assert_array_equal(read_trajectory(tmp_path / "t.txt").poses,
+                                  read_trajectory(tmp_path / "png.txt").poses)
+
+
+def test_depth_that_is_8_bit_or_of_another_size_names_the_file_and_cause(base, tmp_path, capsys):
+    seq = copy_seq(base, tmp_path / "seq", images=("depth",))
+    pngs = sorted((seq / "depth").iterdir())
+    for png in pngs:
+        cv2.imwrite(str(png), np.zeros((240, 320), np.uint16))
+    assert_one_line_error(cli(capsys, "run", seq, "--out", tmp_path / "t.txt"),
+                          f"none of the {FRAMES} frames can be read (first: ", pngs[0].name,
+                          "depth 320x240 does not match colour 640x480")
+    for png in pngs:
+        cv2.imwrite(str(png), np.zeros((480, 640), np.uint8))
+    assert_one_line_error(cli(capsys, "run", seq, "--out", tmp_path / "t.txt"),
+                          f"{pngs[0].name} is 8-bit; depth must be 16-bit raw units or float")
+
+
+def test_images_resized_without_their_camera_are_refused(base, tmp_path, capsys):
+    """320x240 images beside the 640x480 camera.txt put the principal point at the image
+    corner: it ran, 100 times worse, without a word."""
+    seq = copy_seq(base, tmp_path / "seq", images=("rgb", "depth", "mask"))
+    for sub, interp in (("rgb", cv2.INTER_AREA), ("depth", cv2.INTER_NEAREST),
+                        ("mask", cv2.INTER_NEAREST)):
+        for png in (seq / sub).iterdir():
+            img = cv2.imread(str(png), cv2.IMREAD_UNCHANGED)
+            cv2.imwrite(str(png), cv2.resize(img, (320, 240), interpolation=interp))
+    assert_one_line_error(cli(capsys, "run", seq, "--out", tmp_path / "t.txt"),
+                          "principal point (319.5, 239.5) is far from the centre of the "
+                          "320x240 image", "about 640x480")
+    # the camera scaled to the images: runs
+    res = run_json(capsys, seq, tmp_path / "t.txt", "--intrinsics", "262.5,262.5,159.75,119.75")
+    assert res.rc == 0 and res.summary["camera"] == "given"
+
+
+@pytest.mark.parametrize("value", ["525,525,319.5", "525,525,a,239.5", "525,525,319.5,239.5,1"])
+def test_intrinsics_option_takes_four_numbers(base, tmp_path, capsys, value):
+    assert_one_line_error(cli(capsys, "run", base, "--out", tmp_path / "t.txt", "--intrinsics",
+                              value), "--intrinsics must be four numbers fx,fy,cx,cy")
+
+
+def test_eth3d_calibration_txt_is_read(base, tmp_path, capsys):
+    seq = copy_seq(base, tmp_path / "seq")
+    (seq / "camera.txt").unlink()
+    (seq / "calibration.txt").write_text("525 525 319.5 239.5\n")
+    res = run_json(capsys, seq, tmp_path / "t.txt")
+    assert res.rc == 0 and res.summary["camera"].endswith("calibration.txt")
+    (seq / "calibration.txt").write_text("525 525 319.5\n")
+    assert_one_line_error(cli(capsys, "run", seq, "--out", tmp_path / "t.txt"),
+                          "calibration.txt: expected one line 'fx fy cx cy'")
+
+
+def test_negative_fy_is_a_camera_whose_y_axis_points_up(base, tmp_path, capsys):
+    """ICL-NUIM's TUM-style camera has fy -480: its image rows run against the camera's y.
+    The sequence's images flipped upside down with fy negated back-project to the same
+    points, so the trajectory is the original's; read with fy positive it is its mirror
+    image (the ATE, after a rigid alignment, hides it; the positions do not)."""
+    seq = copy_seq(base, tmp_path / "seq", images=("rgb", "depth"))
+    for sub in ("rgb", "depth"):
+        for png in (seq / sub).iterdir():
+            cv2.imwrite(str(png), cv2.flip(cv2.imread(str(png), cv2.IMREAD_UNCHANGED), 0))
+    K = read_camera_file(base / "camera.txt")
+    assert K.cy == (480 - 1) / 2  # flipping keeps it: only fy changes sign
+    (seq / "camera.txt").write_text(f"fx {K.fx}\nfy {-K.fy}\ncx {K.cx}\ncy {K.cy}\n")
+    res = run_json(capsys, seq, tmp_path / "t.txt")
+    assert res.rc == 0 and res.summary["warnings"] == []
+    run_json(capsys, base, tmp_path / "o.txt")
+    orig = read_trajectory(tmp_path / "o.txt").poses[:, :3, 3]
+
+    def gap(path: Path) -> float:  # metres, largest position difference to the original
+        return float(np.abs(read_trajectory(path).poses[:, :3, 3] - orig).max())
+
+    assert gap(tmp_path / "t.txt") < 0.001  # measured 0.02 mm
+    (seq / "camera.txt").write_text(f"fx {K.fx}\nfy {K.fy}\ncx {K.cx}\ncy {K.cy}\n")
+    run_json(capsys, seq, tmp_path / "m.txt")
+    assert gap(tmp_path / "m.txt") > 0.01  # the mirror image: measured 44 mm
+
+
+def test_odometry_refuses_float_depth_in_millimetres_or_raw_units(base_seq):
+    f = base_seq[0]
+    K = base_seq.intrinsics
+    for depth, what in ((f.depth * 1000, "millimetres"), (f.depth * K.depth_scale, "raw")):
+        with pytest.raises(ValueError, match="median of the float depth is .* the depth scale "
+                                             "looks wrong"):
+            Odometry(K).process(f.bgr, depth, f.timestamp)
+    mm = np.round(f.depth * 1000).astype(np.uint16)  # millimetres at 5000 per metre
+    odo = Odometry(K)
+    from jaxvo.host.io import DepthScaleWarning
+
+    with pytest.warns(DepthScaleWarning, match="depth_scale 1000 is likelier"):
+        odo.process(f.bgr, mm, f.timestamp)
+    assert len(odo.warnings) == 1
+
+
+# --- issue 29: what users pass the Python API ---------------------------------------------
+
+
+def test_odometry_takes_a_tuple_a_dict_a_camera_matrix_or_a_preset(base_seq):
+    K = Intrinsics(525.0, 525.0, 319.5, 239.5, 5000.0)
+    for given in ((525, 525, 319.5, 239.5), [525, 525, 319.5, 239.5, 5000],
+                  {"fx": 525, "fy": 525, "cx": 319.5, "cy": 239.5}, K.matrix(), np.asarray(K[:4]),
+                  "ros_default"):
+        assert Odometry(given).intrinsics == K, given
+    for bad, needle in (((525, 525), "got shape"), ({"fx": 525, "f": 1}, "got keys"),
+                        (object(), "got object"), (np.ones((3, 3)), "a camera matrix is"),
+                        ("tum_fr9", "unknown camera preset")):
+        with pytest.raises(ValueError, match=needle):
+            Odometry(bad)
+
+
+def test_run_sequence_takes_a_folder_and_says_what_it_expects(base, base_seq):
+    from jaxvo.odometry import _as_sequence, run_sequence
+
+    seq = _as_sequence(str(base))
+    assert len(seq) == FRAMES and seq.intrinsics == base_seq.intrinsics
+    assert _as_sequence(base_seq) is base_seq
+    with pytest.raises(ValueError, match="for frames in a list, feed them to jaxvo.Odometry"):
+        run_sequence(list(base_seq))
+    with pytest.raises(InputError, match="sequence folder not found"):
+        run_sequence(str(base / "missing"))
+
+
+# --- issue 29: memory a run cannot have is refused up front -------------------------------
+
+
+@pytest.mark.parametrize("args, needle", [
+    (["--window", "100000"], "--window 100000"),
+    (["--hypotheses", "100000"], "--hypotheses 100000"),
+])
+def test_run_that_cannot_fit_in_memory_is_refused_before_compiling(
+        base, tmp_path, capsys, args, needle):
+    """These compiled for 16-24 s, then died with an out-of-memory traceback (8.4 TB)."""
+    t0 = time.perf_counter()
+    res = cli(capsys, "run", base, "--out", tmp_path / "t.txt", *args)
+    assert_one_line_error(res, needle, "needs about", "of memory; this machine has",
+                          "available")
+    assert time.perf_counter() - t0 < 10  # seconds: nothing compiled (the step takes 16+)
+    assert not (tmp_path / "t.txt").exists()
+
+
+def test_synth_and_demo_of_a_billion_frames_are_refused(tmp_path, capsys):
+    res = cli(capsys, "synth", "static", tmp_path / "o", "--frames", "1000000000")
+    assert_one_line_error(res, "jaxvo synth --frames 1000000000 needs about 861 GB of memory")
+    assert not (tmp_path / "o").exists()
+    res = cli(capsys, "demo", "--frames", "10000000", "--peers", "none")
+    assert_one_line_error(res, "jaxvo demo --frames 10000000 needs about", "TB of memory")
+
+
+@pytest.mark.parametrize("extra, needle", [
+    ("[fixed]\nnum_hypotheses = 100000\n", "num_hypotheses 100000"),
+    ("[fixed]\nwindow = 100000\n", "window 100000"),
+])
+def test_study_that_cannot_fit_in_memory_is_refused(tmp_path, capsys, extra, needle):
+    spec = tmp_path / "s.toml"
+    spec.write_text("[[sequences]]\nscene = 'static'\nframes = 3\n" + extra)
+    assert_one_line_error(cli(capsys, "study", spec, "--out", tmp_path / "r", "-q"),
+                          needle, "needs about", "available")
+    assert not (tmp_path / "r").exists()
+    spec.write_text("[[sequences]]\nscene = 'static'\nframes = 1000000000\n")
+    assert_one_line_error(cli(capsys, "study", spec, "--out", tmp_path / "r", "-q"),
+                          "(1000000000 frames)", "TB of memory")
+
+
+def test_python_api_refuses_memory_it_cannot_have(base_seq):
+    from jaxvo.odometry import run_sequence
+
+    f = base_seq[0]
+    with pytest.raises(ValueError, match="Odometry with num_hypotheses 20, window 100000, cell "
+                                         "16 needs about .* TB of memory"):
+        Odometry(base_seq.intrinsics, cfg=Config(window=100000)).process(f.bgr, f.depth, 0.0)
+    with pytest.raises(InputError, match=f"run_sequence of {FRAMES} frames with num_hypotheses "
+                                         "100000, window 0, cell 16 needs about"):
+        run_sequence(base_seq, cfg=Config(num_hypotheses=100000))
+
+
+def test_check_memory_gives_both_numbers():
+    from jaxvo.host.memory import check_memory, run_bytes
+
+    need = run_bytes(Config(), height=480, width=640)
+    check_memory(need, what="x", available=2 * need)
+    with pytest.raises(InputError, match=r"^x needs about 1.2 GB of memory; this machine has "
+                                         r"1 GB available$"):
+        check_memory(1.2e9, what="x", available=1e9)
+    # the estimate grows with what the settings hold: hypotheses squared, window squared
+    assert run_bytes(Config(num_hypotheses=2000), height=480, width=640) > need + 40e6
+    assert run_bytes(Config(window=2000), height=480, width=640) > need + 5e9
+
+
+# --- issue 29: a study's folder whose depth cannot be read ---------------------------------
+
+
+def test_study_folder_with_jpeg_depth_is_one_line_naming_the_file(base, tmp_path, capsys):
+    """It raised IndexError after reading every frame."""
+    seq = copy_seq(base, tmp_path / "seq", images=("depth",))
+    _rewrite_depth(seq, lambda p, m: _write(p.with_suffix(".jpg"),
+                                            np.clip(m * 50, 0, 255).astype(np.uint8)))
+    spec = tmp_path / "s.json"
+    spec.write_text(json.dumps({"sequences": [{"path": str(seq)}]}))
+    assert_one_line_error(cli(capsys, "study", spec, "--out", tmp_path / "r", "-q"),
+                          "none of the 6 frames can be read", ".jpg is 8-bit")
+    assert not (tmp_path / "r").exists()
+
+
+def test_eval_outputs_never_go_over_its_trajectories_or_each_other(base, tmp_path, capsys):
+    gt = tmp_path / "gt.txt"
+    shutil.copy(base / "groundtruth.txt", gt)
+    before = gt.read_bytes()
+    for option in ("--save_results", "--plot"):
+        res = cli(capsys, "eval", "ate", gt, gt, option, gt)
+        assert_one_line_error(res, option, "would overwrite the input")
+        assert gt.read_bytes() == before
+    res = cli(capsys, "eval", "ate", gt, gt, "--save_results", tmp_path / "r", "--plot",
+              tmp_path / "r")
+    assert_one_line_error(res, "--plot and --save_results are the same file")
+    assert not (tmp_path / "r").exists()

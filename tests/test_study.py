@@ -146,6 +146,24 @@ def test_bad_specs_name_the_key_and_the_fault(tmp_path, extra, message):
     assert message in text and "\n" not in text and text.startswith(str(path))
 
 
+def test_a_grid_of_100000_configurations_parses_in_seconds():
+    """5 settings x 10 values: the configurations were deduplicated by scanning those kept
+    (O(n^2)), silent for over 150 s; now a dict, in order, about 2 s on a loaded 2-core
+    machine."""
+    import time
+
+    values = [round(0.05 * (i + 1), 2) for i in range(10)]
+    grid = {k: values for k in ("lam", "delta", "confidence", "pixel_sigma", "depth_coeff")}
+    t0 = time.perf_counter()
+    spec = study.parse_spec({"sequences": [{"scene": "static"}], "grid": grid,
+                             "points": [{"lam": 0.05, "delta": 0.05, "confidence": 0.05,
+                                         "pixel_sigma": 0.05, "depth_coeff": 0.05}]})
+    took = time.perf_counter() - t0
+    assert len(spec.configs) == 100_000  # the point repeats the first grid cell: kept once
+    assert spec.configs[0]["lam"] == 0.05 and spec.configs[1]["depth_coeff"] == 0.1  # order
+    assert took < 30, took  # seconds (the list scan: > 150)
+
+
 def test_only_the_first_process_needs_the_folders(tmp_path):
     path = spec_of("[[sequences]]\npath = 'on_the_first_machine'\n", tmp_path)
     with pytest.raises(InputError, match="no folder 'on_the_first_machine'"):

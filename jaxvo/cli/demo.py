@@ -54,28 +54,55 @@ class _Anchors:
         return self._seq[int(self._frames[k])]
 
 
-def run(args: argparse.Namespace) -> int:
-    from jaxvo.cli.main import interrupt_at_safe_points
-    from jaxvo.config import Config
+def _check(args: argparse.Namespace, cfg) -> tuple[list[str], object]:
+    """The peers and the output folder (None without --out), after every option is checked
+    and the run is known to fit in memory, before any work."""
+    from pathlib import Path
+
     from jaxvo.errors import InputError, check_seed
-    from jaxvo.evaluation.scores import segmentation_scores, trajectory_scores
-    from jaxvo.host.io import InMemorySequence, output_folder, write_image, write_trajectory
-    from jaxvo.host.masks import overlay_panel
-    from jaxvo.host.peers import run_peer
-    from jaxvo.host.progress import Progress
-    from jaxvo.odometry import run_sequence
-    from jaxvo.status import Status
-    from jaxvo.synth.scenes import SCENARIOS, make_sequence
+    from jaxvo.host.io import check_outputs, output_folder
+    from jaxvo.host.memory import (
+        FRAME_BYTES_PER_PIXEL,
+        SYNTH_BYTES_PER_FRAME,
+        check_memory,
+        run_bytes,
+    )
+    from jaxvo.synth.scenes import SCENARIOS
 
     peers = _peer_list(args.peers)
-    cfg = Config()
-    say = (lambda *a: None) if args.json else print
     if args.scenario not in SCENARIOS:
         raise InputError(f"unknown scenario {args.scenario!r}; choose one of {', '.join(SCENARIOS)}")
     if args.frames < 2:
         raise InputError(f"--frames must be at least 2, got {args.frames}")
     check_seed(args.seed, name="--seed")
-    out = output_folder(args.out, what="--out") if args.out else None
+    # the frames are rendered into memory, then scanned whole
+    check_memory(run_bytes(cfg, height=480, width=640, frames=args.frames, host_bytes=(
+        SYNTH_BYTES_PER_FRAME + FRAME_BYTES_PER_PIXEL * 480 * 640) * args.frames),
+        what=f"jaxvo demo --frames {args.frames}")
+    if not args.out:
+        return peers, None
+    # one file per method (a peer named twice: one file twice), and the overlays
+    methods = ("jaxvo", "groundtruth", *peers)
+    check_outputs((), files={f"the {name} trajectory (#{k + 1})": Path(args.out) / f"{name}.txt"
+                             for k, name in enumerate(methods)})
+    return peers, output_folder(args.out, what="--out")
+
+
+def run(args: argparse.Namespace) -> int:
+    from jaxvo.cli.main import interrupt_at_safe_points
+    from jaxvo.config import Config
+    from jaxvo.evaluation.scores import segmentation_scores, trajectory_scores
+    from jaxvo.host.io import InMemorySequence, write_image, write_trajectory
+    from jaxvo.host.masks import overlay_panel
+    from jaxvo.host.peers import run_peer
+    from jaxvo.host.progress import Progress
+    from jaxvo.odometry import run_sequence
+    from jaxvo.status import Status
+    from jaxvo.synth.scenes import make_sequence
+
+    cfg = Config()
+    peers, out = _check(args, cfg)
+    say = (lambda *a: None) if args.json else print
     quiet = args.quiet or args.json
     with interrupt_at_safe_points() as stop:
 

@@ -134,14 +134,15 @@ def _delta_unit(text: str) -> str:
 def _outputs(args) -> None:
     """Check --save_results and --plot before any work (InputError)."""
     from jaxvo.evaluation.evo_results import require_matplotlib
-    from jaxvo.host.io import output_file
+    from jaxvo.host.io import check_outputs, output_file
 
-    inputs = (Path(args.gt), Path(args.est))
-    if args.save_results:
-        output_file(args.save_results, what="--save_results", inputs=inputs)
+    given = {option: Path(p) for option, p in (("--save_results", args.save_results),
+                                               ("--plot", args.plot)) if p}
+    check_outputs((Path(args.gt), Path(args.est)), files=given)
     if args.plot:
         require_matplotlib()
-        output_file(args.plot, what="--plot", inputs=inputs)
+    for option, path in given.items():
+        output_file(path, what=option)
 
 
 def run(args: argparse.Namespace) -> int:

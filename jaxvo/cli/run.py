@@ -34,8 +34,15 @@ input: SEQ_DIR in the TUM RGB-D layout: rgb.txt and depth.txt ('timestamp filena
   paired by header stamp within --max-diff; the camera from the camera_info beside the
   colour topic unless --camera.
 
-camera: --camera, else camera.txt, else the folder's name as the TUM and Bonn benchmarks
-  name their downloads (rgbd_dataset_freiburg3_*, rgbd_bonn_*).
+camera: --camera or --intrinsics, else camera.txt, else ETH3D's calibration.txt ('fx fy cx
+  cy'), else the folder's name as the TUM and Bonn benchmarks name their downloads
+  (rgbd_dataset_freiburg3_*, rgbd_bonn_*); --depth-scale overrides the depth scale. A
+  negative fy (ICL-NUIM) is a camera whose y axis points up. Depth: 16-bit PNG in raw
+  units, or float metres in 32-bit float TIFF or .npy files.
+
+refused before any work: outputs over what the run reads (--masks SEQ_DIR/rgb) or over
+  each other (two options, one folder), and settings that need more memory than the
+  machine has (--window, --hypotheses).
 
 output: the trajectory is camera-to-world in TUM format, one pose per frame kept, written
   as it is computed; with --window K, each frame's pose is written when the frame leaves
@@ -61,20 +68,27 @@ def add_arguments(p: argparse.ArgumentParser) -> None:
     p.add_argument("sequence", metavar="SEQ_DIR",
                    help="folder in the TUM RGB-D layout, or a ROS bag (SEQ.bag, or a ROS 2 "
                    "bag folder): colour, depth and camera info, TUM's topics by default")
-    p.add_argument("--out", "-o", required=True, metavar="FILE",
-                   help="trajectory to write (TUM format, camera-to-world; evo reads it)")
-    p.add_argument("--camera", metavar="PRESET",
-                   help="intrinsics preset (" + ", ".join(sorted(PRESETS)) + "); overrides "
-                   "the folder's camera.txt, with a warning where they differ")
-    p.add_argument("--max-diff", type=float, default=0.02, metavar="S",
-                   help="largest rgb/depth (and ground-truth) timestamp difference when "
-                   "associating, seconds (default 0.02)")
     p.add_argument("--rgb-topic", metavar="TOPIC",
                    help="a bag's colour topic (sensor_msgs/Image; default /camera/rgb/image_color"
                    "; the camera info beside it, e.g. /camera/rgb/camera_info)")
     p.add_argument("--depth-topic", metavar="TOPIC",
                    help="a bag's depth topic (32FC1 metres or 16UC1 millimetres; default "
                    "/camera/depth/image)")
+    p.add_argument("--out", "-o", required=True, metavar="FILE",
+                   help="trajectory to write (TUM format, camera-to-world; evo reads it)")
+    camera = p.add_mutually_exclusive_group()
+    camera.add_argument("--camera", metavar="PRESET",
+                        help="intrinsics preset (" + ", ".join(sorted(PRESETS)) + "); overrides "
+                        "the folder's camera.txt, with a warning where they differ")
+    camera.add_argument("--intrinsics", metavar="FX,FY,CX,CY",
+                        help="the camera's intrinsics in pixels (a negative FY: a camera whose "
+                        "y axis points up, as ICL-NUIM's); overrides camera.txt like --camera")
+    p.add_argument("--depth-scale", type=float, metavar="UNITS",
+                   help="raw depth units per metre of the 16-bit depth images (TUM 5000, "
+                   "millimetres 1000); overrides the camera's")
+    p.add_argument("--max-diff", type=float, default=0.02, metavar="S",
+                   help="largest rgb/depth (and ground-truth) timestamp difference when "
+                   "associating, seconds (default 0.02)")
     p.add_argument("--frames", type=int, metavar="N",
                    help="process only the first N frames (default all)")
     p.add_argument("--seed", type=int, default=0,
@@ -95,7 +109,10 @@ def add_arguments(p: argparse.ArgumentParser) -> None:
                    help="write per-frame label masks (PNG, pixel value = identifier, 1 = static)")
     p.add_argument("--dynamic-masks", metavar="DIR",
                    help="write per-frame dynamic-pixel masks (PNG, 255 = dynamic, 0 = static) "
-                   "for other odometry to ignore; the last frame takes the last pair's labels")
+                   "for other odometry to ignore; the last frame takes the last pair's labels. "
+                   "A cell is dynamic once its evidence of moving has built up over frames, so "
+                   "the first frame's mask is empty (its overlay's Segments panel shows the "
+                   "motions measured there)")
     p.add_argument("--overlays", metavar="DIR",
                    help="write per-frame overlay panels of the labels (PNG, see below)")
     p.add_argument("--json", action="store_true", help="print the summary as JSON")
@@ -120,91 +137,96 @@ def _peak_rss_mib() -> float:
 
 
 def _check_options(args: argparse.Namespace):
-    """The run's Config, after every option that needs no file is checked (InputError)."""
+    """The run's Config and the camera given on the command line (None: the folder's),
+    after every option that needs no file is checked (InputError)."""
     import math
 
     from jaxvo.config import Config, check_config
     from jaxvo.errors import InputError, check_seed
+    from jaxvo.host.camera import as_intrinsics, check_intrinsics
 
     if not (math.isfinite(args.max_diff) and args.max_diff >= 0):
         raise InputError(f"--max-diff must be a number of seconds >= 0, got {args.max_diff}")
     if args.frames is not None and args.frames < 2:
         raise InputError(f"--frames must be at least 2 (odometry needs a pair), got {args.frames}")
+    if args.depth_scale is not None and not (math.isfinite(args.depth_scale)
+                                             and args.depth_scale > 0):
+        raise InputError(f"--depth-scale must be a positive number of raw units per metre, "
+                         f"got {args.depth_scale}")
     check_seed(args.seed, name="--seed")
     cfg = Config(cell=args.cell, num_hypotheses=args.hypotheses, window=args.window)
     check_config(cfg, names=_CONFIG_OPTIONS)
-    return cfg
+    camera = args.camera
+    if args.intrinsics is not None:
+        try:
+            camera = as_intrinsics([float(v) for v in args.intrinsics.split(",")],
+                                   where="--intrinsics")
+        except ValueError:
+            raise InputError(f"--intrinsics must be four numbers fx,fy,cx,cy in pixels, got "
+                             f"{args.intrinsics!r}") from None
+        if len(camera) != 5 or args.intrinsics.count(",") != 3:
+            raise InputError(f"--intrinsics must be four numbers fx,fy,cx,cy in pixels, got "
+                             f"{args.intrinsics!r}")
+        check_intrinsics(camera, where="--intrinsics")
+    return cfg, camera
 
 
-def _input_files(seq_dir: Path) -> tuple[Path, ...]:
-    """The files of the sequence folder that a run reads (and must never overwrite)."""
-    if seq_dir.is_file():  # a ROS 1 bag
-        return (seq_dir,)
-    names = ("rgb.txt", "depth.txt", "associations.txt", "groundtruth.txt", "camera.txt",
-             "mask.txt")
-    return tuple(seq_dir / name for name in names)
+def _open(args: argparse.Namespace, cfg, camera):
+    """The sequence, the frames to process and the checked outputs, before any work:
+    nothing is written here but the output folders (created)."""
+    from jaxvo.config import check_config
+    from jaxvo.errors import InputError
+    from jaxvo.host.io import check_outputs, open_sequence, output_file, output_folder
+    from jaxvo.host.memory import check_memory, run_bytes
+
+    seq = open_sequence(args.sequence, camera=camera, max_diff=args.max_diff,
+                        depth_scale=args.depth_scale, rgb_topic=args.rgb_topic,
+                        depth_topic=args.depth_topic)
+    n = len(seq) if args.frames is None else min(len(seq), args.frames)
+    if n < 2:
+        raise InputError(f"{args.sequence}: {n} frame(s); odometry needs at least 2")
+    check_config(cfg, height=seq.height, width=seq.width, names=_CONFIG_OPTIONS)
+    check_memory(run_bytes(cfg, height=seq.height, width=seq.width),
+                 what=f"jaxvo run with {_settings(args)}")
+    given = {option: folder for option, folder in (
+        ("--masks", args.masks), ("--dynamic-masks", args.dynamic_masks),
+        ("--overlays", args.overlays)) if folder}
+    check_outputs(seq.files(n), files={"--out": Path(args.out)},
+                  folders={k: Path(v) for k, v in given.items()})
+    out = output_file(args.out, what="--out")
+    folders = {option: output_folder(folder, what=option) for option, folder in given.items()}
+    return seq, n, out, folders
+
+
+def _settings(args: argparse.Namespace) -> str:
+    """The shape-setting options as given, for messages."""
+    return (f"--hypotheses {args.hypotheses}, --window {args.window}, --cell {args.cell}")
 
 
 def run(args: argparse.Namespace) -> int:
     import contextlib
     import itertools
-    import time
-    from collections import Counter
-
-    import numpy as np
+    import warnings as py_warnings
 
     from jaxvo.cli.main import EXIT_INTERRUPTED, EXIT_NOTHING_ESTIMATED, interrupt_at_safe_points
-    from jaxvo.config import check_config
-    from jaxvo.errors import InputError
     from jaxvo.host.compile_cache import announce_compile
-    from jaxvo.host.io import (
-        TrajectoryWriter,
-        check_depth_scale,
-        open_sequence,
-        output_file,
-        output_folder,
-        write_image,
-    )
-    from jaxvo.host.masks import dynamic_pixels, grid_to_pixels, overlay_panel
-    from jaxvo.host.plugin import mask_png
+    from jaxvo.host.io import DepthScaleWarning, TrajectoryWriter, check_depth_scale, first_readable
     from jaxvo.host.prefetch import BackgroundWriter, read_ahead
     from jaxvo.host.progress import Progress
     from jaxvo.odometry import Odometry, choose_start_pose
-    from jaxvo.status import Status
 
-    cfg = _check_options(args)
-    out = output_file(args.out, what="--out", inputs=_input_files(Path(args.sequence)))
-    folders = {}
-    for option, folder in (("--masks", args.masks), ("--dynamic-masks", args.dynamic_masks),
-                           ("--overlays", args.overlays)):
-        if folder:
-            folders[option] = output_folder(folder, what=option)
-    seq = open_sequence(args.sequence, camera=args.camera, max_diff=args.max_diff,
-                        rgb_topic=args.rgb_topic, depth_topic=args.depth_topic)
-    n = len(seq) if args.frames is None else min(len(seq), args.frames)
-    if n < 2:
-        raise InputError(f"{args.sequence}: {n} frame(s); odometry needs at least 2")
-    check_config(cfg, height=seq.height, width=seq.width, names=_CONFIG_OPTIONS)
+    cfg, camera = _check_options(args)
+    seq, n, out, folders = _open(args, cfg, camera)
     warnings = list(seq.warnings)
-
     # frames are read and decoded ahead on a small thread pool, beside the flow and the step
     reads = read_ahead(seq.__getitem__, range(n))
     # the first readable frame: its depth tells a wrong depth scale, its time the start pose
-    first = None
-    early = []  # (index, future) taken before the loop: unreadable frames, then the first
-    for i, fut in reads:
-        early.append((i, fut))
-        try:
-            first = fut.result()
-            break
-        except InputError:
-            continue
-    if first is None:
-        raise InputError(f"{args.sequence}: none of the {n} frames can be read")
+    first, early = first_readable(((i, fut.result) for i, fut in reads), where=args.sequence,
+                                  total=n)
     note = check_depth_scale(first.depth, seq.intrinsics,
-                             where=f"{args.sequence} frame {first.index}")
-    if note:
-        warnings.append(note)
+                             where=f"{args.sequence} frame {first.index}",
+                             raw_units=not getattr(seq, "float_depth", False))
+    warnings += [note] if note else []
     for w in warnings:
         print(f"jaxvo: warning: {w}", file=sys.stderr)
     gt = seq.groundtruth
@@ -212,155 +234,202 @@ def run(args: argparse.Namespace) -> int:
                                       max_diff=args.max_diff, required=bool(args.start_pose))
     odo = Odometry(seq.intrinsics, cfg=cfg, seed=args.seed, T_w_c0=T_w_c0)
     progress = Progress("jaxvo run", n - 1, enabled=not args.quiet)
-    skipped: Counter[str] = Counter()
-    dropped: Counter[str] = Counter()
-    times: list[float] = []
-    written = 0
-    pairs_ok = 0
-    recent: dict[int, object] = {}  # submitted frames whose results are not out yet
-    anchor = None  # the last kept frame: the next pair's labels lie on its image
-    last_moving = None  # the last pair's mask cells, for the last frame's dynamic mask
-    reacquired = 0  # pairs in which the background took its identifier back
-    first_unreadable = ""  # the first unreadable frame's error, for the summary
-    interrupted = False
-
-    def write_images(frame, r, moving) -> None:
-        """The images of a pair whose labels lie on ``frame``'s image, named by its time as
-        TUM names its images; ``r`` None: the dynamic mask ``moving`` alone. Runs on the
-        writer thread: encoding PNGs is most of what a frame's output costs."""
-        h, w = frame.depth.shape
-        name = f"{frame.timestamp:.6f}.png"
-        if args.masks and r is not None:
-            ids = grid_to_pixels(r.ids, h, w, cfg.cell).astype(np.uint8)
-            write_image(folders["--masks"] / name, ids)
-        if args.dynamic_masks:  # jaxvo.host.plugin: step k labels image k
-            write_image(folders["--dynamic-masks"] / name,
-                        mask_png(dynamic_pixels(moving, h, w, cfg.cell)))
-        if args.overlays and r is not None:
-            write_image(folders["--overlays"] / name, overlay_panel(frame.bgr, r.output, cfg.cell))
-
-    def record(r) -> None:
-        """One finished frame: its pose now (a line, flushed: a second Ctrl-C, which ends
-        the process at once, loses none), its pair's images on the writer thread."""
-        nonlocal written, pairs_ok, anchor, last_moving, reacquired
-        frame = recent.pop(r.index)
-        if r.dropped is not None:
-            dropped[r.dropped] += 1
-            return
-        if not cfg.window:
-            writer.write(r.timestamp, r.T_w_c)
-            written += 1
-        elif r.left is not None:  # the frame that left the window: its pose is final
-            writer.write(*r.left)
-            written += 1
-        prev_frame, anchor = anchor, frame
-        if r.output is None or prev_frame is None:
-            return
-        if r.status == Status.OK:
-            pairs_ok += 1
-        else:
-            skipped[r.status.reason] += 1
-        reacquired += int(r.output.reacquired)
-        last_moving = r.output.dynamic
-        if folders:
-            images.submit(write_images, prev_frame, r, last_moving)
-
     # leaving this block, also by Ctrl-C, closes the reader, then writes every image queued
     with (TrajectoryWriter(out, comment=f"jaxvo run {args.sequence}") as writer,
           interrupt_at_safe_points() as stop,
           BackgroundWriter() as images,
           contextlib.closing(reads),
           announce_compile("the per-frame step", stream=None if args.quiet else sys.stderr)
-          as compiling):
+          as compiling,
+          py_warnings.catch_warnings()):
+        py_warnings.simplefilter("ignore", DepthScaleWarning)  # said above, with the frame
+        rec = _Recorder(cfg, writer, images, folders)
+        rec.process(odo, itertools.chain(early, ((i, fut.result) for i, fut in reads)), stop,
+                    progress)
+    progress.close()
+    summary = _summary(args, seq, n, start, rec, compiling, warnings, out)
+    if gt is not None and rec.written >= 3:
+        summary.update(_scores(gt, out, args.max_diff))
+    if args.json:
+        print(json.dumps(summary, indent=1))
+    else:
+        _print_summary(summary, n, rec.interrupted)
+    if rec.interrupted:
+        print("jaxvo: interrupted; the poses computed so far are in the trajectory file",
+              file=sys.stderr)
+        return EXIT_INTERRUPTED
+    if rec.pairs_ok == 0:
+        print("jaxvo: no frame pair gave a camera motion (every pair skipped or dropped, see "
+              "the summary)", file=sys.stderr)
+        return EXIT_NOTHING_ESTIMATED
+    return 0
+
+
+class _Recorder:
+    """What a run does with each frame's result: the pose to the trajectory file, the
+    pair's images to the writer thread, and the counts the summary gives."""
+
+    def __init__(self, cfg, writer, images, folders: dict):
+        from collections import Counter
+
+        self.cfg, self.writer, self.images, self.folders = cfg, writer, images, folders
+        self.skipped: Counter[str] = Counter()
+        self.dropped: Counter[str] = Counter()
+        self.times: list[float] = []
+        self.written = 0
+        self.pairs_ok = 0
+        self.recent: dict[int, object] = {}  # submitted frames whose results are not out yet
+        self.anchor = None  # the last kept frame: the next pair's labels lie on its image
+        self.last_moving = None  # the last pair's mask cells, for the last frame's mask
+        self.reacquired = 0  # pairs in which the background took its identifier back
+        self.first_unreadable = ""  # the first unreadable frame's error, for the summary
+        self.interrupted = False
+
+    def process(self, odo, frames, stop, progress) -> None:
+        """Every frame of ``frames`` ((index, read) pairs) through ``odo``, pipelined;
+        Ctrl-C (taken by ``stop`` between frames) ends the loop with what was computed."""
+        import time
+
+        from jaxvo.errors import InputError
+
         try:
             submitted = 0
-            for i, fut in itertools.chain(early, reads):
+            for i, read in frames:
                 stop()  # Ctrl-C is taken here, between frames, never inside a compile
                 t0 = time.perf_counter()
                 try:
-                    frame = fut.result()
+                    frame = read()
                 except InputError as exc:  # unreadable frame: drop it, keep going
-                    dropped["unreadable frame"] += 1
-                    first_unreadable = first_unreadable or str(exc)
+                    self.dropped["unreadable frame"] += 1
+                    self.first_unreadable = self.first_unreadable or str(exc)
                     continue
-                recent[submitted] = frame
+                self.recent[submitted] = frame
                 submitted += 1
                 # pipelined: this frame's device step runs while the next one is read
                 # and its flow computed; the result that comes back is the previous one's
                 r = odo.submit(frame.bgr, frame.depth, frame.timestamp)
                 if r is not None:
-                    record(r)
-                times.append(time.perf_counter() - t0)  # reading and writing included
+                    self.record(r)
+                self.times.append(time.perf_counter() - t0)  # reading and writing included
                 if i:
                     progress(i)
         except KeyboardInterrupt:
-            interrupted = True
-        r = odo.flush()  # the last frame's result (also after an interruption)
-        if r is not None:
-            record(r)
-        if cfg.window:  # the frames still in the window, with their refined poses
-            final = odo.refined_trajectory
-            for t, T in zip(final.timestamps[written:], final.poses[written:]):
-                writer.write(t, T)
-                written += 1
-        if args.dynamic_masks and last_moving is not None and anchor is not None:
-            # the last kept frame has no pair of its own: it takes the last label map
-            images.submit(write_images, anchor, None, last_moving)
-    progress.close()
+            self.interrupted = True
+        self.finish(odo)
 
+    def finish(self, odo) -> None:
+        """The last frame's result (also after an interruption), the poses still in the
+        window, and the last frame's dynamic mask."""
+        r = odo.flush()
+        if r is not None:
+            self.record(r)
+        if self.cfg.window:  # the frames still in the window, with their refined poses
+            final = odo.refined_trajectory
+            for t, T in zip(final.timestamps[self.written:], final.poses[self.written:]):
+                self.writer.write(t, T)
+                self.written += 1
+        if ("--dynamic-masks" in self.folders and self.last_moving is not None
+                and self.anchor is not None):
+            # the last kept frame has no pair of its own: it takes the last label map
+            self.images.submit(self.write_images, self.anchor, None, self.last_moving)
+
+    def record(self, r) -> None:
+        """One finished frame: its pose now (a line, flushed: a second Ctrl-C, which ends
+        the process at once, loses none), its pair's images on the writer thread."""
+        from jaxvo.status import Status
+
+        frame = self.recent.pop(r.index)
+        if r.dropped is not None:
+            self.dropped[r.dropped] += 1
+            return
+        if not self.cfg.window:
+            self.writer.write(r.timestamp, r.T_w_c)
+            self.written += 1
+        elif r.left is not None:  # the frame that left the window: its pose is final
+            self.writer.write(*r.left)
+            self.written += 1
+        prev_frame, self.anchor = self.anchor, frame
+        if r.output is None or prev_frame is None:
+            return
+        if r.status == Status.OK:
+            self.pairs_ok += 1
+        else:
+            self.skipped[r.status.reason] += 1
+        self.reacquired += int(r.output.reacquired)
+        self.last_moving = r.output.dynamic
+        if self.folders:
+            self.images.submit(self.write_images, prev_frame, r, self.last_moving)
+
+    def write_images(self, frame, r, moving) -> None:
+        """The images of a pair whose labels lie on ``frame``'s image, named by its time as
+        TUM names its images; ``r`` None: the dynamic mask ``moving`` alone. Runs on the
+        writer thread: encoding PNGs is most of what a frame's output costs."""
+        import numpy as np
+
+        from jaxvo.host.io import write_image
+        from jaxvo.host.masks import dynamic_pixels, grid_to_pixels, overlay_panel
+        from jaxvo.host.plugin import mask_png
+
+        h, w = frame.depth.shape
+        cell = self.cfg.cell
+        name = f"{frame.timestamp:.6f}.png"
+        if "--masks" in self.folders and r is not None:
+            ids = grid_to_pixels(r.ids, h, w, cell).astype(np.uint8)
+            write_image(self.folders["--masks"] / name, ids)
+        if "--dynamic-masks" in self.folders:  # jaxvo.host.plugin: step k labels image k
+            write_image(self.folders["--dynamic-masks"] / name,
+                        mask_png(dynamic_pixels(moving, h, w, cell)))
+        if "--overlays" in self.folders and r is not None:
+            write_image(self.folders["--overlays"] / name,
+                        overlay_panel(frame.bgr, r.output, cell))
+
+
+def _summary(args, seq, n: int, start: str, rec: _Recorder, compiling, warnings, out) -> dict:
+    """The run's summary (printed as a table, or as JSON with --json)."""
+    times = rec.times
     steady = times[2:] if len(times) > 3 else times[1:]
     fps = len(steady) / sum(steady) if steady and sum(steady) > 0 else 0.0
-    summary = {
+    return {
         "sequence": str(args.sequence),
         "frames_listed": getattr(seq, "frames_listed", len(seq)),
         "frames": n,
         "camera": getattr(seq, "camera_source", "given"),
         "start_pose": start,
-        "poses_written": written,
-        "window": cfg.window,
+        "poses_written": rec.written,
+        "window": rec.cfg.window,
         "trajectory": str(out),
         "frames_per_second": round(fps, 2),
         "first_frame_pair_seconds": round(times[1], 3) if len(times) > 1 else None,
         # the step's compile (or its load from the persistent compile cache), seconds
         "compile": [{"seconds": round(c.seconds, 3), "from_cache": c.from_cache}
                     for c in compiling],
-        "pairs_ok": pairs_ok,
-        "skipped": dict(skipped),
-        "background_reacquired": reacquired,
-        "dropped": {(f"{k} (first: {first_unreadable})" if k == "unreadable frame" else k): v
-                    for k, v in dropped.items()},
+        "pairs_ok": rec.pairs_ok,
+        "skipped": dict(rec.skipped),
+        "background_reacquired": rec.reacquired,
+        "dropped": {(f"{k} (first: {rec.first_unreadable})" if k == "unreadable frame" else k):
+                    v for k, v in rec.dropped.items()},
         "warnings": warnings,
-        "interrupted": interrupted,
+        "interrupted": rec.interrupted,
         "peak_rss_mib": _peak_rss_mib(),
     }
-    if gt is not None and written >= 3:
-        from jaxvo.evaluation.metrics import ate, rpe
-        from jaxvo.host.io import read_trajectory
 
-        est = read_trajectory(out)
-        try:
-            a = ate(gt, est, max_diff=args.max_diff)
-            r1 = rpe(gt, est, delta=1, delta_unit="frames", max_diff=args.max_diff)
-        except InputError as exc:  # e.g. every pose carried: nothing to align
-            summary["scores_not_computed"] = str(exc)
-        else:
-            summary["ate_rmse_m"] = round(a.stats.rmse, 5)
-            summary["rpe_trans_rmse_m_per_frame"] = round(r1.trans.rmse, 5)
-            summary["rpe_rot_rmse_deg_per_frame"] = round(r1.rot.rmse, 4)
 
-    if args.json:
-        print(json.dumps(summary, indent=1))
-    else:
-        _print_summary(summary, n, interrupted)
-    if interrupted:
-        print("jaxvo: interrupted; the poses computed so far are in the trajectory file",
-              file=sys.stderr)
-        return EXIT_INTERRUPTED
-    if pairs_ok == 0:
-        print("jaxvo: no frame pair gave a camera motion (every pair skipped or dropped, see "
-              "the summary)", file=sys.stderr)
-        return EXIT_NOTHING_ESTIMATED
-    return 0
+def _scores(gt, out: Path, max_diff: float) -> dict:
+    """ATE and RPE of the written trajectory against the folder's ground truth, or why
+    they could not be computed."""
+    from jaxvo.errors import InputError
+    from jaxvo.evaluation.metrics import ate, rpe
+    from jaxvo.host.io import read_trajectory
+
+    est = read_trajectory(out)
+    try:
+        a = ate(gt, est, max_diff=max_diff)
+        r1 = rpe(gt, est, delta=1, delta_unit="frames", max_diff=max_diff)
+    except InputError as exc:  # e.g. every pose carried: nothing to align
+        return {"scores_not_computed": str(exc)}
+    return {"ate_rmse_m": round(a.stats.rmse, 5),
+            "rpe_trans_rmse_m_per_frame": round(r1.trans.rmse, 5),
+            "rpe_rot_rmse_deg_per_frame": round(r1.rot.rmse, 4)}
 
 
 def _print_summary(summary: dict, n: int, interrupted: bool) -> None:

@@ -20,7 +20,8 @@ def add_arguments(parser: argparse.ArgumentParser) -> None:
     )
     parser.add_argument("scenario", metavar="SCENARIO",
                         help=f"scenario preset: {', '.join(SCENARIO_NAMES)}")
-    parser.add_argument("out_dir", metavar="OUT_DIR", help="folder to write (created)")
+    parser.add_argument("out_dir", metavar="OUT_DIR",
+                        help="folder to write (created; an existing one must be empty)")
     parser.add_argument("--frames", type=int, default=None,
                         help="number of frames (default 90; with --composite all frames)")
     parser.add_argument("--seed", type=int, default=0, help="seed, 0 .. 2**32-1 (default 0)")
@@ -36,23 +37,49 @@ def add_arguments(parser: argparse.ArgumentParser) -> None:
 
 def run(args: argparse.Namespace) -> int:
     from dataclasses import replace
+    from pathlib import Path
 
     from jaxvo.cli.main import interrupt_at_safe_points
-    from jaxvo.errors import check_seed
-    from jaxvo.host.io import output_folder
+    from jaxvo.config import Config
+    from jaxvo.errors import InputError, check_seed
+    from jaxvo.host.io import check_outputs, output_folder
+    from jaxvo.host.memory import (
+        SYNTH_BYTES_PER_FRAME,
+        SYNTH_BYTES_PER_OBJECT_FRAME,
+        check_memory,
+        run_bytes,
+    )
     from jaxvo.synth import scenes as synth
 
     check_seed(args.seed, name="--seed")
-    output_folder(args.out_dir, what="OUT_DIR")  # before any frame is rendered
+    if args.frames is not None and args.frames < 1:
+        raise InputError(f"--frames must be at least 1, got {args.frames}")
     opts = synth.SensorOptions.ideal() if args.ideal else synth.SensorOptions()
     opts = replace(opts, motion_blur=args.motion_blur,
                          exposure_change=args.exposure_change)
-    start = time.perf_counter()
+    reads = []
     if args.composite:
-        seq = synth.composite_sequence(args.composite, args.scenario, frames=args.frames,
-                                       seed=args.seed, options=opts)
+        from jaxvo.host.io import open_sequence
+
+        real = open_sequence(args.composite)
+        frames = len(real) if args.frames is None else min(args.frames, len(real))
+        reads = real.files(frames)
     else:
         frames = synth.DEFAULT_FRAMES if args.frames is None else args.frames
+    scenario = synth.SCENARIOS.get(args.scenario)
+    objects = len(scenario.objects) if scenario is not None else 0
+    # frames are rendered and written one at a time; their trajectories are held whole
+    check_memory(run_bytes(Config(), height=480, width=640, host_bytes=frames * (
+        SYNTH_BYTES_PER_FRAME + SYNTH_BYTES_PER_OBJECT_FRAME * objects)),
+        what=f"jaxvo synth --frames {frames}")
+    # before any frame is rendered: a folder of its own, never one holding what it reads
+    check_outputs(reads, folders={"OUT_DIR": Path(args.out_dir)})
+    output_folder(args.out_dir, what="OUT_DIR", empty=True)
+    start = time.perf_counter()
+    if args.composite:
+        seq = synth.composite_sequence(real, args.scenario, frames=args.frames,
+                                       seed=args.seed, options=opts)
+    else:
         seq = synth.make_sequence(args.scenario, frames=frames, seed=args.seed, options=opts)
     tty = sys.stderr.isatty()
 

@@ -22,8 +22,9 @@ class Intrinsics(NamedTuple):
 
     @property
     def focal(self) -> float:
-        """The mean focal length, pixels: metres per pixel at depth z is z / focal."""
-        return 0.5 * (float(self.fx) + float(self.fy))
+        """The mean focal length, pixels: metres per pixel at depth z is z / focal (a
+        negative ``fy``, a camera whose y axis points up, counts by its size)."""
+        return 0.5 * (abs(float(self.fx)) + abs(float(self.fy)))
 
     def matrix(self) -> np.ndarray:
         """The 3x3 camera matrix K."""
@@ -114,14 +115,85 @@ def read_camera_file(path: str | Path) -> Intrinsics:
     return K
 
 
+def read_calibration_file(path: str | Path) -> Intrinsics:
+    """Read an ETH3D SLAM ``calibration.txt``: one line ``fx fy cx cy`` in pixels (depth
+    5000 raw units per metre, as ETH3D's depth PNGs).
+
+    Raises:
+      InputError: naming the file for a file that is not four finite numbers, or values no
+        camera has (:func:`check_intrinsics`).
+    """
+    path = Path(path)
+    try:
+        lines = [ln.split("#", 1)[0].split() for ln in path.read_text().splitlines()]
+    except (OSError, UnicodeDecodeError) as exc:
+        why = getattr(exc, "strerror", None) or "not a text file"
+        raise InputError(f"{path}: cannot read ({why})") from None
+    values = [v for ln in lines for v in ln]
+    try:
+        K = as_intrinsics([float(v) for v in values], where=str(path))
+    except (ValueError, TypeError):
+        raise InputError(f"{path}: expected one line 'fx fy cx cy' (pixels), got "
+                         f"{' '.join(values)!r}") from None
+    check_intrinsics(K, where=str(path))
+    return K
+
+
+def as_intrinsics(camera, *, where: str = "intrinsics") -> Intrinsics:
+    """The :class:`Intrinsics` of what users pass for a camera.
+
+    Args:
+      camera: an :class:`Intrinsics`; a preset name (:data:`PRESETS`); ``(fx, fy, cx, cy)``
+        or ``(fx, fy, cx, cy, depth_scale)``; a dict with keys ``fx fy cx cy`` and
+        optionally ``depth_scale``; or a 3x3 camera matrix K (depth_scale 5000).
+      where: how the message names it.
+    Returns:
+      the intrinsics (not range-checked: :func:`check_intrinsics`).
+    Raises:
+      ValueError: anything else, saying what is expected.
+    """
+    if isinstance(camera, Intrinsics):
+        return camera
+    if isinstance(camera, str):
+        return preset(camera)
+    expected = (f"{where} must be an Intrinsics, a preset name, (fx, fy, cx, cy[, "
+                "depth_scale]) in pixels, a dict of those keys or a 3x3 camera matrix")
+    if isinstance(camera, dict):
+        unknown = set(camera) - set(Intrinsics._fields)
+        missing = [k for k in Intrinsics._fields[:4] if k not in camera]
+        if unknown or missing:
+            raise ValueError(f"{expected}; got keys {sorted(camera)}")
+        camera = [camera[k] for k in Intrinsics._fields if k in camera]
+    try:
+        a = np.asarray(camera, np.float64)
+    except (TypeError, ValueError):
+        raise ValueError(f"{expected}; got {type(camera).__name__}") from None
+    if a.shape == (3, 3):
+        if not np.allclose([a[0, 1], a[1, 0], a[2, 0], a[2, 1]], 0) or a[2, 2] != 1:
+            raise ValueError(f"{where}: a camera matrix is [[fx, 0, cx], [0, fy, cy], "
+                             f"[0, 0, 1]], got {a.tolist()}")
+        return Intrinsics(a[0, 0], a[1, 1], a[0, 2], a[1, 2])
+    if a.shape in ((4,), (5,)):
+        return Intrinsics(*(float(v) for v in a))
+    raise ValueError(f"{expected}; got shape {a.shape}")
+
+
+# The principal point of a real camera lies near the image centre: beyond a quarter of
+# the image side from it, the intrinsics are another image size's (a 640x480 camera.txt
+# kept beside images resized to 320x240 puts it at the image corner).
+_CENTRE_SPAN = 0.25
+
+
 def check_intrinsics(
     K: Intrinsics, *, where: str, width: int | None = None, height: int | None = None
 ) -> None:
     """Raise :class:`~jaxvo.errors.InputError` for intrinsics no camera has.
 
-    Every value must be finite, the focal lengths and the depth scale positive; with the
-    image size, the principal point must lie in the image and the focal lengths give a
-    field of view of 10 to 170 degrees.
+    Every value must be finite, ``fx`` and the depth scale positive and ``fy`` not 0 (a
+    negative ``fy`` is a camera whose y axis points up, as ICL-NUIM's TUM-style
+    calibration: its image rows run against y, and the poses are in that camera's axes);
+    with the image size, the principal point must lie within a quarter of the image side
+    of its centre and the focal lengths give a field of view of 10 to 170 degrees.
 
     Args:
       K: the intrinsics, pixels (depth_scale raw units per metre).
@@ -131,9 +203,11 @@ def check_intrinsics(
     for name, value in zip(Intrinsics._fields, K):
         if not np.isfinite(value):
             raise InputError(f"{where}: {name} is {value}, not a finite number")
-    for name in ("fx", "fy", "depth_scale"):
+    for name in ("fx", "depth_scale"):
         if getattr(K, name) <= 0:
             raise InputError(f"{where}: {name} must be positive, got {getattr(K, name):g}")
+    if K.fy == 0:
+        raise InputError(f"{where}: fy must not be 0 (negative: a camera whose y axis points up)")
     if width is None or height is None:
         return
     if not (0 <= K.cx <= width and 0 <= K.cy <= height):
@@ -141,7 +215,14 @@ def check_intrinsics(
             f"{where}: principal point ({K.cx:g}, {K.cy:g}) lies outside the "
             f"{width}x{height} image"
         )
-    for name, f, side in (("fx", K.fx, width), ("fy", K.fy, height)):
+    if (abs(K.cx - (width - 1) / 2) > _CENTRE_SPAN * width
+            or abs(K.cy - (height - 1) / 2) > _CENTRE_SPAN * height):
+        raise InputError(
+            f"{where}: principal point ({K.cx:g}, {K.cy:g}) is far from the centre of the "
+            f"{width}x{height} image, as in intrinsics for about {2 * K.cx + 1:.0f}x"
+            f"{2 * K.cy + 1:.0f} images: scale fx fy cx cy to the image size"
+        )
+    for name, f, side in (("fx", K.fx, width), ("fy", abs(K.fy), height)):
         fov = float(np.degrees(2 * np.arctan2(side / 2, f)))
         if not _MIN_FOV_DEG <= fov <= _MAX_FOV_DEG:
             raise InputError(

@@ -16,6 +16,7 @@ from jaxvo.host.camera import (
     check_intrinsics,
     depth_metres,
     preset,
+    read_calibration_file,
     read_camera_file,
 )
 
@@ -378,6 +379,10 @@ class TumSequence:
         (``..._freiburg3_...``, ``rgbd_bonn_...``) takes that camera's preset; otherwise
         one of the two is required.
       max_diff: largest colour-depth time difference when pairing them, seconds.
+      depth_scale: raw depth units per metre, overriding the camera's (``--depth-scale``).
+
+    Depth images are 16-bit PNGs of raw units (divided by the depth scale), or float
+    metres: 32-bit float TIFF or ``.npy`` files.
 
     Attributes:
       warnings: list of one-line warnings about the folder's files (empty when clean).
@@ -391,6 +396,7 @@ class TumSequence:
         *,
         camera: str | Intrinsics | None = None,
         max_diff: float = 0.02,
+        depth_scale: float | None = None,
     ) -> None:
         root = Path(path)
         if not root.is_dir():
@@ -400,7 +406,12 @@ class TumSequence:
         self.path = root
         self.name = root.resolve().name
         self.warnings: list[str] = []
+        self.float_depth = False  # set when a frame is read: float depth is stored metres
         self.intrinsics, self.camera_source = self._intrinsics(root, camera)
+        if depth_scale is not None:
+            self.intrinsics = self.intrinsics._replace(depth_scale=float(depth_scale))
+            self.camera_source += f", depth_scale {float(depth_scale):g} given"
+            check_intrinsics(self.intrinsics, where=self.camera_source)
 
         assoc = root / "associations.txt"
         if assoc.is_file():
@@ -459,13 +470,15 @@ class TumSequence:
             K, source = given
         elif cam_file.exists():
             return read_camera_file(cam_file), str(cam_file)
+        elif (root / "calibration.txt").is_file():  # ETH3D SLAM's layout
+            return read_calibration_file(root / "calibration.txt"), str(root / "calibration.txt")
         else:
             # a TUM or Bonn download as it unpacks: no camera.txt, the camera in its name
             guess = preset_from_name(root.resolve().name)
             if guess is None:
                 raise InputError(
-                    f"{root}: no camera.txt; pass a camera preset "
-                    f"({', '.join(sorted(PRESETS))}) or write a camera.txt"
+                    f"{root}: no camera.txt; pass a camera preset ({', '.join(sorted(PRESETS))}) "
+                    "or the intrinsics (--intrinsics fx,fy,cx,cy), or write a camera.txt"
                 )
             return preset(guess), f"preset {guess}, from the folder name"
         if cam_file.is_file():
@@ -487,17 +500,28 @@ class TumSequence:
         """Read frame ``index`` from disk (negative indices count from the end)."""
         index = frame_index(index, len(self))
         bgr = _read_image(self._rgb[index], _imread_color())
-        raw = _read_image(self._depth[index], _imread_unchanged())
-        if raw.ndim != 2 or raw.dtype != np.uint16:
+        raw = _read_depth(self._depth[index])
+        if raw.shape != bgr.shape[:2]:
             raise InputError(
-                f"{self._depth[index]}: depth must be a 16-bit single-channel image, got "
-                f"{raw.dtype} with shape {raw.shape}"
+                f"{self._depth[index]}: depth {raw.shape[1]}x{raw.shape[0]} does not match "
+                f"colour {bgr.shape[1]}x{bgr.shape[0]} ({self._rgb[index].name})"
             )
-        for p, img in ((self._rgb[index], bgr), (self._depth[index], raw)):
-            check_frame_size(str(p), img, self.height, self.width)
+        check_frame_size(str(self._rgb[index]), bgr, self.height, self.width)
+        self.float_depth = raw.dtype.kind == "f"  # metres as stored, no depth scale applied
         depth = depth_metres(raw, self.intrinsics)
         mask = self._read_mask(index) if self._mask is not None else None
         return Frame(index, float(self.timestamps[index]), bgr, depth, mask)
+
+    def files(self, frames: int | None = None) -> list[Path]:
+        """Every file reading the first ``frames`` frames (default all) touches: the lists,
+        the camera, the ground truth and the images (what no output may overwrite)."""
+        names = ("rgb.txt", "depth.txt", "associations.txt", "groundtruth.txt", "camera.txt",
+                 "calibration.txt", "mask.txt")
+        out = [self.path / name for name in names if (self.path / name).exists()]
+        n = len(self) if frames is None else min(frames, len(self))
+        for paths in (self._rgb, self._depth, self._mask or []):
+            out += paths[:n]
+        return out
 
     def _read_mask(self, index: int) -> np.ndarray:
         path = self._mask[index]
@@ -525,6 +549,34 @@ class TumSequence:
         )
 
 
+def _read_depth(path: Path) -> np.ndarray:
+    """A depth image as stored: (H, W) uint16 raw units (PNG) or float metres (32-bit float
+    TIFF, ``.npy``).
+
+    Raises:
+      InputError: naming the file and why it is no depth image (missing, undecodable,
+        8-bit, several channels, another type).
+    """
+    if path.suffix.lower() == ".npy":
+        if not path.is_file():
+            raise InputError(f"image not found: {path}")
+        try:
+            raw = np.load(path, allow_pickle=False)
+        except (OSError, ValueError) as exc:
+            raise InputError(f"cannot read depth {path}: {exc}") from None
+    else:
+        raw = _read_image(path, _imread_unchanged())
+    want = "depth must be 16-bit raw units or float metres, single-channel"
+    if raw.ndim != 2:
+        raise InputError(f"{path}: depth has {raw.shape[2] if raw.ndim == 3 else raw.ndim} "
+                         f"channels (a colour or JPEG image?); {want}")
+    if raw.dtype == np.uint8:
+        raise InputError(f"{path} is 8-bit; {want}")
+    if raw.dtype != np.uint16 and not np.issubdtype(raw.dtype, np.floating):
+        raise InputError(f"{path}: depth is {raw.dtype}; {want}")
+    return raw
+
+
 def _imread_color() -> int:
     import cv2
 
@@ -549,6 +601,9 @@ def open_sequence(path: str | Path, *, rgb_topic: str | None = None,
     from jaxvo.host.rosbag import BagSequence, is_bag
 
     if is_bag(path):
+        if kwargs.pop("depth_scale", None) is not None:
+            raise InputError(f"{path}: --depth-scale is for folders; a bag's depth says its unit "
+                             "(32FC1 metres, 16UC1 millimetres)")
         return BagSequence(path, rgb_topic=rgb_topic, depth_topic=depth_topic, **kwargs)
     if rgb_topic or depth_topic:
         raise InputError(f"{path}: not a ROS bag; --rgb-topic and --depth-topic are for bags")
@@ -560,27 +615,71 @@ def open_sequence(path: str | Path, *, rgb_topic: str | None = None,
     return TumSequence(root, **kwargs)
 
 
-def output_file(path: str | Path, *, what: str, inputs: tuple[Path, ...] = ()) -> Path:
-    """``path`` as a file this run can write, checked before any work is done.
+def check_outputs(reads, *, files: dict[str, Path] | None = None,
+                  folders: dict[str, Path] | None = None) -> None:
+    """Refuse outputs that would overwrite what a command reads, or each other.
+
+    Checked before any work, with paths resolved (symbolic links followed): no output file
+    is a file the command reads or another output file; no output folder (where the command
+    names the files it writes: masks by timestamp, a study's tables) holds a file the
+    command reads, is another output folder, or holds an output file.
+
+    Args:
+      reads: the files (and folders) the command reads.
+      files: option -> output file (e.g. ``{"--out": Path("traj.txt")}``).
+      folders: option -> output folder (e.g. ``{"--masks": Path("masks")}``).
+    Raises:
+      InputError: one line naming the options, the paths and the clash.
+    """
+    files, folders = dict(files or {}), dict(folders or {})
+    read = {Path(os.path.realpath(p)): Path(p) for p in reads}
+    parents = {}
+    for real, given in read.items():
+        parents.setdefault(real.parent, given)
+    seen_files: dict[Path, str] = {}
+    for what, p in files.items():
+        real = Path(os.path.realpath(p))
+        if real in read:
+            raise InputError(f"{what} {p} would overwrite the input {read[real]}")
+        if real in seen_files:
+            raise InputError(f"{what} and {seen_files[real]} are the same file {p}; each "
+                             "output needs its own")
+        seen_files[real] = what
+    seen_folders: dict[Path, str] = {}
+    for what, p in folders.items():
+        real = Path(os.path.realpath(p))
+        if real in read or real in parents:
+            held = parents.get(real, read.get(real))
+            raise InputError(f"{what} {p} holds {held}, which this command reads; writing "
+                             "there could overwrite it: choose another folder")
+        if real in seen_folders:
+            raise InputError(f"{what} and {seen_folders[real]} are the same folder {p}; each "
+                             "output needs its own")
+        seen_folders[real] = what
+    for real, what in seen_files.items():
+        if real.parent in seen_folders:
+            other = seen_folders[real.parent]
+            raise InputError(f"{what} {files[what]} lies in the folder of {other}, which "
+                             f"{other} writes into; put it elsewhere")
+
+
+def output_file(path: str | Path, *, what: str) -> Path:
+    """``path`` as a file this run can write, checked before any work is done (what it must
+    not overwrite: :func:`check_outputs`).
 
     Args:
       path: the file (it may exist; it is not changed here).
       what: how to name it in a message (e.g. ``--out``).
-      inputs: files the run reads, which it must not overwrite.
     Returns:
       the path.
     Raises:
-      InputError: the path is a folder, its folder does not exist, it is one of
-        ``inputs``, or it cannot be written.
+      InputError: the path is a folder, its folder does not exist, or it cannot be written.
     """
     p = Path(path)
     if p.is_dir():
         raise InputError(f"{what} {p}: is a folder, not a file")
     if not p.parent.is_dir():
         raise InputError(f"{what} {p}: folder {p.parent} does not exist")
-    for q in inputs:
-        if p.exists() and q.exists() and os.path.samefile(p, q):
-            raise InputError(f"{what} {p} would overwrite the input {q}")
     existed = p.exists()
     try:
         with open(p, "a"):  # "a": an existing file stays as it is
@@ -592,22 +691,28 @@ def output_file(path: str | Path, *, what: str, inputs: tuple[Path, ...] = ()) -
     return p
 
 
-def output_folder(path: str | Path, *, what: str) -> Path:
+def output_folder(path: str | Path, *, what: str, empty: bool = False) -> Path:
     """``path`` as a folder this run can write into, created if missing.
 
     Args:
       path: the folder.
       what: how to name it in a message (e.g. ``--masks``).
+      empty: refuse a folder that already holds anything (a command that writes a whole
+        folder, whose old files would be left mixed with the new ones or overwritten).
     Returns:
       the path.
     Raises:
-      InputError: it exists and is not a folder, or cannot be created or written into.
+      InputError: it exists and is not a folder (or, with ``empty``, is not empty), or
+        cannot be created or written into.
     """
     import tempfile
 
     p = Path(path)
     if p.exists() and not p.is_dir():
         raise InputError(f"{what} {p}: exists and is not a folder")
+    if empty and p.is_dir() and any(p.iterdir()):
+        raise InputError(f"{what} {p}: the folder is not empty; give a new or empty folder "
+                         "(nothing in it is changed)")
     try:
         p.mkdir(parents=True, exist_ok=True)
         tempfile.TemporaryFile(dir=p).close()
@@ -670,23 +775,39 @@ class TrajectoryWriter:
 
 
 # Median depth of a frame, metres: outside the hard band no RGB-D sensor reads (the depth
-# scale is wrong, e.g. 1000 for millimetres against TUM's 5000); outside the soft band it
-# is possible but unusual for the structured-light and time-of-flight cameras of these
-# datasets (Kinect, Xtion, RealSense: about 0.3 to 8 m), so it is said but run.
+# scale is wrong, e.g. 1000 for millimetres against TUM's 5000, or float depth that is not
+# metres); outside the soft band it is possible but unusual for the structured-light and
+# time-of-flight cameras of these datasets (0.5 m: the nearest range of the Kinect and
+# Xtion sensors of TUM, Bonn and ICL-style data), so it is said but run.
 _DEPTH_HARD_M = (0.1, 15.0)
-_DEPTH_SOFT_M = (0.3, 8.0)
+_DEPTH_SOFT_M = (0.5, 8.0)
+# The depth scales of the sensors' files: TUM, Bonn, ETH3D 5000 per metre; millimetres 1000.
+# A wrong one of these is the usual mistake, and it can stay inside the soft band (a room
+# 2-4 m deep in millimetres read at 5000 per metre: median 0.4-0.6 m). So the median is
+# also compared with the typical indoor median, the soft band's geometric centre (2 m):
+# when another common scale puts it nearer (in ratio), that scale is the likelier one.
+_COMMON_SCALES = (5000.0, 1000.0)
+_TYPICAL_M = float(np.sqrt(_DEPTH_SOFT_M[0] * _DEPTH_SOFT_M[1]))
 
 
-def check_depth_scale(depth: np.ndarray, K, *, where: str) -> str | None:
+class DepthScaleWarning(UserWarning):
+    """A frame's depth is possible but unusual for an RGB-D sensor (see
+    :func:`check_depth_scale`): the depth scale may be wrong."""
+
+
+def check_depth_scale(depth: np.ndarray, K, *, where: str, raw_units: bool = True) -> str | None:
     """Check the median of a frame's valid depth readings against what RGB-D sensors see.
 
     Args:
       depth: (H, W) float metres, 0 = no reading.
       K: the intrinsics whose ``depth_scale`` made ``depth`` (named in the messages).
       where: the frame, for the messages.
+      raw_units: the depth was raw units divided by ``K.depth_scale`` (else it was given as
+        float metres, and the message says so).
     Returns:
-      a one-line warning when the median lies outside 0.3 to 8 m, else None (also for a
-      frame without readings, which the pipeline reports per frame).
+      a one-line warning when the median lies outside 0.5 to 8 m, or when another common
+      depth scale (5000 or 1000 per metre) puts it nearer the typical 2 m; else None (also
+      for a frame without readings, which the pipeline reports per frame).
     Raises:
       InputError: the median lies outside 0.1 to 15 m.
     """
@@ -694,13 +815,50 @@ def check_depth_scale(depth: np.ndarray, K, *, where: str) -> str | None:
     if valid.size == 0:
         return None
     med = float(np.median(valid))
-    hint = (f"median depth is {med:.3g} m with depth_scale {K.depth_scale:g}; "
-            "TUM uses 5000 per metre, millimetre sensors 1000")
+    likelier = []
+    if raw_units:
+        at = {s: med * K.depth_scale / s for s in _COMMON_SCALES if s != K.depth_scale}
+        likelier = [s for s, m in at.items()
+                    if abs(np.log(m / _TYPICAL_M)) < abs(np.log(med / _TYPICAL_M))]
+        hint = (f"median depth is {med:.3g} m with depth_scale {K.depth_scale:g} ("
+                + ", ".join(f"{m:.3g} m at {s:g}" for s, m in at.items())
+                + "; TUM uses 5000 per metre, millimetre sensors 1000)")
+    else:
+        hint = (f"median of the float depth is {med:.3g}, read as metres (millimetres or "
+                "raw units? give float depth in metres, or uint16 raw units with the "
+                "intrinsics' depth_scale)")
     if not _DEPTH_HARD_M[0] <= med <= _DEPTH_HARD_M[1]:
         raise InputError(f"{where}: {hint}: the depth scale looks wrong")
+    if likelier:
+        return (f"{where}: {hint}: depth_scale {likelier[0]:g} is likelier (--depth-scale): "
+                "check the depth scale")
     if not _DEPTH_SOFT_M[0] <= med <= _DEPTH_SOFT_M[1]:
         return f"{where}: {hint}: check the depth scale"
     return None
+
+
+def first_readable(reads, *, where: str, total: int):
+    """The first frame that can be read, and the reads taken to find it.
+
+    Args:
+      reads: ``(index, get)`` pairs in frame order, ``get()`` returning the frame or
+        raising :class:`InputError` (a read-ahead future's ``result``, or a read).
+      where: the sequence, for the message.
+      total: how many frames ``reads`` holds, for the message.
+    Returns:
+      ``(frame, taken)``: ``taken`` the pairs consumed (the unreadable ones, then the
+      frame's), for a loop over all frames to go through again.
+    Raises:
+      InputError: no frame can be read, naming the first one's file and why.
+    """
+    taken, first_error = [], None
+    for i, get in reads:
+        taken.append((i, get))
+        try:
+            return get(), taken
+        except InputError as exc:
+            first_error = first_error or exc
+    raise InputError(f"{where}: none of the {total} frames can be read (first: {first_error})")
 
 
 def first_pose(seq) -> np.ndarray:

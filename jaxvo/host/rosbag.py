@@ -232,6 +232,13 @@ class BagSequence:
             raise InputError(f"{self.path}: no camera info on {info_topic}; pass --camera")
         return preset(guess), f"preset {guess}, from the bag's name"
 
+    def files(self, frames: int | None = None) -> list[Path]:
+        """What reading the bag touches (any number of frames): a ROS 1 bag file, or the
+        files of a ROS 2 bag folder (what no output may overwrite)."""
+        if self.path.is_file():
+            return [self.path]
+        return sorted(p for p in self.path.iterdir() if p.is_file())
+
     def __len__(self) -> int:
         return len(self.timestamps)
 

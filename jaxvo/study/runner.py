@@ -132,6 +132,7 @@ class StudySpec(NamedTuple):
     metrics: tuple[str, ...]  # the metrics summarised and plotted
     batch: int | None  # configurations per device and call (None: by backend)
     distributed: dict  # coordinator, num_processes, process_id as given
+    source: str | None = None  # the spec's file (what the results must not overwrite)
 
 
 # ----------------------------------------------------------------------------- the spec
@@ -168,7 +169,7 @@ def load_spec(path: str | Path, *, check_folders: bool = True) -> StudySpec:
         raise InputError(f"{path}: not valid {'TOML' if path.suffix == '.toml' else 'JSON'}: "
                          f"{first}") from None
     return parse_spec(data, where=str(path), base_dir=path.resolve().parent,
-                      check_folders=check_folders)
+                      check_folders=check_folders)._replace(source=str(path))
 
 
 def parse_spec(data: Any, *, where: str = "spec", base_dir: str | Path | None = None,
@@ -412,11 +413,19 @@ def _parse_configs(data, bad):
         for k in tables["sweep"]:
             configs += [{**around, k: v} for v in lists[("sweep", k)]]
     configs += [{**base, **p} for p in point_values]
-    unique: list[dict] = []
+    # the first of each distinct configuration, in spec order: keyed by its values' reprs
+    # (a dict lookup, not a scan of those kept, which took 15 s for 32,768 configurations)
+    by_key: dict[tuple, dict] = {}
     for c in configs:
-        if c not in unique:
-            unique.append(c)
-    for c in unique:  # Config values no run can use (a window of 1 frame, ...)
+        by_key.setdefault(tuple(repr(c[k]) for k in settings), c)
+    unique = list(by_key.values())
+    # Config values no run can use (a window of 1 frame, ...), each combination checked once
+    checked: set[tuple] = set()
+    for c in unique:
+        key = tuple(repr(c[k]) for k in cfg_names)
+        if key in checked:
+            continue
+        checked.add(key)
         try:
             check_config(group_config(c))
         except InputError as e:
@@ -934,10 +943,18 @@ def run_spec(spec: StudySpec, out_dir: str | Path, *, resume: bool = False,
     runs, ids = spec_runs(spec)
     done_ids: set[str] = set()
     problem = None
+    requested = batch or spec.batch
     if first:
-        if runs_path.is_file() and not resume:
-            problem = InputError(f"{out} already holds a study's runs ({RUNS_FILE}); pass "
+        try:  # a problem is told to every process, which all stop
+            # host memory: the CPU's calls hold default_batch configurations; an
+            # accelerator's calls are sized to its own memory (call_batch)
+            check_study(spec, out, cache, requested or (
+                default_batch("cpu") if jax.default_backend() == "cpu" else 1))
+            if runs_path.is_file() and not resume:
+                raise InputError(f"{out} already holds a study's runs ({RUNS_FILE}); pass "
                                  "--resume to continue it, or choose another --out")
+        except InputError as exc:
+            problem = exc
         else:
             done_ids = set(read_runs(runs_path)) if resume else set()
             out.mkdir(parents=True, exist_ok=True)
@@ -946,7 +963,6 @@ def run_spec(spec: StudySpec, out_dir: str | Path, *, resume: bool = False,
     done = _from_first(np.asarray([i in done_ids for i in ids], bool))
 
     devices = study_devices()
-    requested = batch or spec.batch
     batches: list[int] = []
     # (sequence, Config) groups in spec order, each with its runs left
     groups: dict[tuple[int, Config], list[int]] = {}
@@ -1026,6 +1042,59 @@ def finished_rows(spec: StudySpec, out_dir: str | Path) -> list[dict]:
     """The rows of ``spec``'s runs already in ``out_dir``'s ``runs.jsonl``, in spec order."""
     finished = read_runs(Path(out_dir) / RUNS_FILE)
     return [finished[i] for i in spec_runs(spec)[1] if i in finished]
+
+
+def check_study(spec: StudySpec, out_dir: str | Path, flow_cache: str | Path,
+                batch: int) -> None:
+    """Refuse, before any work, a study that cannot run: a sequence folder none of whose
+    frames can be read (depth as JPEG, 8-bit PNGs), runs that need more memory than the
+    machine has (a scene of 10^9 frames, ``num_hypotheses`` or ``window`` of 100000), or
+    results and flows written over what the study reads (its spec, a sequence's files).
+
+    Args:
+      spec: the parsed study.
+      out_dir, flow_cache: the results folder and the flow cache's.
+      batch: configurations per device and call.
+    Raises:
+      InputError: one line naming the sequence, setting or folder.
+    """
+    from jaxvo.host.io import check_outputs, first_readable
+    from jaxvo.host.memory import (
+        SYNTH_BYTES_PER_FRAME,
+        SYNTH_BYTES_PER_OBJECT_FRAME,
+        check_memory,
+        run_bytes,
+    )
+    from jaxvo.synth.scenes import DEFAULT_FRAMES, SCENARIOS
+
+    reads: list[Path] = [Path(spec.source)] if spec.source else []
+    cfgs = {group_config(c) for c in spec.configs}
+    side = min(batch, len(spec.configs) * len(spec.seeds))
+    for s in spec.sequences:
+        rendered = 0
+        if s.path is None:
+            frames, (height, width) = DEFAULT_FRAMES if s.frames is None else s.frames, (480, 640)
+        else:
+            from jaxvo.host.io import open_sequence
+
+            real = open_sequence(s.path, camera=s.camera)
+            idx = range(0, len(real), s.step)
+            frames, height, width = len(idx), real.height, real.width
+            frames = frames if s.frames is None else min(frames, s.frames)
+            reads += real.files((frames - 1) * s.step + 1)
+            first_readable(((i, functools.partial(real.__getitem__, i)) for i in idx[:frames]),
+                           where=f"sequence {s.label!r} ({s.path})", total=frames)
+        if s.scene is not None:  # rendered: its trajectories held, every step-th frame used
+            rendered = (frames - 1) * s.step + 1
+        rendered_bytes = (SYNTH_BYTES_PER_FRAME + SYNTH_BYTES_PER_OBJECT_FRAME * len(
+            SCENARIOS[s.scene].objects)) * rendered if s.scene else 0.0
+        for cfg in cfgs:
+            check_memory(run_bytes(cfg, height=height, width=width, frames=frames, configs=side,
+                                   host_bytes=rendered_bytes),
+                         what=f"sequence {s.label!r} ({frames} frames) with num_hypotheses "
+                              f"{cfg.num_hypotheses}, window {cfg.window}, {side} "
+                              "configurations a call")
+    check_outputs(reads, folders={"--out": Path(out_dir), "--flow-cache": Path(flow_cache)})
 
 
 def _pairs(s: SequenceSpec) -> int:

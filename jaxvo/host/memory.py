@@ -1,0 +1,121 @@
+"""The memory a run will need, estimated before any work, and the refusal of one that
+cannot fit (host side).
+
+A setting such as ``--window 100000`` or ``--hypotheses 100000`` used to compile for 20 s
+and then die with an out-of-memory traceback; a study scene of 10^9 frames or ``jaxvo
+synth --frames 1000000000`` likewise. :func:`run_bytes` estimates the peak from the
+settings alone, and :func:`check_memory` refuses, in one line giving both numbers, what the
+machine does not have.
+"""
+
+from __future__ import annotations
+
+from jaxvo.errors import InputError
+
+# Calibration (2 cores of AMD EPYC, JAX 0.10.2 on the CPU). The per-frame step's buffers,
+# from XLA's buffer assignment of jit_step (temporaries + arguments + outputs,
+# `compiled.memory_analysis()`), 640x480:
+#   H 20 K 0: 2.05 MB   H 200: 3.03 MB   H 800: 11.15 MB   (n = 1200 grid points)
+#   K 20: 2.79 MB   K 80: 11.64 MB (H 20);   cell 8 (n = 4800): 8.17 MB (H 20, K 0)
+# are fit within 1 % by per-point, hypothesis x point, H^2 and K x point, K^2 terms (the
+# hypotheses' pairwise inlier overlaps and DBSCAN distances are (H, H), the window's
+# Gauss-Newton system (6K, 6K), its tracks (K, n)), with 10.4 bytes per H^2 and 1375 per
+# K^2. The process's peak resident memory grows faster than the buffers (compiling, and
+# constants such as the window's (K, K) shift folded into the program): `jaxvo run` on 4
+# synthetic frames peaked at 869.6 MiB with the defaults, 1126.4 MiB with H 4000 and
+# 1214.7 MiB with K 300, so the squared terms below are those peaks' (1.5 and 2.9 times
+# the buffers'): the estimate is of what the process takes. Checked on a size it was not
+# fit to: H 8000, estimated 1860 MiB, peaked at 1912 MiB (3 % more).
+_STEP_PER_POINT = 1.65e3  # bytes per grid point (flow, state, per-point stages)
+_STEP_PER_HYP_POINT = 2.6  # bytes per hypothesis and grid point (inlier sets)
+_STEP_PER_HYP2 = 16.0  # bytes per hypothesis squared (overlaps, distances)
+_STEP_PER_WINDOW_POINT = 8.3  # bytes per window frame and grid point (tracks)
+_STEP_PER_WINDOW2 = 3990.0  # bytes per window frame squared (the (6K, 6K) system)
+# Per frame pair kept for a whole-sequence scan or a study: the grid flow (41 bytes a
+# point: two (n, 3) and two (n, 2) float32, a bool) and the stacked step outputs (about
+# 23 bytes a point: identifiers, labels, moving and static flags, evidence).
+_FLOW_PER_POINT = 41.0
+_OUTPUT_PER_POINT = 23.0
+# Host memory per frame of a synthetic sequence (its camera and object trajectories and
+# the file names written): measured 855 bytes a frame (static, no object) and 990 (one
+# object) over 100,000 frames, peak resident.
+SYNTH_BYTES_PER_FRAME = 860.0
+SYNTH_BYTES_PER_OBJECT_FRAME = 135.0
+# A frame held in memory (jaxvo.host.io.InMemorySequence, jaxvo demo): BGR uint8, depth float32
+# metres and a uint8 mask, bytes per pixel.
+FRAME_BYTES_PER_PIXEL = 8
+# What a jaxvo process holds before its own arrays: Python, JAX, XLA's compiler and
+# OpenCV: the peak resident of `jaxvo run` on 4 synthetic frames with the default
+# settings, compiling its step (no compile cache), was 869.6 MiB.
+PROCESS_BYTES = 0.9e9
+
+
+def run_bytes(cfg, *, height: int, width: int, frames: int = 0, configs: int = 1,
+              host_bytes: float = 0.0) -> float:
+    """Peak memory of a run, bytes (estimate from the settings alone).
+
+    Args:
+      cfg: the :class:`~jaxvo.config.Config` (cell, ``num_hypotheses``, ``window``).
+      height, width: the image size, pixels.
+      frames: frames whose flow and step outputs are held at once (a whole-sequence scan,
+        a study); 0 for the streaming ``jaxvo run``, which holds none.
+      configs: configurations run side by side (a study's batch per device).
+      host_bytes: more bytes held on the host (a synthetic scene's trajectories,
+        :data:`SYNTH_BYTES_PER_FRAME` a frame; frames kept in memory).
+    Returns:
+      bytes, float (it may exceed any machine's memory: 1e13 for ``--window 100000``).
+    """
+    n = (height // cfg.cell) * (width // cfg.cell)
+    H, K = float(cfg.num_hypotheses), float(cfg.window)
+    step = (_STEP_PER_POINT * n + _STEP_PER_HYP_POINT * H * n + _STEP_PER_HYP2 * H * H
+            + _STEP_PER_WINDOW_POINT * K * n + _STEP_PER_WINDOW2 * K * K)
+    per_frame = (_FLOW_PER_POINT + configs * _OUTPUT_PER_POINT) * n
+    return PROCESS_BYTES + configs * step + float(frames) * per_frame + float(host_bytes)
+
+
+def available_bytes() -> float:
+    """Memory this process may still take, bytes: the system's available memory
+    (``MemAvailable``), within the control group's limit where one is set; infinity where
+    neither can be read."""
+    avail = float("inf")
+    try:
+        with open("/proc/meminfo") as fh:
+            for line in fh:
+                if line.startswith("MemAvailable:"):
+                    avail = int(line.split()[1]) * 1024.0
+    except OSError:
+        pass
+    try:  # a control group's limit (cgroup v2), less what the group already uses
+        from pathlib import Path
+
+        limit = Path("/sys/fs/cgroup/memory.max").read_text().strip()
+        if limit != "max":
+            used = float(Path("/sys/fs/cgroup/memory.current").read_text())
+            avail = min(avail, float(limit) - used)
+    except (OSError, ValueError):
+        pass
+    return avail
+
+
+def check_memory(need: float, *, what: str, available: float | None = None) -> None:
+    """Refuse, before any work, a run whose estimate exceeds the memory available.
+
+    Args:
+      need: bytes (:func:`run_bytes`).
+      what: the run, for the message (its options).
+      available: bytes the machine has (default :func:`available_bytes`).
+    Raises:
+      InputError: one line with both numbers.
+    """
+    have = available_bytes() if available is None else available
+    if need > have:
+        raise InputError(f"{what} needs about {_size(need)} of memory; this machine has "
+                         f"{_size(have)} available")
+
+
+def _size(b: float) -> str:
+    for unit, size in (("TB", 1e12), ("GB", 1e9), ("MB", 1e6)):
+        if b >= size:
+            return f"{b / size:.3g} {unit}"
+    return f"{b:.0f} bytes"
+
