@@ -213,10 +213,13 @@ def run(args: argparse.Namespace) -> int:
     from jaxvo.host.io import DepthScaleWarning, TrajectoryWriter, check_depth_scale, first_readable
     from jaxvo.host.prefetch import BackgroundWriter, read_ahead
     from jaxvo.host.progress import Progress
-    from jaxvo.odometry import Odometry, choose_start_pose
 
     cfg, camera = _check_options(args)
     seq, n, out, folders = _open(args, cfg, camera)
+    # JAX's pipeline loads once the input is known to be usable: a one-line error waits
+    # for no heavy import
+    from jaxvo.odometry import Odometry, choose_start_pose
+
     warnings = list(seq.warnings)
     # frames are read and decoded ahead on a small thread pool, beside the flow and the step
     reads = read_ahead(seq.__getitem__, range(n))
