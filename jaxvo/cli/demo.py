@@ -8,6 +8,7 @@ from __future__ import annotations
 
 import argparse
 import json
+from typing import Any, NamedTuple
 
 
 def add_arguments(p: argparse.ArgumentParser) -> None:
@@ -91,13 +92,10 @@ def _check(args: argparse.Namespace, cfg) -> tuple[list[str], object]:
 def run(args: argparse.Namespace) -> int:
     from jaxvo.cli.main import interrupt_at_safe_points
     from jaxvo.config import Config
-    from jaxvo.evaluation.scores import segmentation_scores, trajectory_scores
-    from jaxvo.host.io import InMemorySequence, write_image, write_trajectory
-    from jaxvo.host.masks import overlay_panel
+    from jaxvo.evaluation.scores import trajectory_scores
+    from jaxvo.host.io import InMemorySequence, write_trajectory
     from jaxvo.host.peers import run_peer
     from jaxvo.host.progress import Progress
-    from jaxvo.odometry import run_sequence
-    from jaxvo.status import Status
     from jaxvo.synth.scenes import make_sequence
 
     cfg = Config()
@@ -120,30 +118,9 @@ def run(args: argparse.Namespace) -> int:
         # rendered once up front, so that every method is timed on the same frames in memory
         seq = InMemorySequence(make_sequence(args.scenario, frames=args.frames, seed=args.seed))
         stop()
-        res = run_sequence(seq, cfg=cfg, seed=args.seed, progress=progress("  grid flow"))
+        ours = _run_jaxvo(seq, cfg, args.seed, progress("  grid flow"))
         stop()
-        n_pairs = len(res.frames) - 1
-        rows = {"jaxvo": trajectory_scores(seq.groundtruth, res.trajectory)}
-        seg = segmentation_scores(_Anchors(seq, res.frames), res.outputs.moving, cfg.cell)
-        rows["jaxvo"]["f_measure"] = seg.f_measure
-        # steady state: flow on the host plus a second, already compiled run of the scan
-        import time
-
-        import jax
-        import jax.numpy as jnp
-
-        from jaxvo.config import Params, params_as_arrays
-        from jaxvo.core.pipeline import run_scan
-
-        t0 = time.perf_counter()
-        jax.block_until_ready(run_scan(res.flows, jax.random.key(args.seed),
-                                       params_as_arrays(Params()),
-                                       jnp.asarray(res.trajectory.poses[0], jnp.float32),
-                                       cfg=cfg, grid=res.grid))
-        scan_steady = time.perf_counter() - t0
-        rows["jaxvo"]["ms_per_frame"] = 1e3 * (res.flow_seconds + scan_steady) / n_pairs
-        skipped = int((res.outputs.status != Status.OK).sum())
-
+        rows = {"jaxvo": ours.row}
         for name in peers:
             stop()
             run = run_peer(seq, name, progress=progress(f"  {name}"))
@@ -154,19 +131,73 @@ def run(args: argparse.Namespace) -> int:
         stop()
 
     if out:
-        write_trajectory(out / "groundtruth.txt", seq.groundtruth)
-        write_trajectory(out / "jaxvo.txt", res.trajectory)
-        for k in range(0, n_pairs, max(1, n_pairs // 6)):
-            step_out = jax.tree.map(lambda a, k=k: a[k], res.outputs)
-            image = seq[int(res.frames[k])]  # the pair's labels lie on its first image
-            write_image(out / f"overlay_{image.timestamp:.6f}.png",
-                        overlay_panel(image.bgr, step_out, cfg.cell))
-
+        _write_outputs(out, seq, ours.res, cfg)
     if args.json:
         print(json.dumps({"scenario": args.scenario, "frames": len(seq), "seed": args.seed,
-                          "skipped": skipped, "dropped": len(res.dropped),
-                          "segmentation": seg.as_dict(), "methods": rows}, indent=1))
+                          "skipped": ours.skipped, "dropped": len(ours.res.dropped),
+                          "segmentation": ours.seg.as_dict(), "methods": rows}, indent=1))
         return 0
+    _print_table(rows, ours, out)
+    return 0
+
+
+class _Ours(NamedTuple):
+    """jaxvo's run on the demo scene and its scores."""
+
+    res: Any  # SequenceResult
+    row: dict  # trajectory scores, F-measure, steady ms/frame
+    seg: Any  # SegmentationScores at the grid
+    skipped: int  # frame pairs skipped
+    scan_steady: float  # seconds of a second, compiled run of the scan
+
+
+def _run_jaxvo(seq, cfg, seed: int, progress) -> _Ours:
+    """jaxvo on the scene, scored; its speed is the host flow plus a second, already
+    compiled run of the scan (steady state)."""
+    import time
+
+    import jax
+    import jax.numpy as jnp
+
+    from jaxvo.config import Params, params_as_arrays
+    from jaxvo.core.pipeline import run_scan
+    from jaxvo.evaluation.scores import segmentation_scores, trajectory_scores
+    from jaxvo.odometry import run_sequence
+    from jaxvo.status import Status
+
+    res = run_sequence(seq, cfg=cfg, seed=seed, progress=progress)
+    row = trajectory_scores(seq.groundtruth, res.trajectory)
+    seg = segmentation_scores(_Anchors(seq, res.frames), res.outputs.moving, cfg.cell)
+    row["f_measure"] = seg.f_measure
+    t0 = time.perf_counter()
+    jax.block_until_ready(run_scan(res.flows, jax.random.key(seed), params_as_arrays(Params()),
+                                   jnp.asarray(res.trajectory.poses[0], jnp.float32),
+                                   cfg=cfg, grid=res.grid))
+    scan_steady = time.perf_counter() - t0
+    row["ms_per_frame"] = 1e3 * (res.flow_seconds + scan_steady) / (len(res.frames) - 1)
+    skipped = int((res.outputs.status != Status.OK).sum())
+    return _Ours(res, row, seg, skipped, scan_steady)
+
+
+def _write_outputs(out, seq, res, cfg) -> None:
+    """The ground truth, jaxvo's trajectory and six overlays into ``out``."""
+    import jax
+
+    from jaxvo.host.io import write_image, write_trajectory
+    from jaxvo.host.masks import overlay_panel
+
+    write_trajectory(out / "groundtruth.txt", seq.groundtruth)
+    write_trajectory(out / "jaxvo.txt", res.trajectory)
+    n_pairs = len(res.frames) - 1
+    for k in range(0, n_pairs, max(1, n_pairs // 6)):
+        step_out = jax.tree.map(lambda a, k=k: a[k], res.outputs)
+        image = seq[int(res.frames[k])]  # the pair's labels lie on its first image
+        write_image(out / f"overlay_{image.timestamp:.6f}.png",
+                    overlay_panel(image.bgr, step_out, cfg.cell))
+
+
+def _print_table(rows: dict, ours: _Ours, out) -> None:
+    res, seg = ours.res, ours.seg
     print()
     print(f"  {'method':<13}{'ATE rmse':>10}{'RPE trans':>11}{'RPE rot':>10}{'F-measure':>11}{'ms/frame':>10}")
     print(f"  {'':<13}{'[m]':>10}{'[m/frame]':>11}{'[deg/fr]':>10}{'(grid)':>11}{'':>10}")
@@ -177,10 +208,9 @@ def run(args: argparse.Namespace) -> int:
     print()
     print(f"  segmentation: recall {seg.recall:.3f}, precision {seg.precision:.3f} "
           f"(moving = positive, {seg.frames} frames, at grid points)")
-    print(f"  jaxvo: {skipped} of {n_pairs} frame pairs skipped, {len(res.dropped)} frames "
-          f"dropped; flow {res.flow_seconds:.2f} s on the host, scan {scan_steady:.2f} s "
-          f"({res.scan_seconds:.1f} s on the first call, compile included); ms/frame are "
-          "steady state")
+    print(f"  jaxvo: {ours.skipped} of {len(res.frames) - 1} frame pairs skipped, "
+          f"{len(res.dropped)} frames dropped; flow {res.flow_seconds:.2f} s on the host, scan "
+          f"{ours.scan_steady:.2f} s ({res.scan_seconds:.1f} s on the first call, compile "
+          "included); ms/frame are steady state")
     if out:
         print(f"  trajectories and overlays written to {out}")
-    return 0

@@ -58,6 +58,40 @@ def add_arguments(p: argparse.ArgumentParser) -> None:
 def run(args: argparse.Namespace) -> int:
     import time
 
+    from jaxvo.host.progress import Progress
+    from jaxvo.study import runner as study
+    from jaxvo.study.report import write_report
+
+    spec, first = _start(args)
+    quiet = args.quiet or args.json or not first
+    progress = Progress("jaxvo study", enabled=not quiet, unit="config-frames")
+    start = time.perf_counter()
+    try:
+        res = study.run_spec(spec, args.out, resume=args.resume, flow_cache=args.flow_cache,
+                             batch=args.batch, progress=progress, log=progress.note)
+    except KeyboardInterrupt:
+        progress.close()
+        if first and (Path(args.out) / study.RUNS_FILE).is_file():
+            rows = study.finished_rows(spec, args.out)
+            write_report(spec, rows, args.out, plot=not args.no_plot)
+            print(f"jaxvo: {len(rows)} finished runs kept in {args.out}; continue with "
+                  "--resume", file=sys.stderr)
+        raise
+    progress.close()
+    if not first:
+        return 0
+    files = write_report(spec, res.rows, args.out, plot=not args.no_plot)
+    summary = _summary(args, spec, res, files, time.perf_counter() - start)
+    if args.json:
+        print(json.dumps(summary, indent=1))
+    else:
+        _print_summary(args, spec, res, summary)
+    return 0
+
+
+def _start(args: argparse.Namespace):
+    """The spec, read before JAX starts (a multi-process study must join before), the
+    devices set up and the processes joined; returns ``(spec, this is the first process)``."""
     from jaxvo.errors import InputError
     from jaxvo.study import runner as study
 
@@ -78,35 +112,15 @@ def run(args: argparse.Namespace) -> int:
             raise InputError(f"--cpu-devices must be at least 1, got {args.cpu_devices}")
         jax.config.update("jax_num_cpu_devices", args.cpu_devices)
     study.init_distributed(coordinator, nproc, pid)
-    first = jax.process_index() == 0
+    return spec, jax.process_index() == 0
 
-    from jaxvo.host.progress import Progress
-    from jaxvo.study.report import write_report
 
-    quiet = args.quiet or args.json or not first
-    progress = Progress("jaxvo study", enabled=not quiet, unit="config-frames")
-
-    start = time.perf_counter()
-    try:
-        res = study.run_spec(spec, args.out, resume=args.resume, flow_cache=args.flow_cache,
-                             batch=args.batch, progress=progress, log=progress.note)
-    except KeyboardInterrupt:
-        progress.close()
-        if first and (Path(args.out) / study.RUNS_FILE).is_file():
-            rows = study.finished_rows(spec, args.out)
-            write_report(spec, rows, args.out, plot=not args.no_plot)
-            print(f"jaxvo: {len(rows)} finished runs kept in {args.out}; continue with "
-                  "--resume", file=sys.stderr)
-        raise
-    progress.close()
-    if not first:
-        return 0
-    files = write_report(spec, res.rows, args.out, plot=not args.no_plot)
-    took = time.perf_counter() - start
+def _summary(args: argparse.Namespace, spec, res, files: dict, took: float) -> dict:
+    """What the study did, as the ``--json`` summary holds it."""
     steady_frames = res.config_frames - res.first_call_frames
     steady_s = res.seconds - res.first_call_seconds
     rate = steady_frames / steady_s if steady_s > 0 else None
-    summary = {
+    return {
         "study": spec.name,
         "out": str(args.out),
         "runs": len(res.rows),
@@ -126,9 +140,9 @@ def run(args: argparse.Namespace) -> int:
         "seconds": round(took, 2),
         "files": files,
     }
-    if args.json:
-        print(json.dumps(summary, indent=1))
-        return 0
+
+
+def _print_summary(args: argparse.Namespace, spec, res, summary: dict) -> None:
     print(f"jaxvo study: {spec.name}: {len(res.rows)} of {res.total} runs in {args.out} "
           f"({res.ran} this time; {len(spec.sequences)} sequences x {len(spec.configs)} "
           f"configurations x {len(spec.seeds)} seeds)")
@@ -137,14 +151,14 @@ def run(args: argparse.Namespace) -> int:
     batches = " / ".join(str(b) for b in res.batch) or "none (nothing left to run)"
     print(f"  devices    {res.devices} over {res.processes} process(es), {batches} "
           f"configurations per device and call ({sized})")
+    rate = summary["config_frames_per_second"]
     speed = "n/a (every call compiled)" if rate is None else f"{rate:.1f} configuration-frames/s"
     print(f"  speed      {speed} after the first call of each program; first calls "
           f"(compile included) {res.first_call_seconds:.1f} s, flow {res.flow_seconds:.1f} s, "
-          f"{took:.1f} s in all")
-    for name, what in files.items():
+          f"{summary['seconds']:.1f} s in all")
+    for name, what in summary["files"].items():
         if what != "written":
             print(f"  {name:10s} skipped: {what}")
     table = (Path(args.out) / "summary.md").read_text().splitlines()
     if len(table) <= 40:
         print("\n".join(table[2:]))
-    return 0

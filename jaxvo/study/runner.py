@@ -938,13 +938,82 @@ def run_spec(spec: StudySpec, out_dir: str | Path, *, resume: bool = False,
 
     out = Path(out_dir)
     first = jax.process_index() == 0
-    runs_path = out / RUNS_FILE
     cache = Path(flow_cache) if flow_cache is not None else out / "flows"
+    requested = batch or spec.batch
     runs, ids = spec_runs(spec)
+    done = _start(spec, out, cache, ids, resume=resume, requested=requested, first=first)
+    devices = study_devices()
+    # (sequence, Config) groups in spec order, each with its runs left
+    groups: dict[tuple[int, Config], list[int]] = {}
+    for k, r in enumerate(runs):
+        if not done[k]:
+            groups.setdefault((r.sequence, group_config(spec.configs[r.config])), []).append(k)
+    pairs = {q: _pairs(spec.sequences[q]) for q, _ in groups} if first else {}
+    tally = _Tally(total=sum(len(ks) * pairs[q] for (q, _), ks in groups.items()) if first else 0)
+    if progress is not None:
+        progress(0, tally.total)
+    for (q, cfg), ks in groups.items():
+        data = _group_data(spec.sequences[q], cfg, cache, tally, first=first, log=log)
+        t0 = time.perf_counter()
+        group_batch = call_batch(data, cfg, [spec.configs[runs[k].config] for k in ks],
+                                 requested=requested, devices=devices)
+        tally.seconds += time.perf_counter() - t0  # an accelerator's sizing compiles
+        tally.batches.add(group_batch)
+        per_call = group_batch * len(devices)
+        for start in range(0, len(ks), per_call):
+            chunk = [(ids[k], runs[k]) for k in ks[start:start + per_call]]
+            t0 = time.perf_counter()
+            outs = run_call(data, cfg, [spec.configs[r.config] for _, r in chunk],
+                            [r.seed for _, r in chunk], devices=devices, batch=group_batch)
+            tally.add_call(len(chunk), len(data.timestamps) - 1, time.perf_counter() - t0,
+                           program=(cfg, data.flows.valid.shape, data.height, data.width))
+            if first:
+                _append_runs(out / RUNS_FILE, _rows(spec, data, chunk, outs,
+                                                     tally.last_seconds))
+            if progress is not None:
+                progress(tally.frames, tally.total)
+    rows = finished_rows(spec, out) if first else []
+    return StudyResult(rows, len(runs), tally.ran, tally.frames, tally.seconds,
+                       tally.first_frames, tally.first_seconds, tally.flow_seconds,
+                       len(devices), jax.process_count(), tuple(sorted(tally.batches)))
+
+
+@dataclasses.dataclass
+class _Tally:
+    """What a study's calls have done so far (:class:`StudyResult`'s counters)."""
+
+    total: int  # configuration-frames of the runs left (the progress total)
+    ran: int = 0
+    frames: int = 0
+    seconds: float = 0.0
+    flow_seconds: float = 0.0
+    first_frames: int = 0  # of each program's first call, which compiles it
+    first_seconds: float = 0.0
+    last_seconds: float = 0.0
+    batches: set = dataclasses.field(default_factory=set)
+    programs: set = dataclasses.field(default_factory=set)
+
+    def add_call(self, runs: int, pairs: int, seconds: float, *, program: tuple) -> None:
+        self.ran += runs
+        self.frames += runs * pairs
+        self.seconds += seconds
+        self.last_seconds = seconds
+        if program not in self.programs:
+            self.programs.add(program)
+            self.first_frames += runs * pairs
+            self.first_seconds += seconds
+
+
+def _start(spec: StudySpec, out: Path, cache: Path, ids: list[str], *, resume: bool,
+           requested: int | None, first: bool) -> np.ndarray:
+    """Check the study on the first process (one line to every process on a problem), open
+    its folder, and say on every process which runs are already done (bool per run)."""
+    import jax
+
     done_ids: set[str] = set()
     problem = None
-    requested = batch or spec.batch
     if first:
+        runs_path = out / RUNS_FILE
         try:  # a problem is told to every process, which all stop
             # host memory: the CPU's calls hold default_batch configurations; an
             # accelerator's calls are sized to its own memory (call_batch)
@@ -960,75 +1029,40 @@ def run_spec(spec: StudySpec, out_dir: str | Path, *, resume: bool = False,
             out.mkdir(parents=True, exist_ok=True)
             (out / "spec.json").write_text(json.dumps(_spec_record(spec), indent=1) + "\n")
     _agree(problem)
-    done = _from_first(np.asarray([i in done_ids for i in ids], bool))
+    return _from_first(np.asarray([i in done_ids for i in ids], bool))
 
-    devices = study_devices()
-    batches: list[int] = []
-    # (sequence, Config) groups in spec order, each with its runs left
-    groups: dict[tuple[int, Config], list[int]] = {}
-    for k, r in enumerate(runs):
-        if not done[k]:
-            cfg = group_config(spec.configs[r.config])
-            groups.setdefault((r.sequence, cfg), []).append(k)
-    pairs = {q: _pairs(spec.sequences[q]) for q, _ in groups} if first else {}
-    total = sum(len(ks) * pairs[q] for (q, _), ks in groups.items()) if first else 0
-    done_frames = ran = first_frames = 0
-    seconds = flow_seconds = first_seconds = 0.0
-    compiled: set[tuple] = set()
-    if progress is not None:
-        progress(0, total)
-    for (q, cfg), ks in groups.items():
-        s = spec.sequences[q]
-        data = problem = None
-        if first:
-            t0 = time.perf_counter()
-            try:
-                data, cached = sequence_data(s, cfg, cache)
-            except InputError as exc:  # told to every process, which all stop
-                problem = exc
-            else:
-                flow_seconds += 0.0 if cached else time.perf_counter() - t0
-                if log is not None:
-                    log(f"{s.label}: {len(data.timestamps) - 1} frame pairs, flow " + (
-                        "from the cache" if cached else f"in {time.perf_counter() - t0:.1f} s"))
-        _agree(problem)
-        data = _share_data(data)
+
+def _group_data(s: SequenceSpec, cfg: Config, cache: Path, tally: _Tally, *, first: bool,
+                log: Callable[[str], None] | None) -> SequenceData:
+    """A sequence's flow under ``cfg`` on every process (read or computed by the first)."""
+    data = problem = None
+    if first:
         t0 = time.perf_counter()
-        group_batch = call_batch(data, cfg, [spec.configs[runs[k].config] for k in ks],
-                                 requested=requested, devices=devices)
-        seconds += time.perf_counter() - t0  # an accelerator's sizing compiles the program
-        batches.append(group_batch)
-        per_call = group_batch * len(devices)
-        for start in range(0, len(ks), per_call):
-            chunk = [runs[k] for k in ks[start:start + per_call]]
-            t0 = time.perf_counter()
-            T_w_c, moving, status = run_call(data, cfg, [spec.configs[r.config] for r in chunk],
-                                             [r.seed for r in chunk], devices=devices,
-                                             batch=group_batch)
+        try:
+            data, cached = sequence_data(s, cfg, cache)
+        except InputError as exc:  # told to every process, which all stop
+            problem = exc
+        else:
             took = time.perf_counter() - t0
-            seconds += took
-            ran += len(chunk)
-            done_frames += len(chunk) * (len(data.timestamps) - 1)
-            program = (cfg, data.flows.valid.shape, data.height, data.width)
-            if program not in compiled:
-                compiled.add(program)
-                first_frames += len(chunk) * (len(data.timestamps) - 1)
-                first_seconds += took
-            if first:
-                new = []
-                for j, r in enumerate(chunk):
-                    row = {"id": ids[ks[start + j]], "sequence": s.label,
-                           **spec.configs[r.config], "seed": r.seed,
-                           **score_run(data, T_w_c[j], moving[j], status[j])}
-                    row["seconds"] = took / len(chunk)
-                    new.append(row)
-                _append_runs(runs_path, new)
-            if progress is not None:
-                progress(done_frames, total)
-    rows = finished_rows(spec, out) if first else []
-    return StudyResult(rows, len(runs), ran, done_frames, seconds, first_frames, first_seconds,
-                       flow_seconds, len(devices), jax.process_count(),
-                       tuple(sorted(set(batches))))
+            tally.flow_seconds += 0.0 if cached else took
+            if log is not None:
+                log(f"{s.label}: {len(data.timestamps) - 1} frame pairs, flow " + (
+                    "from the cache" if cached else f"in {took:.1f} s"))
+    _agree(problem)
+    return _share_data(data)
+
+
+def _rows(spec: StudySpec, data: SequenceData, chunk: list[tuple[str, Run]], outs,
+          seconds: float) -> list[dict]:
+    """The table rows of one call's runs: identity, settings, seed and scores."""
+    T_w_c, moving, status = outs
+    rows = []
+    for j, (run_id_, r) in enumerate(chunk):
+        row = {"id": run_id_, "sequence": data.label, **spec.configs[r.config], "seed": r.seed,
+               **score_run(data, T_w_c[j], moving[j], status[j])}
+        row["seconds"] = seconds / len(chunk)
+        rows.append(row)
+    return rows
 
 
 def spec_runs(spec: StudySpec) -> tuple[list[Run], list[str]]:
