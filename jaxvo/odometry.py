@@ -35,7 +35,7 @@ from jaxvo.flow import (
 from jaxvo.io import Trajectory, pose_at
 from jaxvo.pipeline import StepOutput, init_pipeline, jit_step, run_scan
 from jaxvo.status import Status
-from jaxvo.window import window_trajectory
+from jaxvo.window import final_poses, window_trajectory
 
 
 class FrameResult(NamedTuple):
@@ -147,13 +147,10 @@ class Odometry:
         :attr:`trajectory` without a window)."""
         if self._window is None:
             return self.trajectory
-        poses = list(self._final) + [None] * (len(self.poses) - len(self._final))
-        for frame, T in zip(*self._window):
-            if len(self._final) <= frame < len(poses):
-                poses[frame] = T
-        poses = [self.poses[i] if T is None else T for i, T in enumerate(poses)]
-        return Trajectory(np.asarray(self.timestamps, np.float64),
-                          np.asarray(poses).reshape(-1, 4, 4))
+        final = np.asarray(self._final).reshape(-1, 4, 4)
+        poses = final_poses(np.arange(len(final)), final, *self._window,
+                            np.asarray(self.poses).reshape(-1, 4, 4))
+        return Trajectory(np.asarray(self.timestamps, np.float64), np.asarray(poses, np.float64))
 
     def process(self, bgr: np.ndarray, depth: np.ndarray, timestamp: float | None = None):
         """Feed one frame and get its result.

@@ -253,7 +253,8 @@ def test_model_noise_at_every_depth_is_one_segment(seg, params):
     fewer (0.94 here, 0.73-0.98 over scene seeds 7-10): its motion is refitted with equal
     weights on its inliers (spatial._refine, _cluster_refine), so the far points' wide
     noise pulls it by a millimetre or two, beyond the near points' tight noise."""
-    from jaxvo.spatial import _res, frame_points
+    from jaxvo.noise import frame_points
+    from jaxvo.spatial import _res
 
     rng = np.random.default_rng(7)
     rows, cols = GRID
@@ -405,7 +406,8 @@ def test_leftover_points_become_a_segment_only_when_they_move_apart(params, case
     """A moving block that no kept segment explains (as when joint refinement has lost it)
     becomes a segment of its own; leftovers that move as a kept segment does, or that are
     too few, do not."""
-    from jaxvo.spatial import _leftover_segment, _res, frame_points
+    from jaxvo.noise import frame_points
+    from jaxvo.spatial import _leftover_segment, _res
 
     prev, cur, valid, truth = make_scene(4, TWO)
     n_slots = CFG.max_segments
@@ -447,7 +449,7 @@ def test_ties_in_the_cluster_refinement_go_to_the_better_fit():
     keeps them with the segment of the most inliers. Residuals in noise units: the wall's
     own motion leaves chi-square noise, the object's adds an offset of 4, within the tie
     test (chi2_1 at 0.99, 6.6) of it."""
-    from jaxvo.noise import chi2_quantile
+    from jaxvo.robust import chi2_quantile
     from jaxvo.spatial import _assign
 
     n_wall, n_obj = 40, 60
