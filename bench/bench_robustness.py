@@ -187,11 +187,14 @@ def score(case: Case, data: dict, traj, outs, final_ids, cache: Path, cfg: Confi
             res["best_peer_ate_m"] = peers[best]["ate_rmse_m"]
             res["ate_over_best_peer"] = res["ate_rmse_m"] / max(peers[best]["ate_rmse_m"], 1e-12)
     if "grid_gt" in data:
-        s = SegmentationScores()
-        for k in range(len(moving)):
-            s.add(moving[k], data["grid_gt"][k])
-        res.update({f"moving_{k}": v for k, v in s.as_dict().items()
-                    if k in ("recall", "precision", "f_measure")})
+        # the moving cells, and the identifiers' own notion (>= 2: an object), which the
+        # label masks and overlays show
+        for name, pred in (("moving", moving), ("ids", np.asarray(outs.ids) >= 2)):
+            s = SegmentationScores()
+            for k in range(len(pred)):
+                s.add(pred[k], data["grid_gt"][k])
+            res.update({f"{name}_{k}": v for k, v in s.as_dict().items()
+                        if k in ("recall", "precision", "f_measure")})
     if case.kind == "people":
         res.update(people_scores(case, masks, h, w, cfg))
     return res
@@ -244,7 +247,8 @@ def _fmt(x, spec=".3f"):
 
 def table(rows: list[dict]) -> str:
     head = ["case", "split", "ATE mm", "best peer mm", "ratio", "RPE mm/frame", "F", "recall",
-            "precision", "moving cells %", "mask px % (max)", "skipped (no static)", "re-acq"]
+            "precision", "ids F (P)", "moving cells %", "mask px % (max)", "skipped (no static)",
+            "re-acq"]
     cells = []
     for r in rows:
         ate, peer, rpe = r.get("ate_rmse_m"), r.get("best_peer_ate_m"), r.get("rpe_trans_m_per_frame")
@@ -252,7 +256,10 @@ def table(rows: list[dict]) -> str:
             r["case"], r["split"], _fmt(ate and 1e3 * ate, ".1f"), _fmt(peer and 1e3 * peer, ".1f"),
             _fmt(r.get("ate_over_best_peer"), ".2f"), _fmt(rpe and 1e3 * rpe, ".2f"),
             _fmt(r.get("moving_f_measure")), _fmt(r.get("moving_recall")),
-            _fmt(r.get("moving_precision")), f"{r['moving_cells_pct']:.2f}",
+            _fmt(r.get("moving_precision")),
+            "-" if r.get("ids_f_measure") is None
+            else f"{r['ids_f_measure']:.3f} ({r['ids_precision']:.3f})",
+            f"{r['moving_cells_pct']:.2f}",
             f"{r['dynamic_pixels_pct']:.2f} ({r['dynamic_pixels_pct_max']:.1f})",
             f"{sum(r['skipped'].values())} ({r['skipped_no_static']})",
             str(r.get("reacquired", "-"))])
