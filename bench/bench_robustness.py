@@ -70,17 +70,7 @@ def prepare(case: Case, cache: Path, cfg: Config) -> dict:
         z = np.load(path, allow_pickle=False)
         data = {k: z[k] for k in z.files if k != "grid_gt"}
     else:
-        log(f"{case.name}: building the sequence and its flow (cached in {path})")
-        seq = case.build()
-        flows = flows_for_sequence(seq, cfg)
-        data = {f"flow_{k}": np.asarray(v) for k, v in flows._asdict().items()}
-        data["timestamps"] = np.asarray(seq.timestamps, np.float64)
-        data["size"] = np.array([seq.height, seq.width])
-        gt = seq.groundtruth
-        if gt is not None and len(gt) == len(seq):
-            data["gt_poses"] = np.asarray(gt.poses, np.float64)
-        cache.mkdir(parents=True, exist_ok=True)
-        np.savez_compressed(path, **data)
+        data, seq = build_flow(case, path, cfg)
         if "gt_poses" in data:  # the peers alone, once (they do not depend on jaxvo)
             peers_alone(case, cache, seq)
     if case.kind in ("synthetic", "composite"):
@@ -91,6 +81,23 @@ def prepare(case: Case, cache: Path, cfg: Config) -> dict:
                 [moving_grid_truth(seq, k, cfg.cell) for k in range(len(seq))]))
         data["grid_gt"] = np.load(truth)["grid_gt"]
     return data
+
+
+def build_flow(case: Case, path: Path, cfg: Config):
+    """The case's flows, timestamps, image size and ground truth, computed and saved at
+    ``path``: ``(data, sequence)``."""
+    log(f"{case.name}: building the sequence and its flow (cached in {path})")
+    seq = case.build()
+    flows = flows_for_sequence(seq, cfg)
+    data = {f"flow_{k}": np.asarray(v) for k, v in flows._asdict().items()}
+    data["timestamps"] = np.asarray(seq.timestamps, np.float64)
+    data["size"] = np.array([seq.height, seq.width])
+    gt = seq.groundtruth
+    if gt is not None and len(gt) == len(seq):
+        data["gt_poses"] = np.asarray(gt.poses, np.float64)
+    path.parent.mkdir(parents=True, exist_ok=True)
+    np.savez_compressed(path, **data)
+    return data, seq
 
 
 # An object moves in a frame pair when a corner of its box moves by more than this (metres):

@@ -24,12 +24,10 @@ from pathlib import Path
 import numpy as np
 
 sys.path.insert(0, str(Path(__file__).resolve().parent))
-from _common import log
-from bench_robustness import _flow_key, run_jaxvo
+from bench_robustness import _flow_key, build_flow, run_jaxvo
 from splits import available, cases
 
 from jaxvo.config import Config, Params
-from jaxvo.flow import flows_for_sequence
 
 FIELDS = ("T_w_c", "ids", "moving", "dynamic", "labels", "evidence")
 
@@ -40,18 +38,7 @@ def cached_flow(case, cache: Path, cfg: Config) -> dict:
     if path.is_file():
         z = np.load(path, allow_pickle=False)
         return {k: z[k] for k in z.files if k != "grid_gt"}
-    log(f"{case.name}: building the sequence and its flow (cached in {path})")
-    seq = case.build()
-    flows = flows_for_sequence(seq, cfg)
-    data = {f"flow_{k}": np.asarray(v) for k, v in flows._asdict().items()}
-    data["timestamps"] = np.asarray(seq.timestamps, np.float64)
-    data["size"] = np.array([seq.height, seq.width])
-    gt = seq.groundtruth
-    if gt is not None and len(gt) == len(seq):
-        data["gt_poses"] = np.asarray(gt.poses, np.float64)
-    cache.mkdir(parents=True, exist_ok=True)
-    np.savez_compressed(path, **data)
-    return data
+    return build_flow(case, path, cfg)[0]
 
 
 def _sha(*arrays) -> str:
