@@ -58,19 +58,16 @@ def test_the_constants_against_scipy():
     assert CHI2_1_MEDIAN == pytest.approx(stats.chi2.median(1), abs=1e-5)
     assert CHI2_2_MEDIAN == pytest.approx(stats.chi2.median(2), abs=1e-5)
     assert MAD_SIGMA == pytest.approx(1.0 / stats.norm.ppf(0.75), abs=1e-4)
-    # the Wilson-Hilferty lower quartile's square root (1.10784; 5e-4: the value written
-    # is 1.1081), 0.6 % above the exact 1.1012
-    assert CHI_3_Q25 == pytest.approx(float(chi2_quantile(3, 0.25)) ** 0.5, abs=5e-4)
-    assert CHI_3_Q25 == pytest.approx(stats.chi2.ppf(0.25, 3) ** 0.5, rel=0.007)
+    # the lower quartile's square root, exact to the 5 decimals written
+    assert CHI_3_Q25 == pytest.approx(stats.chi2.ppf(0.25, 3) ** 0.5, abs=1e-5)
 
 
 # ------------------------------------------------------------------ scales
 
 
 def test_quantile_scale_is_the_noise_scale_of_pure_noise():
-    """The lower quartile of 3-D Gaussian lengths over CHI_3_Q25 is sigma: within 1 %
-    (20000 samples: the quartile's standard error is about 0.4 %; plus the constant's
-    0.6 % Wilson-Hilferty offset, the exact quartile being 1.1012)."""
+    """The lower quartile of 3-D Gaussian lengths over CHI_3_Q25 is sigma: within 1.2 %
+    (20000 samples: the quartile's standard error is about 0.4 %, three of them)."""
     rng = np.random.default_rng(0)
     sigma = 0.37
     r = np.linalg.norm(rng.normal(0, sigma, (20000, 3)), axis=1).astype(np.float32)
