@@ -39,6 +39,7 @@ from jaxvo.temporal import (
     measured_labels,
     moving_evidence,
     moving_logodds,
+    reported_ids,
     update_background,
     update_temporal,
 )
@@ -66,7 +67,9 @@ class StepOutput(NamedTuple):
     T_w_c: jax.Array  # (4, 4) float32, pose of the current camera
     T_cur_prev: jax.Array  # (4, 4) float32, motion of the static background (carried: predicted)
     status: jax.Array  # () int32 Status code, OK or why the motion was carried
-    ids: jax.Array  # (n,) int32 temporal identifiers: 0 unknown, 1 static, >1 moving objects
+    # (n,) int32 identifiers: 0 unknown, 1 static, >= 2 the moving object (exactly where
+    # `moving`; max_ids + 1 moving, not yet named), jaxvo.temporal.reported_ids
+    ids: jax.Array
     moving: jax.Array  # (n,) bool points reported as moving (evidence over time)
     dynamic: jax.Array  # (n,) bool cells of the plug-in mask: moving, and their unmeasured neighbours
     static: jax.Array  # (n,) bool, points the ego-motion used (static, valid, inlier)
@@ -137,19 +140,20 @@ def step(state: PipelineState, flow, key, params: Params, *, cfg: Config, grid,
         window, wout = update_window(state.window, flow, pts, eo.T_cur_prev, eo.used, noise,
                                      params, cfg=cfg, grid=grid)
         ego = ego._replace(T_w_c=wout.T_w_c[-1])
-    out = _output(ego, eo, seg, bg, tout, noise, wout, pts.valid, params, grid=grid)
+    out = _output(ego, eo, seg, bg, tout, noise, wout, pts.valid, params, cfg=cfg, grid=grid)
     return PipelineState(temporal, ego, state.frame + 1, noise, window), out
 
 
 def _output(ego: EgoState, eo, seg: Segmentation, bg: BackgroundOut, tout: TemporalOut,
-            noise, wout, valid, params: Params, *, grid) -> StepOutput:
-    """The step's :class:`StepOutput` from its stages' outputs."""
+            noise, wout, valid, params: Params, *, cfg: Config, grid) -> StepOutput:
+    """The step's :class:`StepOutput` from its stages' outputs: one notion of moving, the
+    evidence (``moving``), which the identifiers and the mask cells follow."""
     moving = tout.evidence > moving_logodds(params)
     return StepOutput(
         T_w_c=ego.T_w_c,
         T_cur_prev=eo.T_cur_prev,
         status=eo.status,
-        ids=tout.ids,
+        ids=reported_ids(tout.ids, tout.matched, moving, cfg=cfg),
         moving=moving,
         dynamic=grow_moving(moving, ~valid & (tout.evidence > -moving_logodds(params)),
                             grid=grid, steps=1),

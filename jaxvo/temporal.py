@@ -469,6 +469,22 @@ def _permute_identifiers(state: TemporalState, perm):
     )
 
 
+def reported_ids(ids, matched, moving, *, cfg: Config):
+    """(n,) int32 the identifiers every output reports: an object's identifier (>= 2)
+    exactly where the cell is reported moving (``moving`` (n,) bool, its evidence), so that
+    the identifiers, the masks, the overlays and the scores agree on what moves.
+
+    Which object a moving cell is: its temporal identifier ``ids`` (n,) where that names
+    an object, else this frame's matched measurement ``matched`` (n,), else ``max_ids + 1``
+    (moving, not yet named). A cell that is not moving reports the background (1) where
+    its identifier names an object (a region the object has left keeps the object's
+    identifier in the grid model until the model is updated there; a stopped object), else
+    its own identifier (0 unknown, 1 static).
+    """
+    name = jnp.where(ids >= 2, ids, jnp.where(matched >= 2, matched, cfg.max_ids + 1))
+    return jnp.where(moving, name, jnp.where(ids >= 2, STATIC_ID, ids)).astype(jnp.int32)
+
+
 def moving_logodds(params: Params):
     """The log-odds above which a cell is reported moving: its posterior exceeds the
     confidence of the tests (``logit(confidence)``)."""

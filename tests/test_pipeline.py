@@ -46,6 +46,9 @@ def test_scan_gives_one_pose_per_frame_and_finite(scan_result, seq):
     traj = scan_result.trajectory
     assert traj.poses.shape == (len(seq), 4, 4)
     assert np.all(np.isfinite(traj.poses))
+    # the identifiers name an object exactly where the cells are reported moving
+    outs = scan_result.outputs
+    np.testing.assert_array_equal(np.asarray(outs.ids) >= 2, np.asarray(outs.moving))
     np.testing.assert_allclose(traj.poses[0], seq.groundtruth.poses[0], atol=1e-12)
     # every pose stays a rigid transform (R orthonormal to 1e-4, float32 chain)
     R = traj.poses[:, :3, :3]
@@ -325,8 +328,10 @@ def test_a_box_over_half_the_view_never_takes_the_background(box_starts):
     reacquired = [bool(o.reacquired) for o in outs]
     assert reacquired == [k == box_starts and k > 0 for k in range(8)]
     assert outs[-1].moving[BOX].mean() > 0.9
-    assert set(np.unique(outs[-1].ids[~BOX])) == {1}
-    assert 1 not in set(np.unique(outs[-1].ids[BOX]))
+    ids, moving = outs[-1].ids, outs[-1].moving
+    np.testing.assert_array_equal(ids >= 2, moving)  # one notion of moving
+    assert set(np.unique(ids[~BOX])) == {1}
+    assert len(set(np.unique(ids[BOX & moving]))) == 1  # the box, by one identifier
 
 
 # ------------------------------------------------------------------ the pieces of the step

@@ -810,6 +810,19 @@ def test_evidence_delta_signs_and_clip():
     assert got[4] == -step_ and -step_ < got[5] < 0 and got[6] == 0.0 and got[8] == 0.0
 
 
+def test_reported_ids_name_an_object_exactly_where_cells_move():
+    from jaxvo.temporal import reported_ids
+
+    ids = jnp.asarray([0, 1, 2, 3, 1, 0, 2, 1], jnp.int32)
+    matched = jnp.asarray([0, 1, 2, 4, 5, 0, 0, 0], jnp.int32)
+    moving = jnp.asarray([False, False, False, True, True, True, True, False])
+    got = np.asarray(reported_ids(ids, matched, moving, cfg=CFG))
+    # not moving: an object's identifier reports the background; moving: the temporal
+    # identifier, else the matched one, else max_ids + 1 (moving, not yet named)
+    np.testing.assert_array_equal(got, [0, 1, 1, 3, 5, CFG.max_ids + 1, 2, 1])
+    np.testing.assert_array_equal(got >= 2, np.asarray(moving))
+
+
 # ---------------------------------------------------------------- jax behaviour
 
 
