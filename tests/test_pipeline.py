@@ -79,6 +79,7 @@ def test_same_seed_same_trajectory_bit_for_bit(scan_result, seq):
     np.testing.assert_array_equal(again.outputs.ids, scan_result.outputs.ids)
 
 
+@pytest.mark.slow
 def test_streaming_matches_scan_and_compiles_once(scan_result, seq):
     gt = seq.groundtruth
     odo = Odometry(seq.intrinsics, cfg=CFG, seed=7, T_w_c0=gt.poses[0])
@@ -122,6 +123,7 @@ def test_pipelined_submit_gives_the_results_of_process_one_frame_late(seq):
     assert list(piped.trajectory.timestamps[-2:]) == [9.0, 10.0] and r.timestamp == 10.0
 
 
+@pytest.mark.slow
 def test_study_vmaps_seeds_and_params_and_matches_single_runs(flows, seq, scan_result):
     grid = grid_shape(seq.height, seq.width, CFG.cell)
     T0 = jnp.asarray(seq.groundtruth.poses[0], jnp.float32)
@@ -163,6 +165,7 @@ def test_streaming_drops_a_frame_of_another_size_and_pairs_across_it(seq):
     np.testing.assert_array_equal(odo.trajectory.timestamps, [f0.timestamp, f2.timestamp])
 
 
+@pytest.mark.slow
 def test_streaming_and_scan_drop_the_same_frame_and_agree(seq):
     """A black frame: both modes drop it (no pose), pair the next frame with the last good
     one and give the same poses (float32 rounding, 1e-4 m)."""
@@ -192,6 +195,7 @@ def test_streaming_and_scan_drop_the_same_frame_and_agree(seq):
     np.testing.assert_allclose(odo.trajectory.poses, res.trajectory.poses, atol=1e-4)
 
 
+@pytest.mark.slow
 def test_fast_real_motion_keeps_the_background_identified(require_data):
     """7-Scenes at every fourth frame (about 28 mm and 1.6 deg a frame, a third of the grid
     measured): the static scene's background stays matched to identifier 1 in every frame,
@@ -277,6 +281,7 @@ def run_hand(flows, seed=0):
     return state, outs
 
 
+@pytest.mark.slow
 def test_a_failed_pair_carries_the_predicted_motion_never_a_frozen_camera():
     """A pair without a motion of its own (unreadable, or no valid flow) carries the last
     accepted ego-motion, bit for bit, and chains it into the pose; only before any motion

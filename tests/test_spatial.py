@@ -174,6 +174,7 @@ def check_scene(out, scene, n_motions):
     return scores
 
 
+@pytest.mark.slow
 def test_two_motions(seg, params):
     scene = make_scene(0, TWO)
     out = run(seg, 0, scene, params)
@@ -206,6 +207,7 @@ def test_search_stops_once_every_point_is_explained(seg, params):
     assert 2 <= int(out.num_hypotheses) < CFG.num_hypotheses
 
 
+@pytest.mark.slow
 def test_a_batch_stops_its_search_together_with_the_same_results(seg, params):
     """Under vmap with ``batch_axis`` a trip runs for the whole batch until every frame is
     done; for a frame already done it must change nothing. One frame is explained after

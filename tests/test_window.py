@@ -388,6 +388,7 @@ def test_an_empty_window_gives_finite_poses_that_follow_the_given_motions():
 # ------------------------------------------------------------------------ compilation
 
 
+@pytest.mark.slow
 class JitTest(chex.TestCase):
     @chex.variants(with_jit=True, without_jit=True)
     def test_update_agrees_with_and_without_jit(self):
@@ -441,6 +442,7 @@ def short_sequence():
     return make_sequence("handheld_slow", frames=10, seed=3)
 
 
+@pytest.mark.slow
 def test_scan_streaming_and_study_agree_with_the_window(short_sequence):
     from jaxvo.config import grid_shape
     from jaxvo.flow import flows_for_sequence
@@ -475,6 +477,7 @@ def test_scan_streaming_and_study_agree_with_the_window(short_sequence):
     np.testing.assert_allclose(study[1:], res.trajectory.poses[1:], atol=1e-4)
 
 
+@pytest.mark.slow
 def test_without_the_window_the_step_is_unchanged(short_sequence):
     from jaxvo.odometry import run_sequence
 
@@ -512,6 +515,7 @@ def test_jaxvo_run_rejects_a_window_no_run_can_use(window, tmp_path, capsys):
     assert "--window" in capsys.readouterr().err
 
 
+@pytest.mark.slow
 def test_a_study_with_the_window_scores_the_final_poses(tmp_path):
     from jaxvo import study
     from jaxvo.evaluation import trajectory_scores
