@@ -123,7 +123,7 @@ class Params(NamedTuple):
     # after about this many frames, a stopped object turns static after as many
     max_age: float = 15.0
     id_retention: float = 15.0  # frames before an unseen identifier may be reused
-    # moving evidence of a cell (pipeline.evidence_delta, temporal.update_evidence): a
+    # moving evidence of a cell (temporal.evidence_delta, temporal.update_evidence): a
     # point that moves has residuals about evidence_effect times the noise; one frame
     # shifts the log-odds by at most evidence_step; the evidence decays by evidence_decay
     # a frame and stays within +-(logit(confidence) + evidence_margin); a cell is reported
