@@ -42,6 +42,7 @@ def scan_result(seq):
     return run_sequence(seq, cfg=CFG, seed=7)
 
 
+@pytest.mark.slow
 def test_scan_gives_one_pose_per_frame_and_finite(scan_result, seq):
     traj = scan_result.trajectory
     assert traj.poses.shape == (len(seq), 4, 4)
@@ -56,6 +57,7 @@ def test_scan_gives_one_pose_per_frame_and_finite(scan_result, seq):
                                atol=1e-4)
 
 
+@pytest.mark.slow
 def test_scan_accuracy_is_near_what_was_measured_and_far_better_than_a_peer(scan_result, seq):
     """End to end against the exact ground truth, bounded near the measured figure (so a
     regression of a few tenths of a millimetre shows): ATE 0.16 mm measured (handheld_slow,
@@ -73,6 +75,7 @@ def test_scan_accuracy_is_near_what_was_measured_and_far_better_than_a_peer(scan
     assert jaxvo_ate < 0.1 * peer_ate, (jaxvo_ate, peer_ate)
 
 
+@pytest.mark.slow
 def test_same_seed_same_trajectory_bit_for_bit(scan_result, seq):
     again = run_sequence(seq, cfg=CFG, seed=7)
     np.testing.assert_array_equal(again.trajectory.poses, scan_result.trajectory.poses)

@@ -328,6 +328,7 @@ def test_nan_points_count_as_invalid(seg, params):
     assert int(out.status) == Status.OK and int(out.num_segments) == 2
 
 
+@pytest.mark.slow
 def test_vmap_over_params_without_recompiling():
     traces = []
 
