@@ -71,17 +71,7 @@ def prepare(case: Case, cache: Path, cfg: Config) -> dict:
         z = np.load(path, allow_pickle=False)
         data = {k: z[k] for k in z.files if k != "grid_gt"}
     else:
-        log(f"{case.name}: building the sequence and its flow (cached in {path})")
-        seq = case.build()
-        flows = flows_for_sequence(seq, cfg)
-        data = {f"flow_{k}": np.asarray(v) for k, v in flows._asdict().items()}
-        data["timestamps"] = np.asarray(seq.timestamps, np.float64)
-        data["size"] = np.array([seq.height, seq.width])
-        gt = seq.groundtruth
-        if gt is not None and len(gt) == len(seq):
-            data["gt_poses"] = np.asarray(gt.poses, np.float64)
-        cache.mkdir(parents=True, exist_ok=True)
-        np.savez_compressed(path, **data)
+        data, seq = build_flow(case, path, cfg)
         if "gt_poses" in data:  # the peers alone, once (they do not depend on jaxvo)
             peers_alone(case, cache, seq)
     if case.kind in ("synthetic", "composite"):
@@ -92,6 +82,23 @@ def prepare(case: Case, cache: Path, cfg: Config) -> dict:
                 [moving_grid_truth(seq, k, cfg.cell) for k in range(len(seq))]))
         data["grid_gt"] = np.load(truth)["grid_gt"]
     return data
+
+
+def build_flow(case: Case, path: Path, cfg: Config):
+    """The case's flows, timestamps, image size and ground truth, computed and saved at
+    ``path``: ``(data, sequence)``."""
+    log(f"{case.name}: building the sequence and its flow (cached in {path})")
+    seq = case.build()
+    flows = flows_for_sequence(seq, cfg)
+    data = {f"flow_{k}": np.asarray(v) for k, v in flows._asdict().items()}
+    data["timestamps"] = np.asarray(seq.timestamps, np.float64)
+    data["size"] = np.array([seq.height, seq.width])
+    gt = seq.groundtruth
+    if gt is not None and len(gt) == len(seq):
+        data["gt_poses"] = np.asarray(gt.poses, np.float64)
+    path.parent.mkdir(parents=True, exist_ok=True)
+    np.savez_compressed(path, **data)
+    return data, seq
 
 
 # An object moves in a frame pair when a corner of its box moves by more than this (metres):
@@ -199,11 +206,14 @@ def score(case: Case, data: dict, traj, outs, final_ids, cache: Path, cfg: Confi
                 o = peers[orbslam3_peer.NAME]
                 res["orbslam3_ate_m"], res["orbslam3_ms_per_frame"] = o["ate_rmse_m"], o["ms_per_frame"]
     if "grid_gt" in data:
-        s = SegmentationScores()
-        for k in range(len(moving)):
-            s.add(moving[k], data["grid_gt"][k])
-        res.update({f"moving_{k}": v for k, v in s.as_dict().items()
-                    if k in ("recall", "precision", "f_measure")})
+        # the moving cells, and the identifiers' own notion (>= 2: an object), which the
+        # label masks and overlays show
+        for name, pred in (("moving", moving), ("ids", np.asarray(outs.ids) >= 2)):
+            s = SegmentationScores()
+            for k in range(len(pred)):
+                s.add(pred[k], data["grid_gt"][k])
+            res.update({f"{name}_{k}": v for k, v in s.as_dict().items()
+                        if k in ("recall", "precision", "f_measure")})
     if case.kind == "people":
         res.update(people_scores(case, masks, h, w, cfg))
     return res
@@ -256,8 +266,8 @@ def _fmt(x, spec=".3f"):
 
 def table(rows: list[dict]) -> str:
     head = ["case", "split", "ATE mm", "best OpenCV peer mm", "ratio", "ORB-SLAM3 mm (ms/frame)",
-            "RPE mm/frame", "F", "recall",
-            "precision", "moving cells %", "mask px % (max)", "skipped (no static)", "re-acq"]
+            "RPE mm/frame", "F", "recall", "precision", "ids F (P)", "moving cells %",
+            "mask px % (max)", "skipped (no static)", "re-acq"]
     cells = []
     for r in rows:
         ate, peer, rpe = r.get("ate_rmse_m"), r.get("best_peer_ate_m"), r.get("rpe_trans_m_per_frame")
@@ -268,7 +278,10 @@ def table(rows: list[dict]) -> str:
              if "orbslam3_ate_m" in r else "-"),
             _fmt(rpe and 1e3 * rpe, ".2f"),
             _fmt(r.get("moving_f_measure")), _fmt(r.get("moving_recall")),
-            _fmt(r.get("moving_precision")), f"{r['moving_cells_pct']:.2f}",
+            _fmt(r.get("moving_precision")),
+            "-" if r.get("ids_f_measure") is None
+            else f"{r['ids_f_measure']:.3f} ({r['ids_precision']:.3f})",
+            f"{r['moving_cells_pct']:.2f}",
             f"{r['dynamic_pixels_pct']:.2f} ({r['dynamic_pixels_pct_max']:.1f})",
             f"{sum(r['skipped'].values())} ({r['skipped_no_static']})",
             str(r.get("reacquired", "-"))])

@@ -20,7 +20,7 @@ import numpy as np
 from _common import machine_line
 
 from jaxvo.config import Config, Params, grid_shape, params_as_arrays
-from jaxvo.core.temporal import init_temporal, update_temporal
+from jaxvo.core.temporal import identify, init_temporal, measured_labels, update_temporal
 
 
 class Seg(NamedTuple):
@@ -60,6 +60,16 @@ def make_inputs(num, grid, cfg, seed=0):
     return out
 
 
+def temporal_frame(state, seg, disp, valid, params, *, cfg, grid):
+    """One frame of the temporal stage: Algorithm 3's identifiers, then the update (no
+    background choice, no segment explained by the ego-motion, no evidence)."""
+    labels = measured_labels(seg, valid, cfg=cfg)
+    return update_temporal(state, labels, disp, valid, params, cfg=cfg, grid=grid,
+                           segment_ids=identify(state, labels, params, cfg=cfg),
+                           explained=jnp.zeros((cfg.max_segments,), bool),
+                           evidence_delta=jnp.zeros(valid.shape, jnp.float32))
+
+
 def main():
     ap = argparse.ArgumentParser(description=__doc__.splitlines()[0])
     ap.add_argument("--frames", type=int, default=200, help="steady-state frames timed")
@@ -69,7 +79,7 @@ def main():
     grid = grid_shape(480, 640, cfg.cell)
     params = params_as_arrays(Params())
     inputs = make_inputs(50, grid, cfg)
-    step = jax.jit(update_temporal, static_argnames=("cfg", "grid"))
+    step = jax.jit(temporal_frame, static_argnames=("cfg", "grid"))
 
     state = init_temporal(cfg=cfg, grid=grid)
     t0 = time.perf_counter()

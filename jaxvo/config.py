@@ -139,7 +139,7 @@ class Params(NamedTuple):
     # identifiers have been used and a new motion needs one (objects that come and go
     # over a long sequence): on the built-in scenes it changes no bit of any run
     id_retention: float = 15.0
-    # moving evidence of a cell (pipeline.evidence_delta, temporal.update_evidence): a
+    # moving evidence of a cell (temporal.evidence_delta, temporal.update_evidence): a
     # point that moves has residuals about evidence_effect times the noise; one frame
     # shifts the log-odds by at most evidence_step; the evidence decays by evidence_decay
     # a frame and stays within +-(logit(confidence) + evidence_margin); a cell is reported

@@ -26,7 +26,7 @@ import numpy as np
 
 from jaxvo.config import Config, Params, check_config, check_params, grid_shape, params_as_arrays
 from jaxvo.core.pipeline import StepOutput, init_pipeline, jit_step, run_scan
-from jaxvo.core.window import window_trajectory
+from jaxvo.core.window import final_poses, window_trajectory
 from jaxvo.errors import InputError
 from jaxvo.host.camera import Intrinsics, as_intrinsics, check_intrinsics, depth_metres
 from jaxvo.host.flow import (
@@ -159,13 +159,10 @@ class Odometry:
         :attr:`trajectory` without a window)."""
         if self._window is None:
             return self.trajectory
-        poses = list(self._final) + [None] * (len(self.poses) - len(self._final))
-        for frame, T in zip(*self._window):
-            if len(self._final) <= frame < len(poses):
-                poses[frame] = T
-        poses = [self.poses[i] if T is None else T for i, T in enumerate(poses)]
-        return Trajectory(np.asarray(self.timestamps, np.float64),
-                          np.asarray(poses).reshape(-1, 4, 4))
+        final = np.asarray(self._final).reshape(-1, 4, 4)
+        poses = final_poses(np.arange(len(final)), final, *self._window,
+                            np.asarray(self.poses).reshape(-1, 4, 4))
+        return Trajectory(np.asarray(self.timestamps, np.float64), np.asarray(poses, np.float64))
 
     def process(self, bgr: np.ndarray, depth: np.ndarray, timestamp: float | None = None):
         """Feed one frame and get its result.

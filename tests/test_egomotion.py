@@ -179,6 +179,7 @@ def test_reprojection_refinement_keeps_an_exact_pose_and_ignores_too_few_points(
     np.testing.assert_array_equal(np.asarray(kept), np.eye(4))
 
 
+@pytest.mark.slow
 class EgomotionVariants(chex.TestCase):
     @chex.variants(with_jit=True, without_jit=True)
     def test_known_motion_with_and_without_jit(self):

@@ -16,13 +16,13 @@ import pytest
 
 from jaxvo.core.noise import (
     NoiseScale,
-    chi2_quantile,
     mahalanobis,
     point_noise,
     residuals,
     residuals_many,
     update_noise,
 )
+from jaxvo.core.robust import chi2_quantile
 
 FOCAL = 525.0
 TRUE = NoiseScale(1.2, 2.0e-3)  # the noise the frames are generated with
@@ -123,32 +123,6 @@ def test_a_point_without_depth_weighs_nothing():
     assert float(noise.w_lat[1]) == 0.0 and float(noise.w_ray[1]) == 0.0
     d2 = mahalanobis(jnp.full((3, 2), 0.05, jnp.float32), noise)
     assert np.all(np.isfinite(np.asarray(d2))) and float(d2[1]) == 0.0
-
-
-# ------------------------------------------------------------------ chi-square quantiles
-
-
-def test_chi2_quantile_against_scipy_and_the_table():
-    """Wilson-Hilferty: within 0.7 % of the exact quantile for 3 or more degrees of freedom
-    at the confidences a study sweeps (0.9-0.99), within 2 % at 0.999; within 1 % for 1 and 2
-    degrees of freedom at the default 0.99 (the tie test's chi2_1)."""
-    q = jax.jit(chi2_quantile)
-    # the table values the pipeline's tests stand on (chi2_1, chi2_3, chi2_6 at 0.99): 1 %
-    for dof, value in ((1, 6.635), (3, 11.345), (6, 16.812)):
-        assert float(q(dof, 0.99)) == pytest.approx(value, rel=0.01)
-    stats = pytest.importorskip("scipy.stats")
-    for dof in (3, 6, 9, 30):
-        for p in (0.9, 0.95, 0.99):
-            assert float(q(dof, p)) == pytest.approx(stats.chi2.ppf(p, dof), rel=0.007)
-        assert float(q(dof, 0.999)) == pytest.approx(stats.chi2.ppf(0.999, dof), rel=0.02)
-    for dof in (1, 2):
-        assert float(q(dof, 0.99)) == pytest.approx(stats.chi2.ppf(0.99, dof), rel=0.01)
-
-
-def test_chi2_quantile_takes_a_traced_confidence():
-    ps = jnp.asarray([0.9, 0.99, 0.999], jnp.float32)
-    got = np.asarray(jax.jit(jax.vmap(lambda p: chi2_quantile(3, p)))(ps))
-    assert np.all(np.diff(got) > 0) and np.all(np.isfinite(got))
 
 
 # ------------------------------------------------------------------ the inlier test

@@ -174,6 +174,7 @@ def check_scene(out, scene, n_motions):
     return scores
 
 
+@pytest.mark.slow
 def test_two_motions(seg, params):
     scene = make_scene(0, TWO)
     out = run(seg, 0, scene, params)
@@ -206,6 +207,7 @@ def test_search_stops_once_every_point_is_explained(seg, params):
     assert 2 <= int(out.num_hypotheses) < CFG.num_hypotheses
 
 
+@pytest.mark.slow
 def test_a_batch_stops_its_search_together_with_the_same_results(seg, params):
     """Under vmap with ``batch_axis`` a trip runs for the whole batch until every frame is
     done; for a frame already done it must change nothing. One frame is explained after
@@ -253,7 +255,8 @@ def test_model_noise_at_every_depth_is_one_segment(seg, params):
     fewer (0.94 here, 0.73-0.98 over scene seeds 7-10): its motion is refitted with equal
     weights on its inliers (spatial._refine, _cluster_refine), so the far points' wide
     noise pulls it by a millimetre or two, beyond the near points' tight noise."""
-    from jaxvo.core.spatial import _res, frame_points
+    from jaxvo.core.noise import frame_points
+    from jaxvo.core.spatial import _res
 
     rng = np.random.default_rng(7)
     rows, cols = GRID
@@ -325,6 +328,7 @@ def test_nan_points_count_as_invalid(seg, params):
     assert int(out.status) == Status.OK and int(out.num_segments) == 2
 
 
+@pytest.mark.slow
 def test_vmap_over_params_without_recompiling():
     traces = []
 
@@ -405,7 +409,8 @@ def test_leftover_points_become_a_segment_only_when_they_move_apart(params, case
     """A moving block that no kept segment explains (as when joint refinement has lost it)
     becomes a segment of its own; leftovers that move as a kept segment does, or that are
     too few, do not."""
-    from jaxvo.core.spatial import _leftover_segment, _res, frame_points
+    from jaxvo.core.noise import frame_points
+    from jaxvo.core.spatial import _leftover_segment, _res
 
     prev, cur, valid, truth = make_scene(4, TWO)
     n_slots = CFG.max_segments
@@ -447,7 +452,7 @@ def test_ties_in_the_cluster_refinement_go_to_the_better_fit():
     keeps them with the segment of the most inliers. Residuals in noise units: the wall's
     own motion leaves chi-square noise, the object's adds an offset of 4, within the tie
     test (chi2_1 at 0.99, 6.6) of it."""
-    from jaxvo.core.noise import chi2_quantile
+    from jaxvo.core.robust import chi2_quantile
     from jaxvo.core.spatial import _assign
 
     n_wall, n_obj = 40, 60

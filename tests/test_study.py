@@ -386,7 +386,7 @@ def test_importing_jaxvo_leaves_jax_distributed_possible():
     import jaxvo
 
     modules = sorted(m.name for m in pkgutil.walk_packages(jaxvo.__path__, "jaxvo.")
-                     if not m.name.endswith(".__main__"))  # `python -m jaxvo.cli` runs it
+                     if not m.name.endswith(".__main__"))  # `python -m jaxvo.cli.main` runs it
     code = (f"import importlib, jax\n"
             f"for m in {modules!r}: importlib.import_module(m)\n"
             f"jax.distributed.initialize('127.0.0.1:{_free_port()}', num_processes=1, "

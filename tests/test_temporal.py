@@ -19,11 +19,14 @@ from jaxvo.config import Config, Params, params_as_arrays
 from jaxvo.core.temporal import (
     TemporalOut,
     TemporalState,
-    _swap_identifiers,
+    _permute_identifiers,
+    _swap_perm,
     choose_background,
+    identify,
     init_temporal,
     label_correlation,
     match_segments,
+    measured_labels,
     splat_weights,
     update_evidence,
     update_temporal,
@@ -61,9 +64,26 @@ def params(**kw) -> Params:
 _TRACES = {"count": 0}
 
 
+def temporal_frame(state, seg, disp, valid, prm, *, segment_ids=None, explained=None,
+                   evidence_delta=None):
+    """One frame of the temporal stage alone: the segments' identifiers by Algorithm 3
+    (``identify``, no background choice), no segment explained by the background, no
+    evidence, unless given."""
+    labels = measured_labels(seg, valid, cfg=CFG)
+    if segment_ids is None:
+        segment_ids = identify(state, labels, prm, cfg=CFG)
+    if explained is None:
+        explained = jnp.zeros((CFG.max_segments,), bool)
+    if evidence_delta is None:
+        evidence_delta = jnp.zeros(valid.shape, jnp.float32)
+    return update_temporal(state, labels, disp, valid, prm, cfg=CFG, grid=GRID,
+                           segment_ids=segment_ids, explained=explained,
+                           evidence_delta=evidence_delta)
+
+
 def _counted_update(state, seg, disp, valid, prm):
     _TRACES["count"] += 1  # runs only while tracing
-    return update_temporal(state, seg, disp, valid, prm, cfg=CFG, grid=GRID)
+    return temporal_frame(state, seg, disp, valid, prm)
 
 
 @pytest.fixture(scope="module")
@@ -350,8 +370,8 @@ def test_unmeasured_cells_keep_their_identifier(step):
 def test_segments_the_background_explains_are_measured_as_background():
     """``explained`` segments (pieces of the background that noise split off) take
     identifier 1 in the measurement; the others keep the identifiers given to them."""
-    upd = jax.jit(lambda st, seg, d, v, prm, ids, ex: update_temporal(
-        st, seg, d, v, prm, cfg=CFG, grid=GRID, segment_ids=ids, explained=ex))
+    upd = jax.jit(lambda st, seg, d, v, prm, ids, ex: temporal_frame(
+        st, seg, d, v, prm, segment_ids=ids, explained=ex))
     lab = scene([(3, 8, 4, 9), (9, 12, 10, 14)])
     ids = jnp.asarray([1, 5, 4] + [0] * (CFG.max_segments - 3), jnp.int32)
     explained = jnp.asarray([True, False, True] + [False] * (CFG.max_segments - 3))
@@ -403,7 +423,10 @@ def test_integer_shift_moves_models_exactly_and_drops_what_leaves_the_grid(step)
     np.testing.assert_allclose(np.asarray(new.app_prob), shifted(prob, 0.0), rtol=1e-6, atol=1e-7)
     np.testing.assert_allclose(np.asarray(new.app_age), shifted(age, 0.0), rtol=1e-6)
     np.testing.assert_allclose(np.asarray(new.cand_age), shifted(age[::-1], 0.0), rtol=1e-6)
-    np.testing.assert_allclose(np.asarray(new.evidence), shifted(evidence, 0.0), rtol=1e-6,
+    # the evidence of a frame without any (decayed, update_evidence) moves with the models
+    decayed = _evidence(jnp.asarray(evidence), jnp.zeros(N, jnp.float32), jnp.ones(N, bool),
+                        params())
+    np.testing.assert_allclose(np.asarray(new.evidence), shifted(decayed, 0.0), rtol=1e-6,
                                atol=1e-7)
     np.testing.assert_array_equal(np.asarray(new.ids), shifted(ids, 0))
     np.testing.assert_array_equal(np.asarray(new.history[1]), shifted(ids, 0))
@@ -459,7 +482,9 @@ def test_fractional_shift_weights_are_overlap_areas(step):
     landed = total > 1e-6
     want_age = np.where(landed, ref @ age / np.where(landed, total, 1.0), 0.0)
     want_prob = np.where(landed[:, None], ref @ prob / np.where(landed, total, 1.0)[:, None], 0.0)
-    want_ev = np.where(landed, ref @ evidence / np.where(landed, total, 1.0), 0.0)
+    decayed = np.asarray(_evidence(jnp.asarray(evidence), jnp.zeros(N, jnp.float32),
+                                   jnp.ones(N, bool), params()))  # a frame without evidence
+    want_ev = np.where(landed, ref @ decayed / np.where(landed, total, 1.0), 0.0)
     # averages of a few float32 products: 1e-4 relative (ages up to 30, evidence up to 6)
     np.testing.assert_allclose(np.asarray(new.app_age), want_age, rtol=1e-4, atol=1e-4)
     np.testing.assert_allclose(np.asarray(new.app_prob), want_prob, rtol=1e-4, atol=1e-5)
@@ -631,7 +656,7 @@ def test_the_swap_relabels_every_map_model_and_count_consistently():
         np.testing.assert_array_equal(np.asarray(getattr(new, name)),
                                       np.asarray(getattr(state, name)), err_msg=name)
     # swapping back restores the state
-    back = jax.jit(_swap_identifiers)(new, 3)
+    back = jax.jit(_permute_identifiers)(new, _swap_perm(3, M))
     for a, b in zip(jax.tree.leaves(back._replace(bg_score=state.bg_score)),
                     jax.tree.leaves(state)):
         np.testing.assert_array_equal(np.asarray(a), np.asarray(b))
@@ -690,8 +715,8 @@ def test_the_evidence_bound_lets_a_steady_motion_pass_the_test_at_any_confidence
 
 
 def test_update_temporal_adds_the_evidence_of_cells_with_flow_and_carries_it():
-    upd = jax.jit(lambda st, seg, d, v, prm, ev: update_temporal(
-        st, seg, d, v, prm, cfg=CFG, grid=GRID, evidence_delta=ev))
+    upd = jax.jit(lambda st, seg, d, v, prm, ev: temporal_frame(
+        st, seg, d, v, prm, evidence_delta=ev))
     rng = np.random.default_rng(11)
     state, *_ = _random_state(12)
     valid = rng.random(N) < 0.7
@@ -705,6 +730,97 @@ def test_update_temporal_adds_the_evidence_of_cells_with_flow_and_carries_it():
     got = np.asarray(new.evidence).reshape(GRID)
     np.testing.assert_allclose(got[:, 1:], np.asarray(want).reshape(GRID)[:, :-1], rtol=1e-6)
     assert np.all(got[:, 0] == 0.0)
+
+
+# ---------------------------------------------------------------- the background choice
+
+
+def test_belief_weights_follow_the_evidence():
+    from jaxvo.core.temporal import belief_weights
+
+    L = np.log(0.99 / 0.01)  # logit of the confidence, 4.595
+    prior = jnp.asarray([-6.0, -L - 1e-3, -L + 1e-3, 0.0, L - 1e-3, L + 1e-3, 6.0], jnp.float32)
+    got = np.asarray(belief_weights(prior, params_as_arrays(Params())))
+    np.testing.assert_array_equal(got, np.float32([1, 1, 0.1, 0.1, 0.1, 0, 0]))
+
+
+def test_background_support_is_the_surface_explained_and_its_share_that_follows():
+    """Support: the surface (z^2 per point, times its belief) of every point a segment's
+    motion explains; consistency: 0.1 plus the share of it the predicted motion explains
+    too (1.1 before any ego-motion)."""
+    from jaxvo.core.temporal import background_support
+
+    z = np.r_[np.full(6, 1.0), np.full(4, 3.0)]  # 6 near points, 4 far
+    weights = np.r_[np.ones(9), 0.5]
+    d2_seg = np.full((3, 10), 100.0)
+    d2_seg[0, :6] = 1.0  # segment 1: the near points
+    d2_seg[1, 6:] = 1.0  # segment 2: the far points, and two of the near
+    d2_seg[1, :2] = 2.0
+    d2_pred = np.full(10, 100.0)
+    d2_pred[6:] = 0.5  # the prediction explains the far points
+    sizes = np.array([6, 4, 0])
+    args = [jnp.asarray(a, jnp.float32) for a in (d2_seg, sizes, weights, z, d2_pred)]
+    support, consistency = background_support(*args, jnp.bool_(True), jnp.float32(11.345))
+    far = 3 * 9.0 + 0.5 * 9.0
+    # float32 sums of a few terms: 1e-6 relative
+    np.testing.assert_allclose(np.asarray(support), [6.0, far + 2.0, 0.0], rtol=1e-6)
+    np.testing.assert_allclose(np.asarray(consistency), [0.1, 0.1 + far / (far + 2.0), 0.0],
+                               rtol=1e-6)
+    _, consistency = background_support(*args, jnp.bool_(False), jnp.float32(11.345))
+    np.testing.assert_allclose(np.asarray(consistency), [1.1, 1.1, 0.0], rtol=1e-6)
+
+
+def test_evidence_delta_signs_and_clip():
+    """Against the log-ratio of the two hypotheses' Gaussian densities (SciPy): in a segment
+    that moves unlike the background, ``(d2_ego - d2_own) / 2`` (positive where its own
+    motion explains the point better); elsewhere static evidence only, the log-ratio of
+    noise ``k`` times larger against the model's, never above 0 (a lone large residual is
+    an outlier, not motion); within +-evidence_step; 0 where invalid."""
+    from scipy.stats import norm
+
+    from jaxvo.core.temporal import evidence_delta
+
+    prm = params_as_arrays(Params())
+    k, step_ = float(prm.evidence_effect), float(prm.evidence_step)
+    S = CFG.max_segments
+    labels = np.array([2, 2, 2, 2, 1, 1, 1, 3, 0, 2])
+    d2_ego = np.array([10.0, 4.0, 2.0, 30.0, 0.0, 3.0, 40.0, 5.0, 40.0, 30.0])
+    own = np.array([2.0, 2.0, 4.0, 0.5, 0.0, 0.5, 0.5, 0.1, 0.0, 0.5])
+    d2_seg = np.full((S, 10), 1e3)
+    d2_seg[labels - 1, np.arange(10)] = own
+    explained = np.zeros(S, bool)
+    explained[[0, 2]] = True  # segments 1 (the background's) and 3 (a piece of it)
+    valid = np.r_[np.ones(9, bool), False]
+    got = np.asarray(evidence_delta(
+        jnp.asarray(labels, jnp.int32), jnp.asarray(d2_ego, jnp.float32),
+        jnp.asarray(d2_seg, jnp.float32), jnp.asarray(explained), jnp.asarray(valid), prm))
+
+    def static_only(d2):  # log N(r; 0, k^2 I3) - log N(r; 0, I3) at |r|^2 = d2, capped at 0
+        r = np.array([np.sqrt(d2), 0.0, 0.0])
+        return min(np.sum(norm.logpdf(r, scale=k)) - np.sum(norm.logpdf(r)), 0.0)
+
+    want = [0.5 * (10 - 2), 0.5 * (4 - 2), 0.5 * (2 - 4), 0.5 * (30 - 0.5)]  # moving segment
+    want += [static_only(d) for d in d2_ego[4:9]]  # background, its piece, unlabelled
+    want = np.clip(want + [0.0], -step_, step_)
+    want[9] = 0.0  # invalid
+    # float32 logs and products: 1e-5
+    np.testing.assert_allclose(got, want, atol=1e-5)
+    assert got[0] == step_ and got[3] == step_  # clipped
+    assert got[1] > 0 > got[2]
+    assert got[4] == -step_ and -step_ < got[5] < 0 and got[6] == 0.0 and got[8] == 0.0
+
+
+def test_reported_ids_name_an_object_exactly_where_cells_move():
+    from jaxvo.core.temporal import reported_ids
+
+    ids = jnp.asarray([0, 1, 2, 3, 1, 0, 2, 1], jnp.int32)
+    matched = jnp.asarray([0, 1, 2, 4, 5, 0, 0, 0], jnp.int32)
+    moving = jnp.asarray([False, False, False, True, True, True, True, False])
+    got = np.asarray(reported_ids(ids, matched, moving, cfg=CFG))
+    # not moving: an object's identifier reports the background; moving: the temporal
+    # identifier, else the matched one, else max_ids + 1 (moving, not yet named)
+    np.testing.assert_array_equal(got, [0, 1, 1, 3, 5, CFG.max_ids + 1, 2, 1])
+    np.testing.assert_array_equal(got >= 2, np.asarray(moving))
 
 
 # ---------------------------------------------------------------- jax behaviour
@@ -737,7 +853,7 @@ def scanned():
         prm = params()._replace(max_age=max_age)
 
         def body(st, xs):
-            return update_temporal(st, *xs, prm, cfg=CFG, grid=GRID)
+            return temporal_frame(st, *xs, prm)
 
         return jax.lax.scan(body, init_temporal(cfg=CFG, grid=GRID), (segs, disp, valid))
 

@@ -15,21 +15,23 @@ lies along the viewing ray and biases the isotropic 3D fit.
 
 from __future__ import annotations
 
+from typing import NamedTuple
+
 import chex
 import jax
 import jax.numpy as jnp
 
 from jaxvo.config import Config, Params
-from jaxvo.core.geometry import make_pose, masked_median, masked_quantile, so3_exp
-from jaxvo.core.noise import chi2_quantile, init_noise, point_noise, residuals
+from jaxvo.core.geometry import invert_pose, make_pose, so3_exp
+from jaxvo.core.noise import Points, init_noise, point_noise, residuals
 from jaxvo.core.procrustes import fit_rigid_cols
-from jaxvo.status import Status
+from jaxvo.core.robust import CHI_3_Q25, chi2_quantile, huber_weights, mad_scale, quantile_scale
+from jaxvo.status import Status, first_failure
 
 # The robust noise scale of a frame is the lower quartile of the normalised residual
-# lengths over that of a 3-D standard normal vector (sqrt of chi2_3's, 1.1081): a quarter
+# lengths over that of a 3-D standard normal vector (jaxvo.core.robust.CHI_3_Q25): a quarter
 # of the usable points on the background suffice.
 _QUARTILE = 0.25
-_CHI_3_Q25 = 1.1081
 # The frame's robust scale may differ from the noise model's by at most these factors:
 # a frame whose usable points are mostly mislabelled cannot inflate the Huber threshold
 # beyond twice the noise, nor shrink it below a quarter.
@@ -37,16 +39,9 @@ _SCALE_RANGE = (0.25, 2.0)
 
 
 def _huber_threshold(x, mask):
-    """Twice the robust standard deviation of ``x[mask]`` (``x >= 0``): 1.4826 * median |x|
-    estimates the standard deviation of Gaussian residuals, and a fifth of outliers cannot
-    inflate it. The median to 1/4096 (13 of them a frame)."""
-    return 2.0 * 1.4826 * masked_median(x, mask, precision_bits=12)
-
-
-def _huber_weights(r, c, w):
-    """Weights ``w`` times Huber's ``min(1, c / r)`` for residual sizes ``r >= 0``; 0 beyond
-    three corners (``3 c``)."""
-    return jnp.where(r < 3.0 * c, w * jnp.minimum(1.0, c / jnp.maximum(r, 1e-20)), 0.0)
+    """Twice the robust standard deviation of ``x[mask]`` (``x >= 0``, :func:`mad_scale`):
+    a fifth of outliers cannot inflate it (13 medians a frame)."""
+    return mad_scale(x, mask, 2.0)
 
 
 def refine_reprojection(T, src, dst, weights, iters):
@@ -77,7 +72,7 @@ def refine_reprojection(T, src, dst, weights, iters):
         ru, rv = u - m[0], v - m[1]
         e = jnp.sqrt(ru * ru + rv * rv + 1e-20)
         c = jnp.maximum(_huber_threshold(e, w > 0), 1e-5)
-        wr = _huber_weights(e, c, w)
+        wr = huber_weights(e, c, w)
         # d(u, v)/d(q) times d(q)/d(xi) for a left perturbation xi = (omega, nu):
         # dq = -[q]x omega + nu
         iz = 1.0 / z
@@ -87,7 +82,7 @@ def refine_reprojection(T, src, dst, weights, iters):
                         jnp.zeros_like(iz), iz, -v * iz])
         rz = q[2] - dst[2]
         cz = jnp.maximum(_huber_threshold(jnp.abs(rz), wr > 0), 1e-6)
-        wz = _huber_weights(jnp.abs(rz), cz, wr)
+        wz = huber_weights(jnp.abs(rz), cz, wr)
         dz = jnp.stack([q[1], -q[0], jnp.zeros_like(iz), jnp.zeros_like(iz),
                         jnp.zeros_like(iz), jnp.ones_like(iz)])
         a, b = 1.0 / (c * c), 1.0 / (cz * cz)
@@ -140,11 +135,20 @@ def estimate_egomotion(pts_prev, pts_cur, weights, params: Params, *, cfg: Confi
     # columns (3, n): every coordinate a contiguous vector, which XLA's CPU backend
     # vectorises far better than (n, 3) rows (see procrustes.fit_rigid_cols)
     src, dst = pts_prev.T, pts_cur.T
-    usable = weights > 0
-    n_usable = jnp.sum(usable)
     noise = point_noise(src, dst, jnp.asarray(focal, jnp.float32),
                         init_noise(params) if scale is None else scale)
-    corner = jnp.sqrt(chi2_quantile(3, params.confidence))
+    thr = chi2_quantile(3, params.confidence)
+    pts = Points(src, dst, noise, weights > 0, thr, thr)
+    return fit_egomotion(pts, weights, params, cfg=cfg, T_init=T_init)
+
+
+def fit_egomotion(pts: Points, weights, params: Params, *, cfg: Config, T_init=None):
+    """:func:`estimate_egomotion` on a frame's points as the pipeline builds them once
+    (:func:`jaxvo.core.noise.frame_points`); ``weights`` (n,) > 0 where a point may be used."""
+    src, dst, noise = pts.src, pts.dst, pts.noise
+    usable = weights > 0
+    n_usable = jnp.sum(usable)
+    corner = jnp.sqrt(pts.thr)
     # a point's weight falls with its depth noise (1/sigma rather than the statistically
     # optimal 1/sigma^2: that let near, mislabelled object points pull the fit, fixed_camera_1
     # ATE 0.6 -> 190 mm, while 1/sigma keeps most of the gain on static scenes, 6.6 -> 4.9 mm)
@@ -154,13 +158,13 @@ def estimate_egomotion(pts_prev, pts_cur, weights, params: Params, *, cfg: Confi
 
     def scaled_residuals(T):
         r = jnp.sqrt(residuals(T, src, dst, noise)[0] + 1e-12)
-        q = masked_quantile(r, usable, _QUARTILE) / _CHI_3_Q25
+        q = quantile_scale(r, usable, _QUARTILE, CHI_3_Q25)
         return r, corner * jnp.clip(q, *_SCALE_RANGE)
 
     def reweight(_, carry):
         T, _ok = carry
         r, c = scaled_residuals(T)
-        return fit_rigid_cols(src, dst, _huber_weights(r, c, w0))
+        return fit_rigid_cols(src, dst, huber_weights(r, c, w0))
 
     if T_init is None:
         T0, ok0 = fit_rigid_cols(src, dst, w0)
@@ -179,3 +183,51 @@ def estimate_egomotion(pts_prev, pts_cur, weights, params: Params, *, cfg: Confi
     )
     T = jnp.where(status == Status.OK, T, jnp.eye(4, dtype=T.dtype))
     return T, status, inliers
+
+
+class EgoState(NamedTuple):
+    """The camera's pose and its last measured motion (carried by the pipeline)."""
+
+    T_w_c: jax.Array  # (4, 4) float32, pose of the latest camera (camera-to-world)
+    T_last: jax.Array  # (4, 4) float32, the last accepted ego-motion T_cur_prev
+    have_last: jax.Array  # () bool, whether T_last holds an accepted ego-motion yet
+
+
+class EgoOut(NamedTuple):
+    """One frame's ego-motion (:func:`update_egomotion`)."""
+
+    T_cur_prev: jax.Array  # (4, 4) float32, the background's motion (carried: predicted)
+    status: jax.Array  # () int32 Status code, OK or why the motion was carried
+    ok: jax.Array  # () bool status is OK
+    used: jax.Array  # (n,) bool points the fit used (usable, inlier) where ok
+
+
+def init_ego(T_w_c0) -> EgoState:
+    """The first camera pose (4, 4), no motion measured yet."""
+    eye = jnp.eye(4, dtype=jnp.float32)
+    return EgoState(jnp.asarray(T_w_c0, jnp.float32), eye, jnp.bool_(False))
+
+
+def predicted_motion(state: EgoState):
+    """(4, 4) the camera's motion expected for this frame: the last one measured, else none."""
+    return jnp.where(state.have_last, state.T_last, jnp.eye(4, dtype=jnp.float32))
+
+
+def update_egomotion(state: EgoState, pts: Points, weights, T_init, status, params: Params, *,
+                     cfg: Config):
+    """One frame of the camera's motion: :func:`fit_egomotion` from the background's motion
+    ``T_init`` (4, 4) on the points of ``weights`` (n,), and the pose chain.
+
+    ``status`` () is the earlier stages' (flow, segmentation): a frame where one of them or
+    the fit failed carries the predicted motion (:func:`predicted_motion`), so a moving
+    camera is never frozen by a skipped pair.
+
+    Returns ``(EgoState, EgoOut)``.
+    """
+    T_ego, ego_status, inliers = fit_egomotion(pts, weights, params, cfg=cfg, T_init=T_init)
+    status = first_failure(status, ego_status)
+    ok = status == Status.OK
+    T_cur_prev = jnp.where(ok, T_ego, predicted_motion(state))
+    T_w_c = state.T_w_c @ invert_pose(T_cur_prev)
+    new = EgoState(T_w_c, jnp.where(ok, T_cur_prev, state.T_last), state.have_last | ok)
+    return new, EgoOut(T_cur_prev, status, ok, inliers & ok)

@@ -36,12 +36,8 @@ from typing import NamedTuple
 import jax
 import jax.numpy as jnp
 
-from jaxvo.core.geometry import masked_median
+from jaxvo.core.robust import CHI2_1_MEDIAN, CHI2_2_MEDIAN, chi2_quantile, quantile_scale
 
-# Medians of chi-square with 1 and 2 degrees of freedom (along the ray, across it): the
-# calibration compares each part's median squared residual with these.
-_CHI2_1_MEDIAN = 0.45494
-_CHI2_2_MEDIAN = 1.38629
 _FLOOR = 1e-12  # keeps divisions finite in masked-out lanes
 
 
@@ -50,6 +46,15 @@ class NoiseScale(NamedTuple):
 
     pixel_sigma: jax.Array  # () float32, tracker noise across the ray, pixels per axis
     depth_coeff: jax.Array  # () float32, depth noise along the ray over z^2, 1/m
+
+
+# The calibration stays within these: LK is not more precise than about 0.1 px (and a
+# simulator's noise can be far below a real sensor's), and a sensor noisier than 2 px and
+# 4e-3 z^2 (three times a Kinect's raw depth noise) is not one the method can work with;
+# without the ceiling, frames whose ego-motion followed an object measured the background's
+# residuals as noise, and the model grew until every motion merged (to 4 px, 5e-3 z^2).
+NOISE_FLOOR = NoiseScale(0.1, 3e-4)  # plain floats: a JAX array here would start the
+NOISE_CEILING = NoiseScale(2.0, 4e-3)  # backend at import (jax.distributed needs it unstarted)
 
 
 class PointNoise(NamedTuple):
@@ -82,6 +87,39 @@ def point_noise(pts_prev, pts_cur, focal, scale: NoiseScale) -> PointNoise:
     ok = (z0 > 0) & (z1 > 0)
     return PointNoise(ray, jnp.where(ok, 1.0 / jnp.maximum(var_lat, _FLOOR), 0.0),
                       jnp.where(ok, 1.0 / jnp.maximum(var_ray, _FLOOR), 0.0))
+
+
+class Points(NamedTuple):
+    """One frame pair's points as every stage reads them: columns, noise, validity, tests.
+
+    Built once per frame (:func:`frame_points`) and handed to the spatial segmentation, the
+    background choice, the ego-motion, the noise calibration and the window.
+    """
+
+    src: jax.Array  # (3, n) float32 previous points, metres (0 where invalid)
+    dst: jax.Array  # (3, n) float32 current points, metres
+    noise: PointNoise  # per-point weights of the normalised residual
+    valid: jax.Array  # (n,) bool
+    thr: jax.Array  # () float32 inlier test: chi2_3(confidence), noise units
+    tie: jax.Array  # () float32 two motions explain a point alike: chi2_1(confidence)
+
+
+def frame_points(pts_prev, pts_cur, valid, params, *, focal, scale=None) -> Points:
+    """One frame pair's points (n, 3) as columns with their noise and the tests' thresholds.
+
+    Points that are non-finite or have non-positive depth count as invalid and are zeroed.
+    ``scale`` is the sensor noise (:class:`NoiseScale`), by default ``params``' starting one.
+    """
+    finite = jnp.all(jnp.isfinite(pts_prev), axis=1) & jnp.all(jnp.isfinite(pts_cur), axis=1)
+    valid = valid & finite & (pts_prev[:, 2] > 0) & (pts_cur[:, 2] > 0)
+    # Columns (3, n) from here on: each coordinate a contiguous vector (see
+    # jaxvo.core.procrustes.fit_rigid_cols).
+    src = jnp.where(valid, pts_prev.T, 0.0).astype(jnp.float32)
+    dst = jnp.where(valid, pts_cur.T, 0.0).astype(jnp.float32)
+    scale = init_noise(params) if scale is None else scale
+    noise = point_noise(src, dst, jnp.asarray(focal, jnp.float32), scale)
+    return Points(src, dst, noise, valid, chi2_quantile(3, params.confidence),
+                  chi2_quantile(1, params.confidence))
 
 
 # Every function below works on coordinate planes: a vector quantity over many points is
@@ -132,19 +170,8 @@ def residuals(T, src, dst, noise: PointNoise):
     return d2[0], e2[0]
 
 
-def chi2_quantile(dof, p):
-    """The ``p`` quantile of chi-square with ``dof`` degrees of freedom, Wilson and Hilferty's
-    cube-root normal approximation (for 3 degrees of freedom within 0.6 % at p = 0.9, 0.3 %
-    at 0.99, 1.75 % at 0.999, 3.5 % at 0.9999; closer with more degrees of freedom;
-    ``p`` may be traced, so a study can sweep the confidence)."""
-    k = jnp.asarray(dof, jnp.float32)
-    z = jax.scipy.special.ndtri(jnp.asarray(p, jnp.float32))
-    c = 2.0 / (9.0 * k)
-    return k * (1.0 - c + z * jnp.sqrt(c)) ** 3
-
-
 def update_noise(scale: NoiseScale, r, used, noise: PointNoise, rate, *,
-                 floor: NoiseScale, ceiling: NoiseScale):
+                 floor: NoiseScale = NOISE_FLOOR, ceiling: NoiseScale = NOISE_CEILING):
     """Calibrate the noise from the residuals ``r`` (3, n) of the points the ego-motion
     ``used`` (n,) bool under the motion just estimated; ``noise`` is those points'
     :func:`point_noise` under ``scale``.
@@ -163,14 +190,14 @@ def update_noise(scale: NoiseScale, r, used, noise: PointNoise, rate, *,
     composite a box took the background, ATE 271 mm; with the background's points the
     background held at all three seeds tried, ATE 26-32 mm). The scale moves towards the
     measurement in log space at ``rate`` per frame and stays within ``floor`` and
-    ``ceiling``; at ``rate`` 0 (the default, ``Params.noise_rate``) it is left exactly as
+    ``ceiling`` (by default :data:`NOISE_FLOOR`, :data:`NOISE_CEILING`); at ``rate`` 0 (the default, ``Params.noise_rate``) it is left exactly as
     given, outside those bounds too.
 
     Returns the new :class:`NoiseScale` (unchanged where fewer than 12 points are used).
     """
     lat2, ray2 = components(r, noise)
-    m_lat = masked_median(lat2 * noise.w_lat, used, precision_bits=12) / _CHI2_2_MEDIAN
-    m_ray = masked_median(ray2 * noise.w_ray, used, precision_bits=12) / _CHI2_1_MEDIAN
+    m_lat = quantile_scale(lat2 * noise.w_lat, used, 0.5, CHI2_2_MEDIAN)
+    m_ray = quantile_scale(ray2 * noise.w_ray, used, 0.5, CHI2_1_MEDIAN)
     moves = (jnp.sum(used) >= 12) & (rate > 0)
 
     def step(value, ratio2, low, high):

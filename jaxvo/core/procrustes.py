@@ -173,13 +173,8 @@ def residuals(T, src, dst):
     Returns:
       (n,) squared errors in m^2.
     """
-    return residuals_cols(T, src.T, dst.T)
-
-
-def residuals_cols(T, src_t, dst_t):
-    """:func:`residuals` on points stored as columns, ``(3, n)`` (see :func:`fit_rigid_cols`)."""
     err = 0.0
     for k in range(3):
-        d = T[k, 0] * src_t[0] + T[k, 1] * src_t[1] + T[k, 2] * src_t[2] + T[k, 3] - dst_t[k]
+        d = T[k, 0] * src[:, 0] + T[k, 1] * src[:, 1] + T[k, 2] * src[:, 2] + T[k, 3] - dst[:, k]
         err = err + d * d
     return err

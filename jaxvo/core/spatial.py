@@ -39,15 +39,15 @@ from jax import lax
 from jaxvo.core.cluster import dbscan, jaccard_distance, overlaps
 from jaxvo.core.noise import (
     PointNoise,
-    chi2_quantile,
-    init_noise,
+    Points,
+    frame_points,
     mahalanobis,
-    point_noise,
     residuals,
     residuals_many,
     transfer_many,
 )
 from jaxvo.core.procrustes import fit_rigid_cols
+from jaxvo.core.robust import chi2_quantile, explains
 from jaxvo.status import Status
 
 # Stand-in for "no hypothesis explains this point" in residual minima (m^2 and noise
@@ -55,6 +55,9 @@ from jaxvo.status import Status
 _FAR = 1e6
 # Grid offsets drawn around a seed, of which the first m - 1 valid ones are used.
 _NEIGHBOUR_DRAWS = 12
+# Two motions move a point to the same place when the gap between their images is within
+# this share of the inlier test (:func:`_same_motion`).
+_SAME_PLACE = 0.25
 
 
 class Segmentation(NamedTuple):
@@ -67,17 +70,6 @@ class Segmentation(NamedTuple):
     hyp_labels: jax.Array  # (n,) int32: best hypothesis 1..H before clustering, 0 none
     num_hypotheses: jax.Array  # () int32
     status: jax.Array  # () int32: a Status code
-
-
-class _Points(NamedTuple):
-    """One frame pair's points as the search reads them: columns, noise, validity, tests."""
-
-    src: jax.Array  # (3, n) float32 previous points, metres (0 where invalid)
-    dst: jax.Array  # (3, n) float32 current points, metres
-    noise: PointNoise  # per-point weights of the normalised residual
-    valid: jax.Array  # (n,) bool
-    thr: jax.Array  # () float32 inlier test: chi2_3(confidence), noise units
-    tie: jax.Array  # () float32 two motions explain a point alike: chi2_1(confidence)
 
 
 class _SearchState(NamedTuple):
@@ -95,7 +87,7 @@ class _Hypothesis(NamedTuple):
     found: jax.Array  # () bool
 
 
-def _res(T, pts: _Points):
+def _res(T, pts: Points):
     """``(d2, e2)``: normalised and raw squared residuals of every point under ``T``."""
     return residuals(T, pts.src, pts.dst, pts.noise)
 
@@ -113,7 +105,7 @@ def _mean_valid(x, valid):
     return jnp.sum(jnp.where(valid, x, 0.0)) / jnp.maximum(nv, 1)
 
 
-def _refine(motion, nmax, pts: _Points, iters, bound):
+def _refine(motion, nmax, pts: Points, iters, bound):
     """Algorithm 1 lines 9-16 as ``iters`` fixed trips.
 
     Each trip evaluates the motion on all points and, while the inlier count grows, refits
@@ -212,7 +204,7 @@ def _draw_samples(key, entropy, valid, *, cfg, grid):
     return jnp.concatenate([seed[:, None], chosen], axis=1)
 
 
-def _search_step(state, key, pts: _Points, params, *, cfg, grid, batch_axis=None):
+def _search_step(state, key, pts: Points, params, *, cfg, grid, batch_axis=None):
     """One trip of Algorithm 1 (lines 4-20), a no-op once ``state.done``.
 
     The work sits under ``lax.cond`` on ``done``: a fixed trip count still, but a frame that
@@ -241,7 +233,7 @@ def _search_step(state, key, pts: _Points, params, *, cfg, grid, batch_axis=None
     return lax.cond(all_done, skip, work, state, key)
 
 
-def _search_work(state, key, pts: _Points, params, *, cfg, grid):
+def _search_work(state, key, pts: Points, params, *, cfg, grid):
     m = cfg.sample_size
     valid = pts.valid
     idx = _draw_samples(key, state.entropy, valid, cfg=cfg, grid=grid)  # (K, m)
@@ -284,7 +276,7 @@ def _search_work(state, key, pts: _Points, params, *, cfg, grid):
     return _SearchState(entropy, err_min, d2_min, count, done), hyp
 
 
-def _cluster_refine(start, active, pts: _Points, *, cfg):
+def _cluster_refine(start, active, pts: Points, *, cfg):
     """Algorithm 2 lines 3-11 for all clusters at once, by alternating assignment.
 
     Each trip gives every point to one active cluster motion it is an inlier of (see
@@ -357,9 +349,9 @@ def _assign(d2, inliers, keep, tie, *, by_fit=False):
     return best, jnp.any(cand, axis=0)
 
 
-def _same_motion(motions_a, own_a, motions_b, pts: _Points, eps):
+def _same_motion(motions_a, own_a, motions_b, pts: Points, eps):
     """(A, B) bool: motion ``b`` moves more than ``1 - eps`` of ``a``'s own points to where
-    motion ``a`` does, within a quarter of the inlier test: the same motion found twice.
+    motion ``a`` does, within ``_SAME_PLACE`` of the inlier test: the same motion found twice.
 
     Comparing the motions where ``a``'s points are (not inlier-set overlap) keeps a small
     object whose motion differs from the camera's by less than the noise at depth.
@@ -370,11 +362,10 @@ def _same_motion(motions_a, own_a, motions_b, pts: _Points, eps):
     a, b = motions_a.shape[0], motions_b.shape[0]
     diff = (motions_a[:, None] - motions_b[None, :]).reshape(a * b, 4, 4)
     gap = mahalanobis(transfer_many(diff, pts.src), pts.noise).reshape(a, b, -1)
-    close = jnp.sum(own_a[:, None, :] & (gap <= 0.25 * pts.thr), axis=2)
-    return close > (1.0 - eps) * jnp.sum(own_a, axis=1)[:, None]
+    return explains(gap <= _SAME_PLACE * pts.thr, own_a[:, None, :], 1.0 - eps, strict=True)
 
 
-def _leftover_segment(motions, d2_c, inl_c, keep, left, pts: _Points, params):
+def _leftover_segment(motions, d2_c, inl_c, keep, left, pts: Points, params):
     """One more segment from the valid points no kept segment explains, when they move
     together and unlike every kept segment.
 
@@ -409,23 +400,6 @@ def _counts(best, has, c):
     return jnp.sum((best[None, :] == jnp.arange(c)[:, None]) & has[None, :], axis=1)
 
 
-def frame_points(pts_prev, pts_cur, valid, params, *, focal, scale=None) -> _Points:
-    """One frame pair's points as columns with their noise and the tests' thresholds.
-
-    Points that are non-finite or have non-positive depth count as invalid and are zeroed.
-    """
-
-    finite = jnp.all(jnp.isfinite(pts_prev), axis=1) & jnp.all(jnp.isfinite(pts_cur), axis=1)
-    valid = valid & finite & (pts_prev[:, 2] > 0) & (pts_cur[:, 2] > 0)
-    # Columns (3, n) from here on: each coordinate a contiguous vector (see fit_rigid_cols).
-    src = jnp.where(valid, pts_prev.T, 0.0).astype(jnp.float32)
-    dst = jnp.where(valid, pts_cur.T, 0.0).astype(jnp.float32)
-    scale = init_noise(params) if scale is None else scale
-    noise = point_noise(src, dst, jnp.asarray(focal, jnp.float32), scale)
-    return _Points(src, dst, noise, valid, chi2_quantile(3, params.confidence),
-                   chi2_quantile(1, params.confidence))
-
-
 def segment(key, pts_prev, pts_cur, valid, params, *, cfg, grid, focal=525.0, scale=None,
             batch_axis=None):
     """Segment one frame pair's grid flow into rigid motions (Algorithms 1 and 2).
@@ -446,24 +420,46 @@ def segment(key, pts_prev, pts_cur, valid, params, *, cfg, grid, focal=525.0, sc
         is done (see :func:`_search_step`); the results are the same.
 
     Returns:
+      :class:`Segmentation` (see :func:`segment_points`, which this calls on the frame's
+      :func:`jaxvo.core.noise.frame_points`).
+    """
+    n = grid[0] * grid[1]
+    if pts_prev.shape != (n, 3) or pts_cur.shape != (n, 3) or valid.shape != (n,):
+        raise ValueError(f"segment: expected ({n}, 3) points and ({n},) valid for grid {grid}")
+    pts = frame_points(pts_prev, pts_cur, valid, params, focal=focal, scale=scale)
+    return segment_points(key, pts, params, cfg=cfg, grid=grid, batch_axis=batch_axis)
+
+
+def segment_points(key, pts: Points, params, *, cfg, grid, batch_axis=None) -> Segmentation:
+    """:func:`segment` on a frame's points as the pipeline builds them once
+    (:func:`jaxvo.core.noise.frame_points`).
+
+    Returns:
       :class:`Segmentation`. A frame that fails (too few valid points, no verified sample,
       no segment of more than ``params.min_segment_points`` points) has a non-OK status, all
       labels 0 and identity motions; nothing is NaN.
     """
-    rows, cols = grid
-    n = rows * cols
-    if pts_prev.shape != (n, 3) or pts_cur.shape != (n, 3) or valid.shape != (n,):
-        raise ValueError(f"segment: expected ({n}, 3) points and ({n},) valid for grid {grid}")
-    big_h, max_seg = cfg.num_hypotheses, cfg.max_segments
-    n_slots = min(big_h, max_seg)
-
-    pts = frame_points(pts_prev, pts_cur, valid, params, focal=focal, scale=scale)
-    valid = pts.valid
-
-    n_valid = jnp.sum(valid)
+    n_valid = jnp.sum(pts.valid)
     too_few = (n_valid < max(cfg.sample_size, 3)) | (n_valid <= params.min_segment_points)
+    num_hyp, hyps = _search(key, pts, params, too_few, cfg=cfg, grid=grid,
+                            batch_axis=batch_axis)
+    hyp_best = jnp.argmin(jnp.where(hyps.inliers, hyps.d2, _FAR * 10), axis=0)
+    hyp_labels = jnp.where(jnp.any(hyps.inliers, axis=0), hyp_best + 1, 0).astype(jnp.int32)
+    motions, d2_c, inl_c, keep = _cluster(hyps, pts, params, cfg=cfg)
+    status = jnp.where(
+        too_few,
+        jnp.int32(Status.TOO_FEW_FLOW),
+        jnp.where(num_hyp == 0, jnp.int32(Status.NO_HYPOTHESIS), jnp.int32(Status.OK)),
+    )
+    return _label(motions, d2_c, inl_c, keep, pts, params, status, hyp_labels, num_hyp,
+                  cfg=cfg)
 
-    # --- Algorithm 1: hypothesis search, H fixed trips with a done flag -------------------
+
+def _search(key, pts: Points, params, too_few, *, cfg, grid, batch_axis):
+    """Algorithm 1: the hypothesis search, ``H`` fixed trips with a ``done`` flag.
+
+    Returns ``(count () int32, hypotheses)``: a :class:`_Hypothesis` stacked over ``H``."""
+    n, valid = pts.valid.shape[0], pts.valid
     entropy0 = valid.astype(jnp.float32)
     state0 = _SearchState(
         entropy=entropy0,
@@ -476,24 +472,29 @@ def segment(key, pts_prev, pts_cur, valid, params, *, cfg, grid, focal=525.0, sc
     def step(state, k):
         return _search_step(state, k, pts, params, cfg=cfg, grid=grid, batch_axis=batch_axis)
 
-    state, hyps = lax.scan(step, state0, jax.random.split(key, big_h))
-    num_hyp = state.count
+    state, hyps = lax.scan(step, state0, jax.random.split(key, cfg.num_hypotheses))
+    return state.count, hyps
 
-    hyp_best = jnp.argmin(jnp.where(hyps.inliers, hyps.d2, _FAR * 10), axis=0)
-    hyp_labels = jnp.where(jnp.any(hyps.inliers, axis=0), hyp_best + 1, 0).astype(jnp.int32)
 
-    # --- Algorithm 2: cluster the hypotheses, refine each cluster ------------------------
+def _representatives(hyps: _Hypothesis, params, *, cfg):
+    """Algorithm 2's clusters (DBSCAN on the Jaccard distance between the hypotheses'
+    inlier sets) and one member to stand for each.
+
+    At most ``max_segments`` clusters can be output, so only that many are refined, each
+    from one member. Members are taken in order of inlier count; a member whose inliers
+    lie mostly (more than ``1 - eps``) inside an already chosen member's is a partial
+    re-discovery of that motion and is passed over, so that the next member of its
+    cluster (possibly a small moving object chained to it through a bridging hypothesis)
+    can stand for the cluster instead.
+
+    Returns ``(top (C,) hypothesis index of each slot, active (C,) bool)``.
+    """
+    big_h = cfg.num_hypotheses
     inter = overlaps(hyps.inliers)  # (H, H) shared inlier counts
     labels_h, _ = dbscan(
         jaccard_distance(hyps.inliers, inter), hyps.found, params.cluster_eps,
         params.cluster_min_samples,
     )
-    # At most max_segments clusters can be output, so only that many are refined, each from
-    # one member. Members are taken in order of inlier count; a member whose inliers lie
-    # mostly (more than 1 - eps) inside an already chosen member's is a partial
-    # re-discovery of that motion and is passed over, so that the next member of its
-    # cluster (possibly a small moving object chained to it through a bridging hypothesis)
-    # can stand for the cluster instead.
     size_h = jnp.diagonal(inter)
     covered = inter / jnp.maximum(size_h[:, None], 1)  # (k, j)
     by_size = jnp.argsort(-jnp.where(hyps.found, size_h, -1), stable=True)
@@ -512,21 +513,32 @@ def segment(key, pts_prev, pts_cur, valid, params, *, cfg, grid, focal=525.0, sc
     chosen, _ = lax.fori_loop(
         0, big_h, choose, (jnp.zeros((big_h,), bool), jnp.zeros((big_h,), bool))
     )
-    top = jnp.argsort(jnp.where(chosen, -size_h, 1), stable=True)[:n_slots]
+    top = jnp.argsort(jnp.where(chosen, -size_h, 1), stable=True)[:min(big_h, cfg.max_segments)]
     members = jax.nn.one_hot(top, big_h, dtype=bool) & chosen[top][:, None]
-    motions, d2_c, inl_c, own_c = _cluster_refine(
-        hyps.motion[top], jnp.any(members, axis=1), pts, cfg=cfg
-    )
-    n_c = jnp.sum(own_c, axis=1)
-    big_enough = jnp.any(members, axis=1) & (n_c > params.min_segment_points)
+    return top, jnp.any(members, axis=1)
 
-    # Merge: the same motion found twice (cluster k duplicates a larger kept cluster j).
+
+def _cluster(hyps: _Hypothesis, pts: Points, params, *, cfg):
+    """Algorithm 2: each cluster's motion refined on all points, then the clusters that
+    found the same motion twice merged (the smaller dropped: the thesis repeats clustering
+    and refining until the clusters settle) and those of at most ``min_segment_points``
+    points dropped.
+
+    Returns ``(motions (C, 4, 4), d2 (C, n), inliers (C, n), keep (C,) bool)``.
+    """
+    n_slots = min(cfg.num_hypotheses, cfg.max_segments)
+    top, active = _representatives(hyps, params, cfg=cfg)
+    motions, d2_c, inl_c, own_c = _cluster_refine(hyps.motion[top], active, pts, cfg=cfg)
+    n_c = jnp.sum(own_c, axis=1)
+    big_enough = active & (n_c > params.min_segment_points)
+
+    # Merge: the same motion found twice (cluster k duplicates a larger kept cluster j) ...
     same = _same_motion(motions, own_c, motions, pts, params.cluster_eps)  # (k, j)
     # ... and k's motion explains most of j's own points: a near object's motion can move
     # the far wall's points to within the wall's wide noise of where the wall's motion
     # does, but the wall's motion does not explain the object (fixed_camera_2)
-    explains = jnp.sum(inl_c[:, None, :] & own_c[None, :, :], axis=2)  # (k, j)
-    same = same & (explains > (1.0 - params.cluster_eps) * n_c[None, :])
+    same = same & explains(inl_c[:, None, :], own_c[None, :, :], 1.0 - params.cluster_eps,
+                           strict=True)
     order = jnp.argsort(-n_c, stable=True)
 
     def merge(k, keep):
@@ -535,40 +547,38 @@ def segment(key, pts_prev, pts_cur, valid, params, *, cfg, grid, focal=525.0, sc
         return keep.at[c].set(big_enough[c] & ~dup)
 
     keep = lax.fori_loop(0, n_slots, merge, jnp.zeros((n_slots,), bool))
+    return motions, d2_c, inl_c, keep
 
-    # --- labelling: best explaining kept segment; drop segments left too small ------------
+
+def _label(motions, d2_c, inl_c, keep, pts: Points, params, status, hyp_labels, num_hyp, *,
+           cfg) -> Segmentation:
+    """Labelling: each valid point takes the kept segment that explains it best; segments
+    left too small are dropped, one more may be found among the points none explains
+    (:func:`_leftover_segment`); segments are numbered by size. ``status`` is the search's
+    (OK becomes NO_SEGMENT when no segment is left)."""
+    n_slots, max_seg = keep.shape[0], cfg.max_segments
     best, has = _assign(d2_c, inl_c, keep, pts.tie)
     keep = keep & (_counts(best, has, n_slots) > params.min_segment_points)
     best, has = _assign(d2_c, inl_c, keep, pts.tie)
     motions, d2_c, inl_c, keep, slot, new = _leftover_segment(
-        motions, d2_c, inl_c, keep, valid & ~has, pts, params
+        motions, d2_c, inl_c, keep, pts.valid & ~has, pts, params
     )
     best = jnp.where(new, slot, best)
-    has = (has | new) & valid
+    has = (has | new) & pts.valid
     sizes = jnp.where(keep, _counts(best, has, n_slots), 0)
     rank_order = jnp.argsort(-sizes, stable=True)  # slot of label 1, 2, ...
     rank = jnp.argsort(rank_order)  # label - 1 of each slot
     num_seg = jnp.sum(keep).astype(jnp.int32)
-
-    status = jnp.where(
-        too_few,
-        jnp.int32(Status.TOO_FEW_FLOW),
-        jnp.where(
-            num_hyp == 0,
-            jnp.int32(Status.NO_HYPOTHESIS),
-            jnp.where(num_seg == 0, jnp.int32(Status.NO_SEGMENT), jnp.int32(Status.OK)),
-        ),
-    )
+    status = jnp.where((status == Status.OK) & (num_seg == 0), jnp.int32(Status.NO_SEGMENT),
+                       status)
     ok = status == Status.OK
     labels = jnp.where(has & ok, rank[best] + 1, 0).astype(jnp.int32)
     eye = jnp.eye(4, dtype=jnp.float32)
-    out_motions = jnp.broadcast_to(eye, (max_seg, 4, 4))
-    out_sizes = jnp.zeros((max_seg,), jnp.int32)
     used = keep[rank_order] & ok
-    out_motions = out_motions.at[:n_slots].set(
-        jnp.where(used[:, None, None], motions[rank_order], eye)
-    )
-    out_sizes = out_sizes.at[:n_slots].set(jnp.where(used, sizes[rank_order], 0).astype(jnp.int32))
+    out_motions = jnp.broadcast_to(eye, (max_seg, 4, 4)).at[:n_slots].set(
+        jnp.where(used[:, None, None], motions[rank_order], eye))
+    out_sizes = jnp.zeros((max_seg,), jnp.int32).at[:n_slots].set(
+        jnp.where(used, sizes[rank_order], 0).astype(jnp.int32))
     return Segmentation(
         labels=labels,
         motions=out_motions,

@@ -26,7 +26,7 @@ Design decisions where the thesis leaves room (each also noted where it is imple
   ones; the background identifier ``1`` is preferred whenever it is free (first frame), so
   the largest unmatched segment takes it.
 * The background is not left to the overlap of eq. (4.1): each identifier accumulates its
-  segment's support as the background (:func:`jaxvo.core.pipeline.background_support`), the
+  segment's support as the background (:func:`background_support`), the
   choice weighs it by the frame's consistency with the predicted camera motion, and the
   chosen identifier is swapped to 1 everywhere in the state (:func:`choose_background`:
   the background is re-acquired in that frame, never lost). The segments the ego-motion
@@ -49,18 +49,27 @@ Design decisions where the thesis leaves room (each also noted where it is imple
 
 from __future__ import annotations
 
-from typing import Any, NamedTuple
+from typing import NamedTuple
 
 import jax
 import jax.numpy as jnp
 
 from jaxvo.config import Config, Params
 from jaxvo.core.geometry import masked_median
+from jaxvo.core.noise import Points, residuals, residuals_many
+from jaxvo.core.robust import MOST, explains
 from jaxvo.status import Status
 
 _NEVER = -(2**30)  # last_seen of an identifier never observed: always free
 STATIC_ID = 1  # thesis section 4.1: identifier 1 is the static background
 _BIG = 1e30  # sort key of masked-out lanes (finite, so no inf - inf can appear)
+# The weight of a point whose evidence has not yet established it as background or as
+# moving (new in view, or its evidence faded) against one established as background.
+_UNESTABLISHED = 0.1
+# A segment's support counts this much even when none of its explained points follows the
+# predicted camera motion, so that a wrong prediction (a sudden camera move: nothing
+# follows it) leaves the choice to the support alone.
+_UNPREDICTED = 0.1
 
 
 class TemporalOut(NamedTuple):
@@ -261,10 +270,10 @@ def choose_background(state: TemporalState, segment_ids, support, consistency, p
     predicted to; it becomes identifier 1.
 
     ``support`` (S,) is each segment's support this frame (the surface it explains, see
-    :func:`jaxvo.core.pipeline.background_support`); each identifier's accumulated score decays
+    :func:`background_support`); each identifier's accumulated score decays
     by ``params.evidence_decay`` a frame and adds the support of the segment carrying it.
     ``consistency`` (S,) weighs each segment by this frame's evidence (the predicted
-    camera motion, :func:`jaxvo.core.pipeline.background_support`): the history says which
+    camera motion, :func:`background_support`): the history says which
     identifier has been the background, the prediction whether its segment still moves as
     the background does, and the choice takes their product. Without the product, the
     history alone kept the background on an object that a first frame had merged with it
@@ -291,9 +300,9 @@ def choose_background(state: TemporalState, segment_ids, support, consistency, p
     background = jnp.where(has, pick + 1, 0).astype(jnp.int32)
     bg_id = jnp.where(has & present[pick], segment_ids[pick], STATIC_ID)
     reacquired = has & (bg_id != STATIC_ID) & state.initialised
-    state = _swap_identifiers(state._replace(bg_score=score), bg_id)
     perm = _swap_perm(bg_id, m)
-    segment_ids = jnp.where(segment_ids > 0, perm[jnp.clip(segment_ids - 1, 0, m - 1)] + 1, 0)
+    state = _permute_identifiers(state._replace(bg_score=score), perm)
+    segment_ids = _relabel(segment_ids, perm)
     # a segment without an identifier chosen as the background takes identifier 1 (the
     # segment that had it keeps it only if it is the background)
     segment_ids = jnp.where(jnp.arange(s) == pick, jnp.where(has, STATIC_ID, segment_ids[pick]),
@@ -308,20 +317,172 @@ def _swap_perm(k, m):
     return jnp.where(idx == 0, k - 1, jnp.where(idx == k - 1, 0, idx))
 
 
-def _swap_identifiers(state: TemporalState, k):
-    """The state with identifiers 1 and ``k`` exchanged in every map, model and count."""
-    m = state.bg_score.shape[0]
-    perm = _swap_perm(k, m)
+class BackgroundOut(NamedTuple):
+    """The background choice of one frame (:func:`update_background`)."""
 
-    def relabel(x):
-        return jnp.where(x > 0, perm[jnp.clip(x - 1, 0, m - 1)] + 1, 0).astype(x.dtype)
+    segment_ids: jax.Array  # (max_segments,) int32 identifier of each spatial segment, 1 = background
+    background: jax.Array  # () int32 spatial label of the background segment 1..S, 0 none
+    reacquired: jax.Array  # () bool the background took its identifier back this frame
+    use: jax.Array  # (n,) float32 each point's weight as background for the ego-motion
+    d2_seg: jax.Array  # (max_segments, n) float32 normalised residuals under each segment
 
+
+def belief_weights(prior, params: Params):
+    """(n,) how much each point counts as background by what earlier frames say of it: 1
+    where its static posterior reaches the confidence (established background),
+    ``_UNESTABLISHED`` where it is not yet established either way (new in view, or its
+    evidence faded), 0 where it is believed to move."""
+    L = moving_logodds(params)
+    return jnp.where(prior <= -L, 1.0, jnp.where(prior <= L, _UNESTABLISHED, 0.0))
+
+
+def background_support(d2_seg, sizes, weights, z, d2_pred, have_last, thr):
+    """Each segment's support as the background in this frame, and its consistency with
+    the camera's predicted motion: ``(support (S,), consistency (S,))``, 0 where unused.
+
+    The background is the motion consistent with the camera's predicted motion (the
+    previous ego-motion) and supported by the most surface. The support of a segment's
+    motion is the surface its explained points stand for, each weighted by how much
+    earlier frames say it is background (:func:`belief_weights`): a grid point at depth z
+    stands for ``(z / f)^2`` square metres, so the room behind a person or a box covering
+    half the view (nearer, and at one depth) still has more surface than they have. Points
+    count where the motion explains them (not only its own segment's), so a piece of the
+    background split off by noise adds to the motion that explains it. The consistency is
+    ``_UNPREDICTED + f``, ``f`` the share of that surface the predicted motion explains too
+    (1 before any ego-motion). :func:`choose_background` accumulates the support per
+    identifier and weighs it by the consistency.
+
+    Args:
+      d2_seg: (S, n) normalised residuals of every point under each segment's motion;
+      sizes: (S,) segment sizes (0 unused); weights: (n,) belief weights (0 invalid);
+      z: (n,) depth, metres; d2_pred: (n,) normalised residuals under the predicted
+      motion; have_last: () bool a prediction exists; thr: () the inlier test.
+    """
+    explained = d2_seg <= thr
+    surface = explained * (weights * z * z)[None, :]
+    follows = jnp.sum(surface * (d2_pred <= thr)[None, :], axis=1)
+    total = jnp.sum(surface, axis=1)
+    f = jnp.where(have_last, follows / jnp.maximum(total, 1e-12), 1.0)
+    used = sizes > 0
+    return jnp.where(used, total, 0.0), jnp.where(used, _UNPREDICTED + f, 0.0)
+
+
+def explained_segments(seg_labels, d2, valid, thr, *, cfg: Config):
+    """(S,) bool the segments most (:data:`jaxvo.core.robust.MOST`) of whose valid points the
+    motion behind ``d2`` (n,) explains within the inlier test ``thr``."""
+    member = (seg_labels[None, :] == jnp.arange(1, cfg.max_segments + 1)[:, None]) & valid
+    return explains((d2 <= thr)[None, :], member, MOST)
+
+
+def update_background(state: TemporalState, seg, labels, pts: Points, T_pred, have_last,
+                      params: Params, *, cfg: Config):
+    """The background of this frame and the points the ego-motion may use.
+
+    The segments' identifiers (Algorithm 3, :func:`identify`), then the segment whose
+    motion explains the most surface that earlier frames established as background and
+    that moves as the camera was predicted to (:func:`background_support`,
+    :func:`choose_background`; its identifier becomes 1, the state's identifiers permuted
+    once). The ego-motion may use every valid point, weighted by its belief, but those in
+    a segment that moves unlike the background (Algorithm 1's refinement on all points,
+    for the background; a segment the background's motion explains is a piece of the
+    background that fast motion or depth distortion split off).
+
+    Args:
+      state: the temporal state entering the frame; seg: the spatial ``Segmentation``;
+      labels: (n,) int32 its measured labels (:func:`measured_labels`); pts: the frame's
+      points (:func:`jaxvo.core.noise.frame_points`); T_pred: (4, 4) the predicted camera
+      motion; have_last: () bool whether it was measured.
+
+    Returns:
+      ``(state, BackgroundOut)``.
+    """
+    valid = pts.valid
+    d2_all = residuals_many(jnp.concatenate([T_pred[None], seg.motions]), pts.src, pts.dst,
+                            pts.noise)[0]
+    d2_pred, d2_seg = d2_all[0], d2_all[1:]
+    z = jnp.maximum(pts.src[2], pts.dst[2])
+    belief = jnp.where(valid, belief_weights(state.evidence, params), 0.0)
+    segment_ids = identify(state, labels, params, cfg=cfg)
+    support, consistency = background_support(d2_seg, seg.sizes, belief, z, d2_pred,
+                                              have_last, pts.thr)
+    state, segment_ids, bg, reacquired = choose_background(
+        state, segment_ids, support, consistency, params)
+    bgi = jnp.maximum(bg - 1, 0)
+    static_seg = (explained_segments(seg.labels, d2_seg[bgi], valid, pts.thr, cfg=cfg)
+                  | (jnp.arange(1, cfg.max_segments + 1) == bg))
+    in_moving_seg = (seg.labels > 0) & ~static_seg[jnp.clip(seg.labels - 1, 0, None)]
+    use = jnp.where(in_moving_seg, 0.0, belief)
+    return state, BackgroundOut(segment_ids, bg, reacquired, use, d2_seg)
+
+
+def evidence_delta(seg_labels, d2_ego, d2_seg, explained, valid, params: Params):
+    """(n,) float32 this frame's log-likelihood ratio, moving over static, of every point.
+
+    Static: the point follows the ego-motion, its residual ``d2_ego`` chi-square with 3
+    degrees of freedom. Moving: it follows its own segment's motion, where that segment
+    moves unlike the background (not ``explained``): the Gaussian log-ratio
+    ``(d2_ego - d2_own) / 2``, which a slow object's points build up over frames though
+    each alone stays within the noise. A point outside such a segment is evidence of static
+    only, by how well the noise explains its residual: against residuals
+    ``k = params.evidence_effect`` times the noise, ``-3 log k + d2 (1 - 1/k^2) / 2``,
+    never above 0. A lone large residual is an outlier (a depth edge, a mistracked point),
+    not evidence of motion: counted as such, it put 1-2 % of a static real scene's cells
+    in motion (7-Scenes frames 0-149; 0.04-0.3 % this way). Every ratio is kept within
+    ``+-params.evidence_step``: one frame cannot shift the odds by more than that.
+    """
+    s = d2_seg.shape[0]
+    lab = jnp.clip(seg_labels - 1, 0, s - 1)
+    own = jnp.take_along_axis(d2_seg, lab[None, :], axis=0)[0]
+    in_moving = (seg_labels > 0) & ~explained[lab]
+    k2 = params.evidence_effect ** 2
+    static = jnp.minimum(-1.5 * jnp.log(k2) + 0.5 * d2_ego * (1.0 - 1.0 / k2), 0.0)
+    delta = jnp.where(in_moving, 0.5 * (d2_ego - own), static)
+    delta = jnp.clip(delta, -params.evidence_step, params.evidence_step)
+    return jnp.where(valid, delta, 0.0).astype(jnp.float32)
+
+
+def moving_evidence(seg_labels, pts: Points, T_cur_prev, d2_seg, ok, params: Params, *,
+                    cfg: Config):
+    """This frame's evidence of each point's own motion under the ego-motion ``T_cur_prev``:
+    ``(explained (S,) bool, delta (n,) float32)``, the segments the ego-motion explains
+    (:func:`explained_segments`) and every point's log-likelihood ratio
+    (:func:`evidence_delta`); none where the frame is not ``ok``."""
+    d2_ego = residuals(T_cur_prev, pts.src, pts.dst, pts.noise)[0]
+    explained = explained_segments(seg_labels, d2_ego, pts.valid, pts.thr, cfg=cfg)
+    delta = evidence_delta(seg_labels, d2_ego, d2_seg, explained, pts.valid & ok, params)
+    return explained & ok, delta
+
+
+def _relabel(x, perm):
+    """Identifier maps ``x`` (any shape, 0 = none) under the permutation ``perm`` (m,)."""
+    m = perm.shape[0]
+    return jnp.where(x > 0, perm[jnp.clip(x - 1, 0, m - 1)] + 1, 0).astype(x.dtype)
+
+
+def _permute_identifiers(state: TemporalState, perm):
+    """The state with identifiers renumbered by ``perm`` (m,) in every map, model and count."""
     return state._replace(
         app_prob=state.app_prob[:, perm], cand_prob=state.cand_prob[:, perm],
-        ids=relabel(state.ids), history=relabel(state.history),
+        ids=_relabel(state.ids, perm), history=_relabel(state.history, perm),
         obs_count=state.obs_count[perm], last_seen=state.last_seen[perm],
         bg_score=state.bg_score[perm],
     )
+
+
+def reported_ids(ids, matched, moving, *, cfg: Config):
+    """(n,) int32 the identifiers every output reports: an object's identifier (>= 2)
+    exactly where the cell is reported moving (``moving`` (n,) bool, its evidence), so that
+    the identifiers, the masks, the overlays and the scores agree on what moves.
+
+    Which object a moving cell is: its temporal identifier ``ids`` (n,) where that names
+    an object, else this frame's matched measurement ``matched`` (n,), else ``max_ids + 1``
+    (moving, not yet named). A cell that is not moving reports the background (1) where
+    its identifier names an object (a region the object has left keeps the object's
+    identifier in the grid model until the model is updated there; a stopped object), else
+    its own identifier (0 unknown, 1 static).
+    """
+    name = jnp.where(ids >= 2, ids, jnp.where(matched >= 2, matched, cfg.max_ids + 1))
+    return jnp.where(moving, name, jnp.where(ids >= 2, STATIC_ID, ids)).astype(jnp.int32)
 
 
 def moving_logodds(params: Params):
@@ -505,61 +666,53 @@ def _compensate_state(state: TemporalState, disp, flow_valid, *, cfg: Config, gr
 
 def update_temporal(
     state: TemporalState,
-    seg: Any,
+    labels,
     disp,
     flow_valid,
     params: Params,
     *,
     cfg: Config,
     grid: tuple[int, int],
-    segment_ids=None,
-    explained=None,
-    evidence_delta=None,
+    segment_ids,
+    explained,
+    evidence_delta,
 ) -> tuple[TemporalState, TemporalOut]:
     """One frame of motion temporal segmentation (Algorithm 3, eqs. 4.1-4.9).
 
     Args:
-      state: aligned with the grid of the previous image of the pair.
-      seg: the spatial stage's ``Segmentation`` (any object with ``labels`` (n,) int32,
-        0 = unlabelled / 1..max_segments, and ``status`` () int32); labels on the grid of
-        the previous image. A status other than OK counts as no measurement. The point
-        counts ``N_i`` of eq. (4.1) are taken from ``labels``.
+      state: aligned with the grid of the previous image of the pair (after this frame's
+        background choice, :func:`update_background`).
+      labels: (n,) int32 the spatial segments measured this frame (:func:`measured_labels`,
+        0 = none, 1..max_segments), on the grid of the previous image.
       disp: (n, 2) float32 ``uv_cur - uv_prev`` of each grid point, pixels.
       flow_valid: (n,) bool; cells with invalid flow carry no measurement.
-      params: ``min_match_corr``, ``max_age`` (frames), ``id_retention`` (frames),
-        ``evidence_decay``, ``evidence_margin``, ``confidence``; floats or traced arrays.
+      params: ``max_age`` (frames), ``evidence_decay``, ``evidence_margin``,
+        ``confidence``; floats or traced arrays.
       cfg, grid: static.
-      segment_ids: optional (max_segments,) int32, the identifiers already given to the
-        segments (:func:`identify`, :func:`choose_background`); None matches them here.
-      explained: optional (max_segments,) bool, the segments whose points the background
-        motion explains; they are measured as identifier 1.
-      evidence_delta: optional (n,) float32 log-likelihood ratios (moving over static) of
-        this frame's measurement of each cell (see :func:`update_evidence`); None leaves
-        the evidence as it is.
+      segment_ids: (max_segments,) int32, the identifiers given to the segments
+        (:func:`identify`, :func:`update_background`).
+      explained: (max_segments,) bool, the segments whose points the background motion
+        explains; they are measured as identifier 1.
+      evidence_delta: (n,) float32 log-likelihood ratios (moving over static) of this
+        frame's measurement of each cell (:func:`moving_evidence`, :func:`update_evidence`).
 
     Returns:
       ``(state, out)``: the state compensated to the current image's grid, and a
-      :class:`TemporalOut` on the previous image's grid (the grid of ``seg.labels``).
+      :class:`TemporalOut` on the previous image's grid (the grid of ``labels``).
     """
     s = cfg.max_segments
-    labels = measured_labels(seg, flow_valid, cfg=cfg)
     measured = labels > 0
 
-    # 4.1: identifiers for the segments
-    if segment_ids is None:
-        segment_ids = identify(state, labels, params, cfg=cfg)
+    # 4.1: the segments' identifiers; those the ego-motion explains are the background
     seen = jnp.any(jax.nn.one_hot(segment_ids - 1, cfg.max_ids, dtype=bool), axis=0)
-    if explained is not None:
-        segment_ids = jnp.where(explained & (segment_ids > 0), STATIC_ID, segment_ids)
+    segment_ids = jnp.where(explained & (segment_ids > 0), STATIC_ID, segment_ids)
     matched = jnp.where(measured, segment_ids[jnp.clip(labels - 1, 0, s - 1)], 0)
     obs_count = state.obs_count + seen.astype(jnp.int32)
     last_seen = jnp.where(seen, state.frame, state.last_seen)
 
     # 4.2.1: update the grid models with the matched label as measurement
     app_p, app_a, cand_p, cand_a, ids = _update_models(state, matched, params.max_age, cfg=cfg)
-    evidence = state.evidence
-    if evidence_delta is not None:
-        evidence = update_evidence(evidence, evidence_delta, flow_valid, params)
+    evidence = update_evidence(state.evidence, evidence_delta, flow_valid, params)
 
     # the window keeps this frame's identifier map; unmeasured cells keep the grid's label
     id_map = jnp.where(matched > 0, matched, ids)

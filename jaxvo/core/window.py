@@ -65,7 +65,8 @@ import optax
 
 from jaxvo.config import Config, Params
 from jaxvo.core.geometry import invert_pose, make_pose, so3_exp
-from jaxvo.core.noise import NoiseScale, chi2_quantile, mahalanobis, point_noise
+from jaxvo.core.noise import NoiseScale, Points, mahalanobis
+from jaxvo.core.robust import cauchy, chi2_quantile
 
 # A track continues where its four neighbours' depths agree within this fraction: across a
 # depth edge the interpolated flow mixes two motions (parallax).
@@ -95,7 +96,6 @@ class WindowState(NamedTuple):
     point: jax.Array  # (cap, 3) float32 metres, the point in the anchor's camera frame
     uv: jax.Array  # (cap, 2) float32 pixels, the track's position in the newest image
     alive: jax.Array  # (cap,) bool the track can be chained through the next pair
-    born: jax.Array  # (cap,) int32 frame number of the track's first observation
     obs: jax.Array  # (K, cap, 3) float32 metres, the track observed in each frame's camera
     seen: jax.Array  # (K, cap) bool whether ``obs`` holds an observation
     # the pairs: slot k holds the ego-motion of the pair (k - 1, k) and its information
@@ -149,7 +149,6 @@ def init_window(*, cfg: Config, grid: tuple[int, int], T_w_c0=None) -> WindowSta
         point=jnp.zeros((cap, 3), jnp.float32),
         uv=jnp.zeros((cap, 2), jnp.float32),
         alive=jnp.zeros((cap,), bool),
-        born=jnp.zeros((cap,), jnp.int32),
         obs=jnp.zeros((K, cap, 3), jnp.float32),
         seen=jnp.zeros((K, cap), bool),
         pair_T=jnp.broadcast_to(jnp.eye(4, dtype=jnp.float32), (K, 4, 4)),
@@ -390,7 +389,7 @@ def _adjoint(T):
                             jnp.concatenate([_skew(t) @ R, R], -1)], axis=-2)
 
 
-def pair_factor(T, src, dst, use, focal, scale: NoiseScale, c2):
+def pair_factor(T, pts: Points, use, c2):
     """One pair's points as a quadratic factor on its relative pose, about its ego-motion.
 
     The normalised residuals ``T src - dst`` of the points the ego-motion used
@@ -404,19 +403,19 @@ def pair_factor(T, src, dst, use, focal, scale: NoiseScale, c2):
     the window refines every pair against its points, wherever the ego-motion landed.
 
     Args:
-      T: (4, 4) the pair's ego-motion; src, dst: (n, 3) metres; use: (n,) bool.
-      focal: () pixels; scale: the noise model; c2: () the robust loss's scale.
+      T: (4, 4) the pair's ego-motion; pts: the pair's points and their noise
+        (:func:`jaxvo.core.noise.frame_points`); use: (n,) bool; c2: () the robust loss's scale.
 
     Returns:
       ``(H (6, 6), g (6,))`` float32.
     """
-    X = T[:3, :3] @ src.T + T[:3, 3:4]  # (3, n), in the current camera
-    noise = point_noise(src.T, dst.T, focal, scale)
+    X = T[:3, :3] @ pts.src + T[:3, 3:4]  # (3, n), in the current camera
+    noise = pts.noise
     u = noise.ray
-    r = X - dst.T
+    r = X - pts.dst
     along = jnp.sum(r * u, axis=0)
     d2 = mahalanobis(r, noise)
-    w = jnp.where(use, _robust(d2, c2)[1], 0.0)  # IRLS weight at T
+    w = jnp.where(use, cauchy(d2, c2)[1], 0.0)  # IRLS weight at T
     Mr = noise.w_lat * (r - along * u) + noise.w_ray * along * u  # (3, n)
     g = jnp.concatenate([jnp.sum(_cross(X, w * Mr), axis=1), Mr @ w])
     # A^T M A for A = [-[X]x | I], M = w_lat (I - u u^T) + w_ray u u^T: the w_lat A^T A part
@@ -454,12 +453,6 @@ def _depth_terms(T, s, pb: _Problem):
     return Xa, jnp.sum(pa * pb.ray, axis=1) - jnp.linalg.norm(pb.obs, axis=1)
 
 
-def _robust(d2, c2):
-    """Cauchy's loss ``c^2 / 2 log(1 + d2 / c^2)`` summed, and the IRLS weights (its
-    derivative ``1 / (1 + d2 / c^2)``)."""
-    return 0.5 * c2 * jnp.sum(jnp.log1p(d2 / c2)), 1.0 / (1.0 + d2 / c2)
-
-
 def window_cost(T, s, pb: _Problem):
     """The window's cost at poses ``T`` (K, 4, 4) and depth changes ``s`` (cap,): the pairs'
     quadratic image-plane terms plus the tracks' robust depth terms."""
@@ -467,7 +460,7 @@ def window_cost(T, s, pb: _Problem):
     pair = jnp.sum(delta * pb.pair_g[1:]) \
         + 0.5 * jnp.einsum("ka,kab,kb->", delta, pb.pair_H[1:], delta)
     _, rd = _depth_terms(T, s, pb)
-    return pair + _robust(pb.w_dep * rd * rd, pb.c2_dep)[0]
+    return pair + cauchy(pb.w_dep * rd * rd, pb.c2_dep)[0]
 
 
 def normal_equations(T, s, pb: _Problem):
@@ -503,7 +496,7 @@ def normal_equations(T, s, pb: _Problem):
 
     # depth terms
     Xa, rd = _depth_terms(T, s, pb)
-    value_d, wd = _robust(pb.w_dep * rd * rd, pb.c2_dep)
+    value_d, wd = cauchy(pb.w_dep * rd * rd, pb.c2_dep)
     rho = jnp.einsum("kij,kjn->kin", R, pb.ray)  # rays in window axes, (K, 3, cap)
     wdep = wd * pb.w_dep
     qd = jnp.concatenate([_cross(Xa[None], rho), rho], axis=1)  # (K, 6, cap)
@@ -561,14 +554,17 @@ def refine(T, pb: _Problem, iters: int):
 # ----------------------------------------------------------------------- the update
 
 
-def update_window(state: WindowState, flow, T_cur_prev, static, noise_scale: NoiseScale,
-                  params: Params, *, cfg: Config, grid: tuple[int, int]):
+def update_window(state: WindowState, flow, pts: Points, T_cur_prev, static,
+                  noise_scale: NoiseScale, params: Params, *, cfg: Config,
+                  grid: tuple[int, int]):
     """Add this pair's current frame to the window, chain and seed tracks, refine the poses.
 
     Args:
       state: the carried :class:`WindowState`.
       flow: this pair's ``GridFlow`` (``pts_prev``, ``pts_cur`` (n, 3) metres, ``uv_prev``,
         ``uv_cur`` (n, 2) pixels, ``valid`` (n,) bool, ``focal`` () pixels).
+      pts: the pair's points and their noise as the step built them
+        (:func:`jaxvo.core.noise.frame_points`).
       T_cur_prev: (4, 4) this pair's ego-motion (previous camera points -> current).
       static: (n,) bool grid points of the previous image the ego-motion used (static
         background, inliers); only these seed and carry tracks.
@@ -591,10 +587,30 @@ def update_window(state: WindowState, flow, T_cur_prev, static, noise_scale: Noi
     chex.assert_shape(state.obs, (K, cap, 3))
     chex.assert_type([flow.pts_prev, flow.pts_cur, T_cur_prev], jnp.float32)
 
+    usable = flow.valid & static
+    advanced = _advance(state, flow, pts, T_cur_prev, usable, grid=grid)
+    pb, seen, fixed, frame_valid = _problem(advanced, noise_scale, params)
+    # 3. the refinement, in the coordinates of the oldest frame (held fixed)
+    T_ref = advanced.T_w_c[fixed]
+    T_local, s = refine(invert_pose(T_ref)[None] @ advanced.T_w_c, pb, cfg.window_iters)
+    T_w_c = jnp.where(frame_valid[:, None, None], _orthonormal(T_ref[None] @ T_local),
+                      advanced.T_w_c)
+    point = advanced.point * (1.0 + s)[:, None]
+
+    observations = jnp.sum(seen)
+    refined = jnp.sum(usable) >= params.min_static_points
+    new_state = advanced._replace(T_w_c=T_w_c, point=point, seen=seen)
+    out = WindowOut(T_w_c, advanced.frame_id, state.T_w_c[0], state.frame_id[0],
+                    observations.astype(jnp.int32), refined)
+    return new_state, out
+
+
+def _advance(state: WindowState, flow, pts: Points, T_cur_prev, usable, *, grid):
+    """The window moved on by one pair, before its refinement: the oldest frame leaves, the
+    pair's current frame enters, tracks chained and seeded, the pair's factor added."""
+    K = state.T_w_c.shape[0]
     # 1. the oldest frame leaves; tracks anchored on it are re-expressed in the next one,
     # the new oldest, whose pose is fixed from now on
-    left_id = state.frame_id[0]
-    T_w_left = state.T_w_c[0]
     T_1_0 = invert_pose(state.T_w_c[1]) @ state.T_w_c[0]
     rebase = (state.anchor == 0)[:, None]
     point = jnp.where(rebase, state.point @ T_1_0[:3, :3].T + T_1_0[:3, 3], state.point)
@@ -606,14 +622,12 @@ def update_window(state: WindowState, flow, T_cur_prev, static, noise_scale: Noi
 
     # 2. tracks: chain the living ones, seed dead slots at their usable grid points (the
     # seed's own reading is its observation in the anchor frame)
-    usable = flow.valid & static
     uv_new, Q, ok = chain_tracks(state.uv, flow, usable, grid)
     ok = ok & state.alive
     at = seed_index(grid)
     seed = ~ok & usable[at]
     anchor = jnp.where(seed, K - 2, anchor)
     point = jnp.where(seed[:, None], flow.pts_prev[at], point)
-    born = jnp.where(seed, prev_id, state.born)
     Q = jnp.where(seed[:, None], flow.pts_cur[at], Q)
     alive = ok | seed
     uv = jnp.where(ok[:, None], uv_new, jnp.where(seed[:, None], flow.uv_cur[at], state.uv))
@@ -621,25 +635,30 @@ def update_window(state: WindowState, flow, T_cur_prev, static, noise_scale: Noi
     obs = state.obs.at[K - 1].set(jnp.where(seed[:, None], flow.pts_prev[at],
                                             state.obs[K - 1]))
     obs = _shift(obs, Q)
-    pair_T = _shift(state.pair_T, T_cur_prev)
-    H_pair, g_pair = pair_factor(T_cur_prev, flow.pts_prev, flow.pts_cur, usable, flow.focal,
-                                 noise_scale, chi2_quantile(3, params.confidence))
-    pair_H = _shift(state.pair_H, H_pair)
-    pair_g = _shift(state.pair_g, g_pair)
+    H_pair, g_pair = pair_factor(T_cur_prev, pts, usable, pts.thr)
+    return WindowState(T_w_c, frame_id, anchor, point, uv, alive, obs, seen,
+                       _shift(state.pair_T, T_cur_prev), _shift(state.pair_H, H_pair),
+                       _shift(state.pair_g, g_pair))
 
-    # 3. the refinement, in the coordinates of the oldest frame (held fixed)
-    frame_valid = frame_id >= 0
+
+def _problem(st: WindowState, noise_scale: NoiseScale, params: Params):
+    """The refinement's data (:class:`_Problem`) from the moved-on window ``st``: returns
+    ``(problem, seen (K, cap) bool observations that count, fixed () slot of the oldest
+    frame, frame_valid (K,) bool)``."""
+    K = st.T_w_c.shape[0]
+    frame_valid = st.frame_id >= 0
     fixed = jnp.argmax(frame_valid)
     free = frame_valid & (jnp.arange(K) != fixed)
-    seen = seen & frame_valid[:, None] & (obs[..., 2] > 0)
+    seen = st.seen & frame_valid[:, None] & (st.obs[..., 2] > 0)
     both = frame_valid & jnp.concatenate([jnp.zeros((1,), bool), frame_valid[:-1]])
+    obs = st.obs
     z2 = obs[..., 2] * obs[..., 2]
     pb = _Problem(
-        pair_T=pair_T,
-        pair_H=jnp.where(both[:, None, None], pair_H, 0.0),
-        pair_g=jnp.where(both[:, None], pair_g, 0.0),
-        anchor1h=jax.nn.one_hot(anchor, K, dtype=jnp.float32),
-        point=point.T,
+        pair_T=st.pair_T,
+        pair_H=jnp.where(both[:, None, None], st.pair_H, 0.0),
+        pair_g=jnp.where(both[:, None], st.pair_g, 0.0),
+        anchor1h=jax.nn.one_hot(st.anchor, K, dtype=jnp.float32),
+        point=st.point.T,
         obs=jnp.swapaxes(obs, 1, 2),
         ray=jnp.swapaxes(obs, 1, 2)
         / jnp.maximum(jnp.linalg.norm(obs, axis=-1), _TINY)[:, None, :],
@@ -648,22 +667,32 @@ def update_window(state: WindowState, flow, T_cur_prev, static, noise_scale: Noi
         free=free,
         c2_dep=chi2_quantile(1, params.confidence),
     )
-    T_ref = T_w_c[fixed]
-    T_local, s = refine(invert_pose(T_ref)[None] @ T_w_c, pb, cfg.window_iters)
-    T_w_c = jnp.where(frame_valid[:, None, None], _orthonormal(T_ref[None] @ T_local), T_w_c)
-    point = point * (1.0 + s)[:, None]
+    return pb, seen, fixed, frame_valid
 
-    observations = jnp.sum(seen)
-    refined = jnp.sum(usable) >= params.min_static_points
-    new_state = WindowState(T_w_c, frame_id, anchor, point, uv, alive, born, obs, seen,
-                            pair_T, pair_H, pair_g)
-    out = WindowOut(T_w_c, frame_id, T_w_left, left_id, observations.astype(jnp.int32),
-                    refined)
-    return new_state, out
+
+def final_poses(left_id, T_w_left, frame_id, T_w_c, poses):
+    """Every frame's final pose: ``poses`` (N, 4, 4) with each frame that left the window
+    replaced by its pose then, and each frame still in it by its pose there.
+
+    The one assembly of a windowed run's trajectory, for a whole run's outputs
+    (:func:`window_trajectory`) and for a stream of them (``jaxvo.Odometry``).
+
+    Args:
+      left_id: (L,) int32 frame numbers that left the window, -1 where none did;
+      T_w_left: (L, 4, 4) their poses when they left;
+      frame_id: (K,) int32 frame numbers of the last window's slots, -1 empty;
+      T_w_c: (K, 4, 4) their poses there;
+      poses: (N, 4, 4) the poses of the frames in neither (frames 0 .. N-1).
+    """
+    count = poses.shape[0]
+    left = jnp.where(left_id >= 0, left_id, count)
+    poses = jnp.asarray(poses).at[left].set(T_w_left, mode="drop")
+    last = jnp.where(frame_id >= 0, frame_id, count)
+    return poses.at[last].set(T_w_c, mode="drop")
 
 
 def window_trajectory(outs: WindowOut):
-    """Every frame's final pose from the window outputs of a whole run.
+    """Every frame's final pose from the window outputs of a whole run (:func:`final_poses`).
 
     Args:
       outs: :class:`WindowOut` stacked over the T steps of a run (frames 0 .. T).
@@ -673,8 +702,5 @@ def window_trajectory(outs: WindowOut):
       for the frames still in the window after the last step, their poses there.
     """
     T = outs.left_id.shape[0]
-    poses = jnp.zeros((T + 1, 4, 4), outs.T_w_c.dtype)
-    left = jnp.where(outs.left_id >= 0, outs.left_id, T + 1)
-    poses = poses.at[left].set(outs.T_w_left, mode="drop")
-    last = jnp.where(outs.frame_id[-1] >= 0, outs.frame_id[-1], T + 1)
-    return poses.at[last].set(outs.T_w_c[-1], mode="drop")
+    return final_poses(outs.left_id, outs.T_w_left, outs.frame_id[-1], outs.T_w_c[-1],
+                       jnp.zeros((T + 1, 4, 4), outs.T_w_c.dtype))
