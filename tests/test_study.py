@@ -317,6 +317,7 @@ def one_device(tiny):
     return out
 
 
+@pytest.mark.slow  # fresh processes on 4 devices / 2 processes: 35-55 s
 def test_four_devices_give_the_same_bits_as_one(tiny, one_device):
     _, path, root, _ = tiny
     out = root / "four"
@@ -397,6 +398,7 @@ def test_importing_jaxvo_leaves_jax_distributed_possible():
     assert done.returncode == 0, done.stderr[-2000:]
 
 
+@pytest.mark.slow  # fresh processes on 4 devices / 2 processes: 35-55 s
 def test_two_processes_give_the_same_bits_as_one(tiny, one_device):
     _, path, root, _ = tiny
     out = root / "two"
