@@ -157,6 +157,7 @@ def test_processes_share_the_folder_and_an_entry_cut_short_is_compiled_again(tmp
     assert entry.stat().st_size > 0  # ...and stored
 
 
+@pytest.mark.slow  # 11-25 s here: a whole run or study compiled afresh
 def test_jaxvo_run_compiles_once_then_loads_the_step_with_the_same_poses(tmp_path):
     """Two runs of ``jaxvo run`` on a 3-frame synthetic sequence with a fresh cache folder:
     the first compiles the step and says so, the second loads it from the cache (and, where

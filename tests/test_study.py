@@ -542,6 +542,7 @@ def test_lengths_read_in_millimetres(metric, label, scale):
     assert display(metric) == (label, scale)
 
 
+@pytest.mark.slow  # 11-25 s here: a whole run or study compiled afresh
 def test_a_dropped_frame_scores_as_jaxvo_run_scores_it(tmp_path):
     """A black frame in the middle of a folder is dropped and the next frame pairs with the
     last good one; the study's timestamps, start pose and scores must be those of the

@@ -334,6 +334,7 @@ def test_window_trajectory_takes_each_frame_once_in_order():
     assert position_errors(traj, poses).max() < 1e-6
 
 
+@pytest.mark.slow  # 11-25 s here: a whole run or study compiled afresh
 def test_an_outlier_track_is_ignored_by_the_robust_loss(monkeypatch):
     from jaxvo.core import window
 
