@@ -414,13 +414,16 @@ def test_the_jitted_update_compiles_once_for_every_frame():
     poses = trajectory(6, seed=11)
     update = jax.jit(update_window, static_argnames=("cfg", "grid"))
     state = init_window(cfg=cfg, grid=GRID)
-    before = update._cache_size()  # jit shares its cache across wrappers of one function
+    sizes = []
     for k in range(5):
         f, T = pair_flow(poses[k], poses[k + 1])
         f = jax.tree.map(jnp.asarray, f)
         state, _ = update(state, f, points(f), jnp.asarray(T), jnp.asarray(f.valid), NOISE,
                           PARAMS, cfg=cfg, grid=GRID)
-    assert update._cache_size() - before == 1
+        sizes.append(update._cache_size())
+    # jit shares its cache across wrappers of one function, so whether the first frame
+    # compiles depends on the tests run before; no later frame may compile again
+    assert sizes == [sizes[0]] * 5
 
 
 def test_wrong_shapes_are_caught_at_the_call():
