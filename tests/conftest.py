@@ -38,3 +38,20 @@ def data_root() -> Path:
 def require_data():
     """``require_data(*parts) -> Path`` under the data folder; skips when that path is absent."""
     return _require
+
+
+@pytest.fixture
+def random_groundtruth():
+    """``make(rng, n, t0)``: a hand-held-like ground truth of ``n`` poses at 30 Hz from
+    ``t0`` s (random-walk positions, small random rotations), drawn from ``rng``."""
+    import numpy as np
+
+    from jaxvo.host.io import Trajectory
+    from jaxvo.host.transforms import pose_from_tq
+
+    def make(rng, n: int, t0: float):
+        t = t0 + np.arange(n) / 30.0
+        q = rng.normal(size=(n, 4)) * 0.05 + [0, 0, 0, 1]
+        return Trajectory(t, pose_from_tq(np.cumsum(rng.normal(size=(n, 3)) * 0.02, 0), q))
+
+    return make

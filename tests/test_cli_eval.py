@@ -13,13 +13,11 @@ from jaxvo.host.transforms import pose_from_tq
 
 
 @pytest.fixture
-def pair(tmp_path):
+def pair(tmp_path, random_groundtruth):
     """A ground truth and an estimate offset by a rigid transform plus a known drift."""
     rng = np.random.default_rng(0)
-    n = 40
-    t = 10.0 + np.arange(n) / 30.0
-    q = rng.normal(size=(n, 4)) * 0.05 + [0, 0, 0, 1]
-    gt = Trajectory(t, pose_from_tq(np.cumsum(rng.normal(size=(n, 3)) * 0.02, 0), q))
+    gt = random_groundtruth(rng, 40, 10.0)
+    t = gt.timestamps
     S = pose_from_tq([1.0, 2.0, 3.0], [0.1, 0.2, 0.3, 0.9])
     est = Trajectory(t + 0.005, S @ gt.poses)
     write_trajectory(tmp_path / "gt.txt", gt)

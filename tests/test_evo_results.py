@@ -37,13 +37,12 @@ CASES = {
 
 
 @pytest.fixture
-def pair(tmp_path):
+def pair(tmp_path, random_groundtruth):
     """A ground truth and an estimate with drift, scale error 1.1 and a rigid offset."""
     rng = np.random.default_rng(1)
     n = 60
-    t = 5.0 + np.arange(n) / 30.0
-    q = rng.normal(size=(n, 4)) * 0.05 + [0, 0, 0, 1]
-    gt = Trajectory(t, pose_from_tq(np.cumsum(rng.normal(size=(n, 3)) * 0.02, 0), q))
+    gt = random_groundtruth(rng, n, 5.0)
+    t = gt.timestamps
     drift = pose_from_tq(np.cumsum(rng.normal(size=(n, 3)) * 0.002, 0), [0, 0, 0, 1])
     est_poses = pose_from_tq([0.3, -0.2, 0.1], [0.1, 0.0, 0.2, 0.97]) @ gt.poses @ drift
     est_poses[:, :3, 3] *= 1.1
