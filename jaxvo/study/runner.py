@@ -897,8 +897,9 @@ class StudyResult(NamedTuple):
     ran: int  # runs done by this call
     config_frames: int  # configuration x frame pairs computed by this call
     seconds: float  # wall time of the device calls (compile included)
-    # the first call of each compiled program (Config, grid, sequence length), which
-    # compiles it: its configuration x frame pairs and wall time
+    # the first call of each compiled program (Config, grid, sequence length, batch), which
+    # compiles it (and, on an accelerator, sizes its batch): its configuration x frame pairs
+    # and wall time
     first_call_frames: int
     first_call_seconds: float
     flow_seconds: float  # host time computing flow (0 for cached flow)
@@ -954,16 +955,19 @@ def run_spec(spec: StudySpec, out_dir: str | Path, *, resume: bool = False,
         t0 = time.perf_counter()
         group_batch = call_batch(data, cfg, [spec.configs[runs[k].config] for k in ks],
                                  requested=requested, devices=devices)
-        tally.seconds += time.perf_counter() - t0  # an accelerator's sizing compiles
+        # an accelerator's sizing compiles the program: its time belongs to the first call
+        sizing = time.perf_counter() - t0
         tally.batches.add(group_batch)
         per_call = group_batch * len(devices)
         for start in range(0, len(ks), per_call):
             chunk = [(ids[k], runs[k]) for k in ks[start:start + per_call]]
-            t0 = time.perf_counter()
+            t0 = time.perf_counter() - sizing
+            sizing = 0.0
             outs = run_call(data, cfg, [spec.configs[r.config] for _, r in chunk],
                             [r.seed for _, r in chunk], devices=devices, batch=group_batch)
             tally.add_call(len(chunk), len(data.timestamps) - 1, time.perf_counter() - t0,
-                           program=(cfg, data.flows.valid.shape, data.height, data.width))
+                           program=(cfg, data.flows.valid.shape, data.height, data.width,
+                                    group_batch))
             if first:
                 _append_runs(out / RUNS_FILE, _rows(spec, data, chunk, outs,
                                                      tally.last_seconds))
