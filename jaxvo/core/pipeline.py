@@ -28,6 +28,7 @@ import jax.numpy as jnp
 
 from jaxvo.config import Config, Params
 from jaxvo.core.egomotion import EgoState, init_ego, predicted_motion, update_egomotion
+from jaxvo.core.geometry import full_precision
 from jaxvo.core.noise import NoiseScale, frame_points, init_noise, transfer, update_noise
 from jaxvo.core.spatial import Segmentation, segment_points
 from jaxvo.core.temporal import (
@@ -96,6 +97,7 @@ def init_pipeline(*, cfg: Config, grid: tuple[int, int], T_w_c0=None,
                          init_noise(Params() if params is None else params), window)
 
 
+@full_precision
 def step(state: PipelineState, flow, key, params: Params, *, cfg: Config, grid,
          batch_axis=None):
     """One frame pair: ``(state, GridFlow, key) -> (state, StepOutput)``.
