@@ -793,7 +793,8 @@ def test_evidence_delta_signs_and_clip():
     valid = np.r_[np.ones(9, bool), False]
     got = np.asarray(evidence_delta(
         jnp.asarray(labels, jnp.int32), jnp.asarray(d2_ego, jnp.float32),
-        jnp.asarray(d2_seg, jnp.float32), jnp.asarray(explained), jnp.asarray(valid), prm))
+        jnp.asarray(d2_seg, jnp.float32), jnp.asarray(explained), jnp.asarray(valid), prm,
+        grid=(2, 5)))
 
     def static_only(d2):  # log N(r; 0, k^2 I3) - log N(r; 0, I3) at |r|^2 = d2, capped at 0
         r = np.array([np.sqrt(d2), 0.0, 0.0])
@@ -908,3 +909,42 @@ def test_all_zero_measurement_gives_no_nan_and_no_update(step):
     for leaf in jax.tree.leaves(state) + list(out):
         if jnp.issubdtype(leaf.dtype, jnp.floating):
             assert np.all(np.isfinite(np.asarray(leaf)))
+
+
+def test_a_large_residual_counts_as_motion_only_where_its_neighbourhood_agrees():
+    """Outside any moving segment: a 3 x 3 block of cells whose residuals the noise cannot
+    explain gains evidence of motion (its centre by the block's agreement, its border
+    cells, with fewer agreeing neighbours, none); a lone cell with an even larger residual,
+    and a block cell whose neighbours are not measured, gain none."""
+    from jaxvo.core.temporal import evidence_delta
+
+    prm = params_as_arrays(Params())
+    k2 = float(prm.evidence_effect) ** 2
+    rows, cols = 8, 8
+    d2 = np.full((rows, cols), 1.0)
+    d2[1:4, 1:4] = 12.0  # a mover no segment separated
+    d2[6, 6] = 80.0  # a lone outlier
+    valid = np.ones((rows, cols), bool)
+    labels = np.ones(rows * cols, np.int32)  # all in the background segment
+    S = CFG.max_segments
+    d2_seg = np.full((S, rows * cols), 1e3, np.float32)
+    explained = np.zeros(S, bool)
+    explained[0] = True
+
+    def run(valid):
+        return np.asarray(evidence_delta(
+            jnp.asarray(labels), jnp.asarray(d2.reshape(-1), jnp.float32),
+            jnp.asarray(d2_seg), jnp.asarray(explained), jnp.asarray(valid.reshape(-1)), prm,
+            grid=(rows, cols))).reshape(rows, cols)
+
+    got = run(valid)
+    ratio = -1.5 * np.log(k2) + 0.5 * 12.0 * (1 - 1 / k2)
+    assert ratio > 0
+    np.testing.assert_allclose(got[2, 2], ratio, rtol=1e-5)  # all 9 agree
+    assert got[1, 1] == 0.0  # a corner: 4 of its 9 neighbours agree
+    assert got[6, 6] == 0.0  # the outlier
+    assert np.all(got[d2 == 1.0] < 0)  # explained by the noise: evidence of static
+    lone = valid.copy()
+    lone[1:4, 1:4] = False
+    lone[2, 2] = True  # measured, its neighbours not: nothing to agree with
+    assert run(lone)[2, 2] == 0.0

@@ -128,7 +128,7 @@ def step(state: PipelineState, flow, key, params: Params, *, cfg: Config, grid,
                                first_failure(flow.status, seg.status), params, cfg=cfg)
     # 4. evidence of each point's own motion under the ego-motion
     explained, delta = moving_evidence(seg.labels, pts, eo.T_cur_prev, bg.d2_seg, eo.ok,
-                                       params, cfg=cfg)
+                                       params, cfg=cfg, grid=grid)
     # 5. labels: the dual-mode grid model, compensated to the current image
     temporal, tout = update_temporal(
         temporal, labels, flow.uv_cur - flow.uv_prev, pts.valid, params, cfg=cfg, grid=grid,

@@ -415,41 +415,69 @@ def update_background(state: TemporalState, seg, labels, pts: Points, T_pred, ha
     return state, BackgroundOut(segment_ids, bg, reacquired, use, d2_seg)
 
 
-def evidence_delta(seg_labels, d2_ego, d2_seg, explained, valid, params: Params):
+def evidence_delta(seg_labels, d2_ego, d2_seg, explained, valid, params: Params, *,
+                   grid: tuple[int, int]):
     """(n,) float32 this frame's log-likelihood ratio, moving over static, of every point.
 
     Static: the point follows the ego-motion, its residual ``d2_ego`` chi-square with 3
     degrees of freedom. Moving: it follows its own segment's motion, where that segment
     moves unlike the background (not ``explained``): the Gaussian log-ratio
     ``(d2_ego - d2_own) / 2``, which a slow object's points build up over frames though
-    each alone stays within the noise. A point outside such a segment is evidence of static
-    only, by how well the noise explains its residual: against residuals
-    ``k = params.evidence_effect`` times the noise, ``-3 log k + d2 (1 - 1/k^2) / 2``,
-    never above 0. A lone large residual is an outlier (a depth edge, a mistracked point),
-    not evidence of motion: counted as such, it put 1-2 % of a static real scene's cells
-    in motion (7-Scenes frames 0-149; 0.04-0.3 % this way). Every ratio is kept within
-    ``+-params.evidence_step``: one frame cannot shift the odds by more than that.
+    each alone stays within the noise. A point outside such a segment is weighed by how
+    well the noise explains its residual: against residuals
+    ``k = params.evidence_effect`` times the noise, ``-3 log k + d2 (1 - 1/k^2) / 2``.
+    A large residual there counts as motion only where its neighbourhood agrees (spatial
+    coherence, :func:`neighbourhood_agreement`), so a mover that no segment separates (a
+    person: many small parts, none rigid) gains evidence over frames, while a lone large
+    residual (a depth edge, a mistracked point) stays an outlier: counted on its own, it
+    put 1-2 % of a static real scene's cells in motion (7-Scenes frames 0-149). Every ratio is kept within ``+-params.evidence_step``:
+    one frame cannot shift the odds by more than that.
     """
     s = d2_seg.shape[0]
     lab = jnp.clip(seg_labels - 1, 0, s - 1)
     own = jnp.take_along_axis(d2_seg, lab[None, :], axis=0)[0]
     in_moving = (seg_labels > 0) & ~explained[lab]
     k2 = params.evidence_effect ** 2
-    static = jnp.minimum(-1.5 * jnp.log(k2) + 0.5 * d2_ego * (1.0 - 1.0 / k2), 0.0)
-    delta = jnp.where(in_moving, 0.5 * (d2_ego - own), static)
+    ratio = -1.5 * jnp.log(k2) + 0.5 * d2_ego * (1.0 - 1.0 / k2)
+    agreed = jnp.minimum(ratio, jnp.maximum(neighbourhood_agreement(ratio, valid, grid=grid),
+                                            0.0))
+    residual = jnp.where(ratio > 0, agreed, ratio)
+    delta = jnp.where(in_moving, 0.5 * (d2_ego - own), residual)
     delta = jnp.clip(delta, -params.evidence_step, params.evidence_step)
     return jnp.where(valid, delta, 0.0).astype(jnp.float32)
 
 
+def neighbourhood_agreement(values, valid, *, grid: tuple[int, int]):
+    """(n,) what the valid cells of each cell's 3 x 3 neighbourhood on the ``grid`` agree
+    on: the lower quartile of their ``values`` (n,), so that with 9 measured cells 7 must
+    reach it; -inf where fewer than 5 are measured (too few to agree).
+
+    On the development split the median instead (5 of 9) flagged 2.0 % of the pixels of
+    the static real frames at every 4th frame, the lower quartile 0.3 % (0.1 % without the
+    rule); on the validation split the lower quartile took the people of the TUM clip from
+    48.8 % to 58.4 % covered (issue 26).
+    """
+    rows, cols = grid
+    v = jnp.where(valid, values, jnp.inf).reshape(rows, cols)
+    p = jnp.pad(v, 1, constant_values=jnp.inf)
+    near = jnp.stack([p[dr:dr + rows, dc:dc + cols].reshape(-1)
+                      for dr in range(3) for dc in range(3)], axis=-1)  # (n, 9)
+    count = jnp.sum(jnp.isfinite(near), axis=-1)
+    median = jnp.take_along_axis(jnp.sort(near, axis=-1),
+                                 jnp.maximum(count - 1, 0)[:, None] // 4, axis=-1)[:, 0]
+    return jnp.where(count >= 5, median, -jnp.inf)
+
+
 def moving_evidence(seg_labels, pts: Points, T_cur_prev, d2_seg, ok, params: Params, *,
-                    cfg: Config):
+                    cfg: Config, grid: tuple[int, int]):
     """This frame's evidence of each point's own motion under the ego-motion ``T_cur_prev``:
     ``(explained (S,) bool, delta (n,) float32)``, the segments the ego-motion explains
     (:func:`explained_segments`) and every point's log-likelihood ratio
     (:func:`evidence_delta`); none where the frame is not ``ok``."""
     d2_ego = residuals(T_cur_prev, pts.src, pts.dst, pts.noise)[0]
     explained = explained_segments(seg_labels, d2_ego, pts.valid, pts.thr, cfg=cfg)
-    delta = evidence_delta(seg_labels, d2_ego, d2_seg, explained, pts.valid & ok, params)
+    delta = evidence_delta(seg_labels, d2_ego, d2_seg, explained, pts.valid & ok, params,
+                           grid=grid)
     return explained & ok, delta
 
 
