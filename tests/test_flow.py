@@ -526,6 +526,7 @@ def reference_flow(b0, d0, b1, d1, cam, cfg) -> GridFlow:
         valid=ok,
         status=np.int32(Status.OK),
         focal=np.float32(cam.focal),
+        depth_seen=ok0,
     )
 
 

@@ -269,7 +269,7 @@ def hand_flow(rng, box_moves, status=Status.OK, valid=True):
     prev = prev + along_ray(prev)
     return GridFlow(prev.astype(np.float32), cur.astype(np.float32), uv.astype(np.float32),
                     uv.astype(np.float32), np.full(N_S, valid), np.int32(status),
-                    np.float32(FOCAL_S))
+                    np.float32(FOCAL_S), np.full(N_S, valid))
 
 
 def run_hand(flows, seed=0):

@@ -425,7 +425,7 @@ def test_integer_shift_moves_models_exactly_and_drops_what_leaves_the_grid(step)
     np.testing.assert_allclose(np.asarray(new.cand_age), shifted(age[::-1], 0.0), rtol=1e-6)
     # the evidence of a frame without any (decayed, update_evidence) moves with the models
     decayed = _evidence(jnp.asarray(evidence), jnp.zeros(N, jnp.float32), jnp.ones(N, bool),
-                        params())
+                        jnp.zeros(N, bool), params())
     np.testing.assert_allclose(np.asarray(new.evidence), shifted(decayed, 0.0), rtol=1e-6,
                                atol=1e-7)
     np.testing.assert_array_equal(np.asarray(new.ids), shifted(ids, 0))
@@ -483,7 +483,8 @@ def test_fractional_shift_weights_are_overlap_areas(step):
     want_age = np.where(landed, ref @ age / np.where(landed, total, 1.0), 0.0)
     want_prob = np.where(landed[:, None], ref @ prob / np.where(landed, total, 1.0)[:, None], 0.0)
     decayed = np.asarray(_evidence(jnp.asarray(evidence), jnp.zeros(N, jnp.float32),
-                                   jnp.ones(N, bool), params()))  # a frame without evidence
+                                   jnp.ones(N, bool), jnp.zeros(N, bool),
+                                   params()))  # a frame without evidence
     want_ev = np.where(landed, ref @ decayed / np.where(landed, total, 1.0), 0.0)
     # averages of a few float32 products: 1e-4 relative (ages up to 30, evidence up to 6)
     np.testing.assert_allclose(np.asarray(new.app_age), want_age, rtol=1e-4, atol=1e-4)
@@ -677,7 +678,7 @@ def test_evidence_decays_adds_the_measured_delta_and_is_clamped():
     measured = rng.random(N) < 0.5
     for _ in range(12):
         delta = rng.uniform(-3, 3, N)
-        e = _evidence(e, jnp.asarray(delta, jnp.float32), jnp.asarray(measured), prm)
+        e = _evidence(e, jnp.asarray(delta, jnp.float32), jnp.asarray(measured), jnp.zeros(N, bool), prm)
         want = np.clip(0.8 * want + np.where(measured, delta, 0.0), -6.0, 6.0)
     # float32 over 12 frames: 1e-5 absolute on values up to 6
     np.testing.assert_allclose(np.asarray(e), want, atol=1e-5)
@@ -685,12 +686,12 @@ def test_evidence_decays_adds_the_measured_delta_and_is_clamped():
     e0 = np.asarray(jnp.asarray(rng.uniform(-6, 6, N), jnp.float32))
     e = jnp.asarray(e0)
     for _ in range(12):
-        e = _evidence(e, jnp.full((N,), 3.0, jnp.float32), jnp.zeros(N, bool), prm)
+        e = _evidence(e, jnp.full((N,), 3.0, jnp.float32), jnp.zeros(N, bool), jnp.zeros(N, bool), prm)
     np.testing.assert_allclose(np.asarray(e), e0 * 0.8**12, rtol=1e-5, atol=1e-7)
     # a steady push saturates at the clamp, not beyond
     e = jnp.zeros(N, jnp.float32)
     for _ in range(20):
-        e = _evidence(e, jnp.full((N,), 3.0, jnp.float32), jnp.ones(N, bool), prm)
+        e = _evidence(e, jnp.full((N,), 3.0, jnp.float32), jnp.ones(N, bool), jnp.zeros(N, bool), prm)
     np.testing.assert_allclose(np.asarray(e), 6.0, rtol=1e-6)
 
 
@@ -704,11 +705,11 @@ def test_the_evidence_bound_lets_a_steady_motion_pass_the_test_at_any_confidence
         prm = params(evidence_decay=0.9, confidence=conf)
         e = jnp.zeros(N, jnp.float32)
         for _ in range(40):
-            e = _evidence(e, jnp.full((N,), 3.0, jnp.float32), jnp.ones(N, bool), prm)
+            e = _evidence(e, jnp.full((N,), 3.0, jnp.float32), jnp.ones(N, bool), jnp.zeros(N, bool), prm)
         assert np.all(np.asarray(e) > float(moving_logodds(prm))), conf
         # and a cell that stops loses the flag within a few frames of static evidence
         for frames in range(1, 20):
-            e = _evidence(e, jnp.full((N,), -3.0, jnp.float32), jnp.ones(N, bool), prm)
+            e = _evidence(e, jnp.full((N,), -3.0, jnp.float32), jnp.ones(N, bool), jnp.zeros(N, bool), prm)
             if np.all(np.asarray(e) <= float(moving_logodds(prm))):
                 break
         assert frames <= 2, (conf, frames)
@@ -724,7 +725,7 @@ def test_update_temporal_adds_the_evidence_of_cells_with_flow_and_carries_it():
     disp = jnp.tile(jnp.array([[CELL, 0.0]], jnp.float32), (N, 1))  # one cell right
     prm = params()
     new, out = upd(state, make_seg(scene([])), disp, jnp.asarray(valid), prm, delta)
-    want = _evidence(state.evidence, delta, jnp.asarray(valid), prm)
+    want = _evidence(state.evidence, delta, jnp.asarray(valid), jnp.zeros(N, bool), prm)
     np.testing.assert_array_equal(np.asarray(out.evidence), np.asarray(want))
     # ... and the state carries it one cell right (the first column receives nothing)
     got = np.asarray(new.evidence).reshape(GRID)
@@ -948,3 +949,16 @@ def test_a_large_residual_counts_as_motion_only_where_its_neighbourhood_agrees()
     lone[1:4, 1:4] = False
     lone[2, 2] = True  # measured, its neighbours not: nothing to agree with
     assert run(lone)[2, 2] == 0.0
+
+
+def test_a_hidden_cell_keeps_its_evidence_a_seen_one_decays():
+    """No depth reading (hidden from the sensor): the evidence stays as it was until the cell
+    is seen again; a cell seen but not measured decays; a measured one decays and adds."""
+    prm = params()
+    decay = float(prm.evidence_decay)
+    e = jnp.asarray([4.0, 4.0, 4.0, -3.0], jnp.float32)
+    delta = jnp.asarray([1.0, 1.0, 1.0, 1.0], jnp.float32)
+    measured = jnp.asarray([True, False, False, False])
+    hidden = jnp.asarray([True, True, False, True])
+    got = np.asarray(_evidence(e, delta, measured, hidden, prm))
+    np.testing.assert_allclose(got, [decay * 4.0 + 1.0, 4.0, decay * 4.0, -3.0], rtol=1e-6)

@@ -132,7 +132,8 @@ def step(state: PipelineState, flow, key, params: Params, *, cfg: Config, grid,
     # 5. labels: the dual-mode grid model, compensated to the current image
     temporal, tout = update_temporal(
         temporal, labels, flow.uv_cur - flow.uv_prev, pts.valid, params, cfg=cfg, grid=grid,
-        segment_ids=bg.segment_ids, explained=explained, evidence_delta=delta)
+        segment_ids=bg.segment_ids, explained=explained, evidence_delta=delta,
+        depth_seen=flow.depth_seen)
     # 6. the sensor noise, from the residuals of the points the ego-motion was fitted to
     noise = update_noise(state.noise, transfer(eo.T_cur_prev, pts.src) - pts.dst,
                          (bg.use > 0) & eo.ok, pts.noise, params.noise_rate)

@@ -520,21 +520,25 @@ def moving_logodds(params: Params):
     return jnp.log(p) - jnp.log1p(-p)
 
 
-def update_evidence(evidence, delta, measured, params: Params):
+def update_evidence(evidence, delta, measured, hidden, params: Params):
     """One frame of the moving evidence of every cell: a binary Bayes filter in log-odds.
 
     ``evidence`` is the log-odds that the cell moves, relative to the prior; each frame it
     decays by ``params.evidence_decay`` (so old evidence fades and a cell can change its
-    mind) and a measured cell adds this frame's log-likelihood ratio ``delta``; the sum is
+    mind) and a measured cell adds this frame's log-likelihood ratio ``delta``. A cell the
+    sensor cannot see (``hidden``: no depth reading, as an object nearer than the depth
+    range) keeps its evidence unchanged until it is seen again: nothing was learnt of it
+    (``close_approach``: its object's cells faded as it came near, issue 26). The sum is
     kept within ``+-(logit(confidence) + params.evidence_margin)``, so that a cell can
     pass the moving test at any confidence and a long history cannot outweigh a change
     for longer than about ``bound / |delta|`` frames.
 
     Args:
       evidence: (n,) float32 compensated log-odds; delta: (n,) float32 this frame's
-        log-likelihood ratios (moving over static); measured: (n,) bool.
+        log-likelihood ratios (moving over static); measured, hidden: (n,) bool.
     """
     e = params.evidence_decay * evidence + jnp.where(measured, delta, 0.0)
+    e = jnp.where(hidden & ~measured, evidence, e)
     bound = moving_logodds(params) + params.evidence_margin
     return jnp.clip(e, -bound, bound).astype(jnp.float32)
 
@@ -704,6 +708,7 @@ def update_temporal(
     segment_ids,
     explained,
     evidence_delta,
+    depth_seen=None,
 ) -> tuple[TemporalState, TemporalOut]:
     """One frame of motion temporal segmentation (Algorithm 3, eqs. 4.1-4.9).
 
@@ -723,6 +728,8 @@ def update_temporal(
         explains; they are measured as identifier 1.
       evidence_delta: (n,) float32 log-likelihood ratios (moving over static) of this
         frame's measurement of each cell (:func:`moving_evidence`, :func:`update_evidence`).
+      depth_seen: (n,) bool, the cells with a depth reading in the previous image (the
+        others are hidden and keep their evidence); None: every cell.
 
     Returns:
       ``(state, out)``: the state compensated to the current image's grid, and a
@@ -740,7 +747,8 @@ def update_temporal(
 
     # 4.2.1: update the grid models with the matched label as measurement
     app_p, app_a, cand_p, cand_a, ids = _update_models(state, matched, params.max_age, cfg=cfg)
-    evidence = update_evidence(state.evidence, evidence_delta, flow_valid, params)
+    hidden = jnp.zeros_like(flow_valid) if depth_seen is None else ~depth_seen
+    evidence = update_evidence(state.evidence, evidence_delta, flow_valid, hidden, params)
 
     # the window keeps this frame's identifier map; unmeasured cells keep the grid's label
     id_map = jnp.where(matched > 0, matched, ids)

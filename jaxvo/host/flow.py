@@ -97,6 +97,9 @@ class GridFlow(NamedTuple):
     valid: np.ndarray  # (n,) bool, passed LK, forward-backward, similarity and depth checks
     status: np.ndarray  # () int32 Status code: OK, or BAD_INPUT
     focal: np.ndarray  # () float32 pixels, the camera's mean focal length (jaxvo.core.noise)
+    # (n,) bool, the previous image has a depth reading at the cell; False: the cell is
+    # hidden from the sensor (nearer or farther than its range, or a hole)
+    depth_seen: np.ndarray
 
 
 def invalid_flow(uv_grid: np.ndarray, status: int = Status.BAD_INPUT, *,
@@ -112,6 +115,7 @@ def invalid_flow(uv_grid: np.ndarray, status: int = Status.BAD_INPUT, *,
         valid=np.zeros(n, bool),
         status=np.int32(status),
         focal=np.float32(focal),
+        depth_seen=np.zeros(n, bool),
     )
 
 
@@ -569,6 +573,7 @@ class GridFlowTracker:
             valid=valid,
             status=np.int32(Status.OK),
             focal=np.float32(self.K.focal),
+            depth_seen=prev.z_grid_ok.copy(),
         )
 
 
