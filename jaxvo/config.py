@@ -84,6 +84,17 @@ class Config:
     window: int = 0
     window_iters: int = 3  # Levenberg-Marquardt iterations per frame
 
+    # --- frame-to-keyframe tracking (jaxvo.core.keyframe, our addition) ---
+    # the ego-motion also fits the keyframe's static grid points tracked into the current
+    # image (jaxvo.host.flow.KeyframeTracker), so that drift accrues per keyframe
+    keyframes: bool = False
+    # a new keyframe is taken when fewer than this fraction of the keyframe's points that
+    # its first pair tracked are still tracked
+    keyframe_overlap: float = 0.7
+    # the keyframe's points are every keyframe_stride-th grid row and column (LK per point
+    # is most of the cost)
+    keyframe_stride: int = 1
+
 
 class Params(NamedTuple):
     """Numeric settings a parameter study may batch over (any field may be an array).
