@@ -57,7 +57,7 @@ def keyframe_points(state: KeyframeState, kf, T_w_prev, params: Params, *, focal
 
 def join_points(a: Points, b: Points) -> Points:
     """The points of ``a`` then those of ``b`` (n_a + n_b) as one set, ``a``'s tests."""
-    cat = lambda x, y: jnp.concatenate([x, y], axis=-1)  # noqa: E731
+    cat = lambda x, y: jnp.concatenate([x, y], axis=-1)
     return Points(cat(a.src, b.src), cat(a.dst, b.dst), jax.tree.map(cat, a.noise, b.noise),
                   cat(a.valid, b.valid), a.thr, a.tie)
 
