@@ -231,7 +231,7 @@ class Odometry:
                          what=f"Odometry with {_shape_settings(self.cfg)}")
             tracker = GridFlowTracker(self.intrinsics, self.cfg, height=h, width=w)
             self._chain = FrameChain(tracker, min_valid=self._min_valid,
-                                     max_dropped=self._max_dropped)
+                                     max_dropped=self._max_dropped, keyframes=self.cfg.keyframes)
             self._grid = tracker.grid
             self._state = jax.device_put(
                 init_pipeline(cfg=self.cfg, grid=self._grid, T_w_c0=self._T_w_c0,
@@ -244,7 +244,8 @@ class Odometry:
         if flow is None:  # the chain's first frame, or a dropped one: the pose stays
             return index, t, self._state.T_w_c, None, dropped
         self._state, out = jit_step(
-            self._state, flow, self.key, self.params, cfg=self.cfg, grid=self._grid
+            self._state, flow, self.key, self.params, cfg=self.cfg, grid=self._grid,
+            keyframe=self._chain.keyframe_flow,
         )
         return index, t, out.T_w_c, out, None
 
@@ -411,7 +412,7 @@ def run_sequence(
     t0 = time.perf_counter()
     p = params_as_arrays(params if params is not None else Params())
     _, outs = run_scan(chain.flows, jax.random.key(seed), p, jnp.asarray(T0, jnp.float32),
-                       cfg=cfg, grid=grid)
+                       cfg=cfg, grid=grid, keyframes=chain.keyframes)
     outs = jax.tree.map(np.asarray, jax.block_until_ready(outs))
     scan_s = time.perf_counter() - t0
 

@@ -101,6 +101,10 @@ def add_arguments(p: argparse.ArgumentParser) -> None:
                    help="refine the poses of the K most recent frames together against points "
                    "tracked through them (0: off, the default; else at least 2): a frame's "
                    "pose is final, and written, when it leaves the window, K frames later")
+    p.add_argument("--keyframes", action=argparse.BooleanOptionalAction, default=None,
+                   help="also fit each frame's motion to the latest keyframe's static points, so "
+                   "that drift accrues per keyframe, not per frame (default: Config.keyframes; "
+                   "the summary says how many keyframes were taken)")
     p.add_argument("--start-pose", choices=("gt", "identity"),
                    help="first pose of the trajectory: 'gt' the ground-truth pose of the first "
                    "frame (groundtruth.txt, within --max-diff), or 'identity' (default: gt where "
@@ -154,7 +158,8 @@ def _check_options(args: argparse.Namespace):
         raise InputError(f"--depth-scale must be a positive number of raw units per metre, "
                          f"got {args.depth_scale}")
     check_seed(args.seed, name="--seed")
-    cfg = Config(cell=args.cell, num_hypotheses=args.hypotheses, window=args.window)
+    cfg = Config(cell=args.cell, num_hypotheses=args.hypotheses, window=args.window,
+                 keyframes=Config.keyframes if args.keyframes is None else args.keyframes)
     check_config(cfg, names=_CONFIG_OPTIONS)
     camera = args.camera
     if args.intrinsics is not None:
@@ -285,6 +290,7 @@ class _Recorder:
         self.anchor = None  # the last kept frame: the next pair's labels lie on its image
         self.last_moving = None  # the last pair's mask cells, for the last frame's mask
         self.reacquired = 0  # pairs in which the background took its identifier back
+        self.keyframes = 1 if cfg.keyframes else 0  # keyframes taken (the first frame is one)
         self.first_unreadable = ""  # the first unreadable frame's error, for the summary
         self.interrupted = False
 
@@ -359,6 +365,8 @@ class _Recorder:
         else:
             self.skipped[r.status.reason] += 1
         self.reacquired += int(r.output.reacquired)
+        if r.output.keyframes is not None:
+            self.keyframes = int(r.output.keyframes)
         self.last_moving = r.output.dynamic
         if self.folders:
             self.images.submit(self.write_images, prev_frame, r, self.last_moving)
@@ -400,6 +408,7 @@ def _summary(args, seq, n: int, start: str, rec: _Recorder, compiling, warnings,
         "start_pose": start,
         "poses_written": rec.written,
         "window": rec.cfg.window,
+        "keyframes": rec.keyframes,  # 0: frame to frame only (Config.keyframes off)
         "trajectory": str(out),
         "frames_per_second": round(fps, 2),
         "first_frame_pair_seconds": round(times[1], 3) if len(times) > 1 else None,
@@ -448,6 +457,9 @@ def _print_summary(summary: dict, n: int, interrupted: bool) -> None:
     if summary["window"]:
         print(f"  window     {summary['window']} frames refined together; each pose written "
               "when its frame left the window, the last ones at the end")
+    if summary["keyframes"]:
+        print(f"  keyframes  {summary['keyframes']} taken (each frame's motion also fitted to "
+              "the latest keyframe's static points)")
     listed = summary["frames_listed"]
     print(f"  frames     {n} processed" + (f" of {listed} listed" if listed != n else ""))
     for label, counts, unit in (("dropped", summary["dropped"], "frames"),

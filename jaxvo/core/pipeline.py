@@ -29,6 +29,13 @@ import jax.numpy as jnp
 from jaxvo.config import Config, Params
 from jaxvo.core.egomotion import EgoState, init_ego, predicted_motion, update_egomotion
 from jaxvo.core.geometry import full_precision
+from jaxvo.core.keyframe import (
+    KeyframeState,
+    init_keyframe,
+    join_points,
+    keyframe_points,
+    update_keyframe,
+)
 from jaxvo.core.noise import NoiseScale, frame_points, init_noise, transfer, update_noise
 from jaxvo.core.spatial import Segmentation, segment_points
 from jaxvo.core.temporal import (
@@ -55,6 +62,7 @@ class PipelineState(NamedTuple):
     frame: jax.Array  # () int32, frame pairs processed so far
     noise: NoiseScale  # the sensor noise model (jaxvo.core.noise; calibrated when noise_rate > 0)
     window: WindowState | None = None  # the last cfg.window frames (jaxvo.core.window), None: off
+    keyframe: KeyframeState | None = None  # the latest keyframe (cfg.keyframes), None: off
 
     @property
     def T_w_c(self):
@@ -85,6 +93,7 @@ class StepOutput(NamedTuple):
     # with cfg.window: the window's refined poses and the pose of the frame that left it
     # (jaxvo.core.window.WindowOut); T_w_c above is then the window's newest pose
     window: WindowOut | None = None
+    keyframes: jax.Array | None = None  # () int32 keyframes taken so far (cfg.keyframes)
 
 
 def init_pipeline(*, cfg: Config, grid: tuple[int, int], T_w_c0=None,
@@ -93,13 +102,14 @@ def init_pipeline(*, cfg: Config, grid: tuple[int, int], T_w_c0=None,
     starting sensor noise of ``params`` (default :class:`Params`)."""
     T0 = jnp.eye(4, dtype=jnp.float32) if T_w_c0 is None else jnp.asarray(T_w_c0, jnp.float32)
     window = init_window(cfg=cfg, grid=grid, T_w_c0=T0) if cfg.window else None
+    keyframe = init_keyframe(T0, grid[0] * grid[1]) if cfg.keyframes else None
     return PipelineState(init_temporal(cfg=cfg, grid=grid), init_ego(T0), jnp.int32(0),
-                         init_noise(Params() if params is None else params), window)
+                         init_noise(Params() if params is None else params), window, keyframe)
 
 
 @full_precision
 def step(state: PipelineState, flow, key, params: Params, *, cfg: Config, grid,
-         batch_axis=None):
+         batch_axis=None, keyframe=None):
     """One frame pair: ``(state, GridFlow, key) -> (state, StepOutput)``.
 
     Args:
@@ -111,6 +121,8 @@ def step(state: PipelineState, flow, key, params: Params, *, cfg: Config, grid,
       cfg: static settings; grid: static ``(rows, cols)``.
       batch_axis: the name(s) of vmapped axes the call runs under (a study), see
         :func:`jaxvo.core.spatial.segment`.
+      keyframe: with ``cfg.keyframes``, the pair's ``KeyframeFlow``
+        (:class:`jaxvo.host.flow.KeyframeTracker`); None: frame to frame only.
     """
     pts = frame_points(flow.pts_prev, flow.pts_cur, flow.valid & (flow.status == Status.OK),
                        params, focal=flow.focal, scale=state.noise)
@@ -122,10 +134,19 @@ def step(state: PipelineState, flow, key, params: Params, *, cfg: Config, grid,
     temporal, bg = update_background(state.temporal, seg, labels, pts,
                                      predicted_motion(state.ego), state.ego.have_last,
                                      params, cfg=cfg)
-    # 3. ego-motion, re-weighted from the background segment's motion
-    ego, eo = update_egomotion(state.ego, pts, bg.use,
+    # 3. ego-motion, re-weighted from the background segment's motion; with keyframes
+    # also on the keyframe's static points tracked into this image (jaxvo.core.keyframe)
+    ego_pts, ego_weights = pts, bg.use
+    use_kf = cfg.keyframes and keyframe is not None
+    if use_kf:
+        kpts = keyframe_points(state.keyframe, keyframe, state.ego.T_w_c, params,
+                               focal=flow.focal, scale=state.noise)
+        ego_pts = join_points(pts, kpts)
+        ego_weights = jnp.concatenate([bg.use, kpts.valid.astype(bg.use.dtype)])
+    ego, eo = update_egomotion(state.ego, ego_pts, ego_weights,
                                seg.motions[jnp.maximum(bg.background - 1, 0)],
                                first_failure(flow.status, seg.status), params, cfg=cfg)
+    eo = eo._replace(used=eo.used[:pts.valid.shape[0]])
     # 4. evidence of each point's own motion under the ego-motion
     explained, delta = moving_evidence(seg.labels, pts, eo.T_cur_prev, bg.d2_seg, eo.ok,
                                        params, cfg=cfg, grid=grid)
@@ -143,8 +164,16 @@ def step(state: PipelineState, flow, key, params: Params, *, cfg: Config, grid,
         window, wout = update_window(state.window, flow, pts, eo.T_cur_prev, eo.used, noise,
                                      params, cfg=cfg, grid=grid)
         ego = ego._replace(T_w_c=wout.T_w_c[-1])
+    # 8. a new keyframe where the host says so, with the cells the temporal model holds
+    # static on this image (its evidence is already carried onto this image's grid)
+    kf_state = state.keyframe
+    if use_kf:
+        kf_state = update_keyframe(kf_state, keyframe.renew, ego.T_w_c,
+                                   temporal.evidence <= moving_logodds(params))
     out = _output(ego, eo, seg, bg, tout, noise, wout, pts.valid, params, cfg=cfg, grid=grid)
-    return PipelineState(temporal, ego, state.frame + 1, noise, window), out
+    if kf_state is not None:
+        out = out._replace(keyframes=kf_state.count)
+    return PipelineState(temporal, ego, state.frame + 1, noise, window, kf_state), out
 
 
 def _output(ego: EgoState, eo, seg: Segmentation, bg: BackgroundOut, tout: TemporalOut,
@@ -206,25 +235,27 @@ def frame_key(key, index):
 
 
 @functools.partial(jax.jit, static_argnames=("cfg", "grid"))
-def jit_step(state, flow, key, params, *, cfg: Config, grid):
+def jit_step(state, flow, key, params, *, cfg: Config, grid, keyframe=None):
     """:func:`step` compiled once per (cfg, grid); the key is folded with the frame count."""
-    return step(state, flow, frame_key(key, state.frame), params, cfg=cfg, grid=grid)
+    return step(state, flow, frame_key(key, state.frame), params, cfg=cfg, grid=grid,
+                keyframe=keyframe)
 
 
-def _scan(flows, key, params, T_w_c0, cfg, grid, outer_axes=()):
+def _scan(flows, key, params, T_w_c0, cfg, grid, outer_axes=(), keyframes=None):
     """Every frame pair in turn; ``outer_axes`` names the vmapped axes of a study, so that
     the hypothesis search skips a trip once every configuration's frame is done."""
 
-    def body(state, flow):
+    def body(state, xs):
+        flow, kf = xs
         return step(state, flow, frame_key(key, state.frame), params, cfg=cfg, grid=grid,
-                    batch_axis=outer_axes or None)
+                    batch_axis=outer_axes or None, keyframe=kf)
 
     return jax.lax.scan(body, init_pipeline(cfg=cfg, grid=grid, T_w_c0=T_w_c0, params=params),
-                        flows)
+                        (flows, keyframes))
 
 
 @functools.partial(jax.jit, static_argnames=("cfg", "grid"))
-def run_scan(flows, key, params, T_w_c0, *, cfg: Config, grid):
+def run_scan(flows, key, params, T_w_c0, *, cfg: Config, grid, keyframes=None):
     """The whole sequence in one ``lax.scan`` from precomputed flow.
 
     Args:
@@ -232,11 +263,13 @@ def run_scan(flows, key, params, T_w_c0, *, cfg: Config, grid):
       key: PRNG key of the run (frame keys are folded from it).
       params: numeric settings.
       T_w_c0: (4, 4) pose of the first camera.
+      keyframes: with ``cfg.keyframes``, the ``KeyframeFlow`` of every pair stacked as
+        ``flows`` (:func:`jaxvo.host.flow.sequence_flows`); None: frame to frame only.
 
     Returns:
       ``(final_state, outputs)`` with every :class:`StepOutput` field stacked over T.
     """
-    return _scan(flows, key, params, T_w_c0, cfg, grid)
+    return _scan(flows, key, params, T_w_c0, cfg, grid, keyframes=keyframes)
 
 
 @functools.partial(jax.jit, static_argnames=("cfg", "grid"))

@@ -577,6 +577,132 @@ class GridFlowTracker:
         )
 
 
+class KeyframeFlow(NamedTuple):
+    """The keyframe's grid points tracked into the current image (host -> device)."""
+
+    pts_kf: np.ndarray  # (n, 3) float32 metres, keyframe camera frame (0 where invalid)
+    pts_cur: np.ndarray  # (n, 3) float32 metres, current camera frame (0 where invalid)
+    valid: np.ndarray  # (n,) bool, passed LK, similarity and depth checks
+    renew: np.ndarray  # () bool, the current frame becomes the keyframe after this pair
+
+
+def stack_keyframe_flows(flows: list[KeyframeFlow]) -> KeyframeFlow:
+    """Stack per-pair keyframe flows along a new leading frame axis."""
+    return KeyframeFlow(*(np.stack(field) for field in zip(*flows)))
+
+
+class KeyframeTracker:
+    """The grid points of the latest keyframe tracked into each new image (our addition).
+
+    Each kept frame's pair flow (``GridFlowTracker``) is composed onto the keyframe
+    points' positions in the previous image: that predicts where they lie in the current
+    image, and one forward LK on the finest two levels from there finds them (a seeded
+    track needs no coarse level, and no backward pass: the patch similarity and the depth
+    checks reject the failures, and the ego-motion's robust fit the rest). The keyframe
+    is renewed when fewer than ``cfg.keyframe_overlap`` of the points its first pair
+    tracked are still tracked. The decision uses host data only, so a recorded sequence's
+    keyframes are known before the scan and a stream takes the same ones.
+
+    Args:
+        tracker: the stream's :class:`GridFlowTracker` (its grid, camera and the current
+            frame's grey image and grid depth).
+    """
+
+    def __init__(self, tracker: GridFlowTracker):
+        self.t = tracker
+        cfg = tracker.cfg
+        rows, cols = tracker.grid
+        sub = np.zeros((rows, cols), bool)
+        sub[::cfg.keyframe_stride, ::cfg.keyframe_stride] = True
+        self._sub = sub.reshape(-1)
+        self._kf: _Frame | None = None
+        self._idx = np.zeros(0, np.int64)  # keyframe points tracked (depth, subsample)
+        self._track = np.zeros((0, 2), np.float32)  # their positions in the latest image
+        self._ref = 0  # points the keyframe's first pair tracked
+        self._age = 0  # pairs since the keyframe
+
+    def start(self) -> None:
+        """The frame just pushed to the tracker becomes the keyframe."""
+        kf = self.t._prev
+        # the tracker's float grey buffers take turns: the keyframe keeps its own copy
+        kf = kf._replace(grey_f=kf.grey_f.copy())
+        self._kf = kf
+        self._idx = np.flatnonzero(kf.z_grid_ok & self._sub)
+        self._track = self.t.uv_grid[self._idx].copy()
+        self._ref, self._age = 0, 0
+
+    def _seed(self, flow: GridFlow) -> np.ndarray:
+        """The keyframe points' positions in the current image predicted by the pair's flow:
+        its displacement, bilinear on the grid (cells without a valid track take the
+        median), at each point's position in the previous image."""
+        rows, cols = self.t.grid
+        d = (flow.uv_cur - flow.uv_prev).reshape(rows, cols, 2).copy()
+        v = np.asarray(flow.valid).reshape(rows, cols)
+        d[~v] = np.median(d[v], axis=0) if v.any() else 0.0
+        uv0, cell = self.t.uv_grid[0], self.t.cfg.cell
+        gx = np.clip((self._track[:, 0] - uv0[0]) / cell, 0, max(cols - 1.001, 0))
+        gy = np.clip((self._track[:, 1] - uv0[1]) / cell, 0, max(rows - 1.001, 0))
+        x0, y0 = gx.astype(np.int64), gy.astype(np.int64)
+        x1, y1 = np.minimum(x0 + 1, cols - 1), np.minimum(y0 + 1, rows - 1)
+        fx, fy = (gx - x0)[:, None], (gy - y0)[:, None]
+        disp = (d[y0, x0] * (1 - fx) * (1 - fy) + d[y0, x1] * fx * (1 - fy)
+                + d[y1, x0] * (1 - fx) * fy + d[y1, x1] * fx * fy)
+        return (self._track + disp).astype(np.float32)
+
+    def push(self, flow: GridFlow, depth: np.ndarray) -> KeyframeFlow:
+        """The keyframe flow of the frame just pushed to the tracker, whose pair flow is
+        ``flow`` and depth ``depth`` (H, W) metres; renews the keyframe when it says so."""
+        t, cfg, kf = self.t, self.t.cfg, self._kf
+        cur = t._prev
+        seed = self._seed(flow)
+        p0 = t.uv_grid[self._idx]
+        ok = np.zeros(len(p0), bool)
+        p1 = seed.copy()
+        if len(p0):
+            p1, st, _ = cv2.calcOpticalFlowPyrLK(
+                kf.grey, cur.grey, p0, seed.copy(), winSize=t._win, maxLevel=1,
+                criteria=t._criteria,
+                flags=cv2.OPTFLOW_USE_INITIAL_FLOW | cv2.OPTFLOW_LK_GET_MIN_EIGENVALS,
+            )  # fmt: skip
+            ok = (st[:, 0] == 1) & np.isfinite(p1).all(axis=1)
+            ok &= ((p1[:, 0] >= 0) & (p1[:, 1] >= 0)
+                   & (p1[:, 0] <= t.width - 1) & (p1[:, 1] <= t.height - 1))
+            p1 = np.where(ok[:, None], p1, seed)
+            sel = np.flatnonzero(ok)
+            sim = patch_correlation(sample_patches(kf.grey_f, p0[sel], cfg.patch),
+                                    sample_patches(cur.grey_f, p1[sel], cfg.patch))
+            ok[sel] = sim >= cfg.min_similarity
+            sel = np.flatnonzero(ok)
+            z1, has_depth = depth_at(depth, p1[sel], cfg)
+            ok[sel] = has_depth
+            z1 = z1[has_depth]
+        idx = self._idx[ok]
+        n = t.n
+        valid = np.zeros(n, bool)
+        valid[idx] = True
+        pts_kf = np.zeros((n, 3), np.float32)
+        pts_cur = np.zeros((n, 3), np.float32)
+        pts_kf[idx] = backproject(t.uv_grid[idx], kf.z_grid[idx], t.K)
+        pts_cur[idx] = backproject(p1[ok], z1, t.K) if len(idx) else pts_cur[idx]
+        self._track = np.where(ok[:, None], p1, seed).astype(np.float32)
+        count = int(ok.sum())
+        self._age += 1
+        if self._age == 1:
+            self._ref = count
+        min_valid = max(cfg.sample_size, 3)
+        renew = count < cfg.keyframe_overlap * self._ref or count < min_valid
+        out = KeyframeFlow(pts_kf, pts_cur, valid, np.bool_(renew))
+        if renew:
+            self.start()
+        return out
+
+
+def invalid_keyframe_flow(n: int) -> KeyframeFlow:
+    """An all-invalid :class:`KeyframeFlow` of ``n`` points that renews the keyframe."""
+    z = np.zeros((n, 3), np.float32)
+    return KeyframeFlow(z, z.copy(), np.zeros(n, bool), np.bool_(True))
+
+
 def _frame_size(*arrays) -> tuple[int, int] | None:
     for a in arrays:
         if isinstance(a, np.ndarray) and a.ndim >= 2:
@@ -664,10 +790,15 @@ class FrameChain:
       tracker: the :class:`GridFlowTracker` of the stream (its image size is the stream's).
       min_valid: fewest valid vectors of a usable pair (:func:`min_valid_flow`).
       max_dropped: most frames dropped in a row.
+      keyframes: track the keyframe's points too (``cfg.keyframes``): each kept pair's
+        :class:`KeyframeFlow` is then ``keyframe_flow`` after :meth:`push`.
     """
 
-    def __init__(self, tracker: GridFlowTracker, *, min_valid: int, max_dropped: int = MAX_DROPPED):
+    def __init__(self, tracker: GridFlowTracker, *, min_valid: int, max_dropped: int = MAX_DROPPED,
+                 keyframes: bool = False):
         self.tracker = tracker
+        self.keyframes = KeyframeTracker(tracker) if keyframes else None
+        self.keyframe_flow: KeyframeFlow | None = None
         self.min_valid = int(min_valid)
         self.max_dropped = int(max_dropped)
         self._confirmed = False  # the last good frame has been part of a good pair
@@ -699,13 +830,15 @@ class FrameChain:
         flow = t.push(bgr, depth)
         if flow is None:  # the chain's first frame
             self._confirmed, self._in_a_row = False, 0
+            if self.keyframes is not None:
+                self.keyframes.start()
             return None, None
         if flow.status != Status.OK:
             return self._drop("frame unreadable (not a uint8 colour image with float depth)")
         n_valid = int(np.count_nonzero(flow.valid))
         if n_valid >= self.min_valid:
             self._confirmed, self._in_a_row = True, 0
-            return flow, None
+            return self._kept(flow, depth)
         if self._confirmed and self._in_a_row < self.max_dropped:
             t.drop_last()
             return self._drop(
@@ -713,6 +846,11 @@ class FrameChain:
                 f"{self.min_valid}: black, saturated, noise or blurred image)"
             )
         self._confirmed, self._in_a_row = False, 0  # the chain goes on from this frame
+        return self._kept(flow, depth)
+
+    def _kept(self, flow: GridFlow, depth) -> tuple[GridFlow, None]:
+        if self.keyframes is not None:
+            self.keyframe_flow = self.keyframes.push(flow, depth)
         return flow, None
 
     def _drop(self, reason: str) -> tuple[None, str]:
@@ -727,6 +865,8 @@ class SequenceFlows(NamedTuple):
     # (T + 1,) int, indices of the frames kept: pair k is frames[k] -> frames[k + 1]
     frames: np.ndarray
     dropped: dict[int, str]  # index of each dropped frame -> why
+    # with cfg.keyframes: pair k's keyframe flow (stacked as flows), else None
+    keyframes: KeyframeFlow | None = None
 
 
 def sequence_flows(
@@ -766,8 +906,9 @@ def sequence_flows(
         height, width = first.bgr.shape[:2]
     tracker = GridFlowTracker(seq.intrinsics, cfg, height=height, width=width)
     chain = FrameChain(tracker, min_valid=min_valid_flow(cfg, params=params),
-                       max_dropped=max_dropped)
+                       max_dropped=max_dropped, keyframes=cfg.keyframes)
     flows: list[GridFlow] = []
+    kf_flows: list[KeyframeFlow] = []
     frames: list[int] = []
     dropped: dict[int, str] = {}
     for i, read in read_ahead(seq.__getitem__, range(n_frames), ahead=ahead):
@@ -783,6 +924,8 @@ def sequence_flows(
             frames.append(i)
             if flow is not None:
                 flows.append(flow)
+                if chain.keyframe_flow is not None:
+                    kf_flows.append(chain.keyframe_flow)
         if i and progress is not None:
             progress(i, n_frames - 1)
     if not flows:
@@ -790,7 +933,12 @@ def sequence_flows(
         stacked = GridFlow(*(np.zeros((0, *np.shape(f)), np.asarray(f).dtype) for f in empty))
     else:
         stacked = stack_flows(flows)
-    return SequenceFlows(stacked, np.asarray(frames, np.int64), dropped)
+    keyframes = None
+    if cfg.keyframes:
+        keyframes = (stack_keyframe_flows(kf_flows) if kf_flows else KeyframeFlow(
+            *(np.zeros((0, *np.shape(f)), np.asarray(f).dtype)
+              for f in invalid_keyframe_flow(tracker.n))))
+    return SequenceFlows(stacked, np.asarray(frames, np.int64), dropped, keyframes)
 
 
 def flows_for_sequence(
