@@ -15,6 +15,7 @@ from jaxvo.host.flow import (
     GridFlow,
     GridFlowTracker,
     bilinear_depth,
+    bilinear_slope,
     depth_at,
     flows_for_sequence,
     grid_flow,
@@ -264,6 +265,10 @@ def test_bilinear_depth_on_planar_ramp():
     uv2 = np.array([[-0.5, 10], [W - 0.5, 10], [100.5, 99.5], [299.5, 199.5]], np.float32)
     z2, ok2 = bilinear_depth(bad, uv2, CFG)
     assert not ok2.any() and not z2.any()
+    # its slope is the ramp's gradient, 0 where the lookup is not ok
+    np.testing.assert_allclose(bilinear_slope(ramp, uv, CFG), np.hypot(0.002, 0.001),
+                               rtol=1e-3)  # float32 differences of taps near 2 m
+    assert not bilinear_slope(bad, uv2, CFG).any()
 
 
 def rough_depth(seed: int, h: int = H, w: int = W, holes: int = 20) -> np.ndarray:
@@ -511,13 +516,15 @@ def reference_flow(b0, d0, b1, d1, cam, cfg) -> GridFlow:
     ok = (st1[:, 0] == 1) & (st0[:, 0] == 1) & np.isfinite(uv1).all(axis=1)
     uv1 = np.where(ok[:, None], uv1, uv0)
     ok &= (uv1 >= 0).all(axis=1) & (uv1[:, 0] <= w - 1) & (uv1[:, 1] <= h - 1)
-    ok &= np.hypot(*(np.where(ok[:, None], back, uv0) - uv0).T) <= cfg.fb_max
+    fb = np.hypot(*(np.where(ok[:, None], back, uv0) - uv0).T).astype(np.float32)
+    ok &= fb <= cfg.fb_max
     sim = patch_correlation(sample_patches(g0, uv0, cfg.patch), sample_patches(g1, uv1, cfg.patch))
     ok &= sim >= cfg.min_similarity
     z0, ok0 = bilinear_depth(refine_depth(d0, cfg), uv0, cfg)
     z1, ok1 = bilinear_depth(refine_depth(d1, cfg), uv1, cfg)
     ok &= ok0 & ok1
     keep = ok[:, None]
+    slope1 = bilinear_slope(refine_depth(d1, cfg), uv1, cfg)
     return GridFlow(
         pts_prev=np.where(keep, backproject(uv0, z0, cam), 0).astype(np.float32),
         pts_cur=np.where(keep, backproject(uv1, z1, cam), 0).astype(np.float32),
@@ -527,6 +534,8 @@ def reference_flow(b0, d0, b1, d1, cam, cfg) -> GridFlow:
         status=np.int32(Status.OK),
         focal=np.float32(cam.focal),
         depth_seen=ok0,
+        fb_error=np.where(ok, fb, 0).astype(np.float32),
+        depth_slope=np.where(ok, slope1, 0).astype(np.float32),
     )
 
 

@@ -116,7 +116,8 @@ def pair_flow(T_w_prev, T_w_cur, planes=ROOM, rng=None, px=0.0, dcoef=0.0):
                  ).astype(np.float32),
         uv0.astype(np.float32),
         np.where(valid[:, None], uv1, uv0).astype(np.float32),
-        valid, np.int32(0), np.float32(F), np.isfinite(z0))
+        valid, np.int32(0), np.float32(F), np.isfinite(z0), np.zeros(len(valid), np.float32),
+        np.zeros(len(valid), np.float32))
     return flow, T.astype(np.float32)
 
 

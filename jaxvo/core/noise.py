@@ -71,19 +71,39 @@ def init_noise(params) -> NoiseScale:
                       jnp.asarray(params.depth_coeff, jnp.float32))
 
 
-def point_noise(pts_prev, pts_cur, focal, scale: NoiseScale) -> PointNoise:
-    """Noise of each point pair (columns ``(3, n)``, metres) under ``scale``.
+def point_noise(pts_prev, pts_cur, focal, scale: NoiseScale, fb_error=None,
+                depth_slope=None) -> PointNoise:
+    """Noise of each point pair (columns ``(3, n)``, metres) under ``scale`` and the tracker's
+    own quality of each point.
+
+    The tracker's error of a point, per image axis, has the variance
+    ``s^2 = pixel_sigma^2 + (fb_error / 2)^2`` pixels^2: the sequence's scale (which covers
+    what a forward-backward check cannot see, an error LK makes alike both ways) plus what
+    this track's forward-backward error shows (with independent forward and backward errors
+    of ``s`` each, the round trip's error has ``2 s^2`` per axis, ``4 s^2`` over both, so
+    ``(fb / 2)^2`` estimates one way's per axis). Across the ray that is ``s z1 / f`` metres;
+    along it, besides the two depth readings' noise, the tracked position's error moves the
+    current depth reading by the surface's slope: ``depth_slope^2 s^2`` (a depth edge or a
+    grazing surface reads a different depth a pixel away).
 
     Args:
       pts_prev, pts_cur: (3, n) previous and current points, metres (0 where invalid).
       focal: () focal length, pixels.
       scale: the calibrated :class:`NoiseScale`.
+      fb_error: (n,) forward-backward error of each track, pixels (default 0).
+      depth_slope: (n,) slope of the current depth surface at each tracked point, metres
+        per pixel (default 0).
     """
     z0, z1 = pts_prev[2], pts_cur[2]
     norm = jnp.sqrt(pts_cur[0] * pts_cur[0] + pts_cur[1] * pts_cur[1] + pts_cur[2] * pts_cur[2])
     ray = pts_cur / jnp.maximum(norm, _FLOOR)
-    var_lat = (scale.pixel_sigma / focal) ** 2 * z1 * z1
+    px2 = scale.pixel_sigma ** 2
+    if fb_error is not None:
+        px2 = px2 + 0.25 * fb_error * fb_error
+    var_lat = px2 / (focal * focal) * z1 * z1
     var_ray = scale.depth_coeff ** 2 * (z0 ** 4 + z1 ** 4)
+    if depth_slope is not None:
+        var_ray = var_ray + depth_slope * depth_slope * px2
     ok = (z0 > 0) & (z1 > 0)
     return PointNoise(ray, jnp.where(ok, 1.0 / jnp.maximum(var_lat, _FLOOR), 0.0),
                       jnp.where(ok, 1.0 / jnp.maximum(var_ray, _FLOOR), 0.0))
@@ -104,11 +124,14 @@ class Points(NamedTuple):
     tie: jax.Array  # () float32 two motions explain a point alike: chi2_1(confidence)
 
 
-def frame_points(pts_prev, pts_cur, valid, params, *, focal, scale=None) -> Points:
+def frame_points(pts_prev, pts_cur, valid, params, *, focal, scale=None, fb_error=None,
+                 depth_slope=None) -> Points:
     """One frame pair's points (n, 3) as columns with their noise and the tests' thresholds.
 
     Points that are non-finite or have non-positive depth count as invalid and are zeroed.
-    ``scale`` is the sensor noise (:class:`NoiseScale`), by default ``params``' starting one.
+    ``scale`` is the sensor noise (:class:`NoiseScale`), by default ``params``' starting one;
+    ``fb_error`` and ``depth_slope`` (n,) the tracker's quality of each point
+    (:class:`jaxvo.host.flow.GridFlow`; see :func:`point_noise`), by default none.
     """
     finite = jnp.all(jnp.isfinite(pts_prev), axis=1) & jnp.all(jnp.isfinite(pts_cur), axis=1)
     valid = valid & finite & (pts_prev[:, 2] > 0) & (pts_cur[:, 2] > 0)
@@ -117,7 +140,11 @@ def frame_points(pts_prev, pts_cur, valid, params, *, focal, scale=None) -> Poin
     src = jnp.where(valid, pts_prev.T, 0.0).astype(jnp.float32)
     dst = jnp.where(valid, pts_cur.T, 0.0).astype(jnp.float32)
     scale = init_noise(params) if scale is None else scale
-    noise = point_noise(src, dst, jnp.asarray(focal, jnp.float32), scale)
+    def per_point(x):
+        return None if x is None else jnp.where(valid, jnp.asarray(x, jnp.float32), 0.0)
+
+    noise = point_noise(src, dst, jnp.asarray(focal, jnp.float32), scale,
+                        per_point(fb_error), per_point(depth_slope))
     return Points(src, dst, noise, valid, chi2_quantile(3, params.confidence),
                   chi2_quantile(1, params.confidence))
 

@@ -125,7 +125,8 @@ def step(state: PipelineState, flow, key, params: Params, *, cfg: Config, grid,
         (:class:`jaxvo.host.flow.KeyframeTracker`); None: frame to frame only.
     """
     pts = frame_points(flow.pts_prev, flow.pts_cur, flow.valid & (flow.status == Status.OK),
-                       params, focal=flow.focal, scale=state.noise)
+                       params, focal=flow.focal, scale=state.noise, fb_error=flow.fb_error,
+                       depth_slope=flow.depth_slope)
     # 1. spatial segmentation (Algorithms 1, 2) under the sensor noise model
     seg = segment_points(key, pts, params, cfg=cfg, grid=grid, batch_axis=batch_axis)
     labels = measured_labels(seg, pts.valid, cfg=cfg)

@@ -100,6 +100,13 @@ class GridFlow(NamedTuple):
     # (n,) bool, the previous image has a depth reading at the cell; False: the cell is
     # hidden from the sensor (nearer or farther than its range, or a hole)
     depth_seen: np.ndarray
+    # The tracker's own quality of each valid point (0 where invalid), which the noise
+    # model adds to its sequence-wide scales (jaxvo.core.noise.point_noise):
+    fb_error: np.ndarray  # (n,) float32 pixels, forward-backward error of the track
+    # (n,) float32 metres per pixel, the slope of the depth surface at the tracked point in
+    # the current image (gradient of the bilinear lookup): a pixel of tracking error moves
+    # the depth reading by this much along the ray
+    depth_slope: np.ndarray
 
 
 def invalid_flow(uv_grid: np.ndarray, status: int = Status.BAD_INPUT, *,
@@ -116,6 +123,8 @@ def invalid_flow(uv_grid: np.ndarray, status: int = Status.BAD_INPUT, *,
         status=np.int32(status),
         focal=np.float32(focal),
         depth_seen=np.zeros(n, bool),
+        fb_error=np.zeros(n, np.float32),
+        depth_slope=np.zeros(n, np.float32),
     )
 
 
@@ -306,6 +315,16 @@ def _lookup(uv: np.ndarray, height: int, width: int, cfg: Config) -> _Lookup:
     )
 
 
+def _slope(taps: np.ndarray, look: _Lookup, ok: np.ndarray) -> np.ndarray:
+    """Gradient length of the bilinear surface of (2, 2, n) taps at the lookup points, m/px
+    (0 where not ``ok``)."""
+    d00, d01, d10, d11 = taps[0, 0], taps[0, 1], taps[1, 0], taps[1, 1]
+    ax, ay = look.ax, look.ay
+    gx = (1 - ay) * (d01 - d00) + ay * (d11 - d10)
+    gy = (1 - ax) * (d10 - d00) + ax * (d11 - d01)
+    return np.where(ok, np.hypot(gx, gy), np.float32(0)).astype(np.float32)
+
+
 def _bilinear(taps: np.ndarray, look: _Lookup, cfg: Config) -> tuple[np.ndarray, np.ndarray]:
     """Bilinear depth from (2, 2, n) refined taps, valid where they agree (see bilinear_depth)."""
     d00, d01, d10, d11 = taps[0, 0], taps[0, 1], taps[1, 0], taps[1, 1]
@@ -339,9 +358,27 @@ def bilinear_depth(
     return _bilinear(depth[rows, cols], look, cfg)
 
 
+def bilinear_slope(depth: np.ndarray, uv: np.ndarray, cfg: Config = DEFAULT_CONFIG) -> np.ndarray:
+    """Slope of the surface :func:`bilinear_depth` interpolates, at ``uv`` (n, 2): the length
+    of its gradient, (n,) float32 metres per pixel (0 where the lookup is not valid)."""
+    look = _lookup(uv, *depth.shape, cfg)
+    rows = look.y0 + np.arange(2)[:, None, None]
+    cols = look.x0 + np.arange(2)[None, :, None]
+    taps = depth[rows, cols]
+    return _slope(taps, look, _bilinear(taps, look, cfg)[1])
+
+
 def _depth_at(depth: np.ndarray, look: _Lookup, cfg: Config) -> tuple[np.ndarray, np.ndarray]:
     raw = np.asarray(depth).reshape(-1).take(look.raw_index)
     return _bilinear(_refine_blocks(raw, look.raw_inside, cfg), look, cfg)
+
+
+def _depth_slope_at(depth: np.ndarray, look: _Lookup, cfg: Config):
+    """:func:`_depth_at` and the surface's slope there (:func:`bilinear_slope`)."""
+    raw = np.asarray(depth).reshape(-1).take(look.raw_index)
+    taps = _refine_blocks(raw, look.raw_inside, cfg)
+    z, ok = _bilinear(taps, look, cfg)
+    return z, ok, _slope(taps, look, ok)
 
 
 def depth_at(
@@ -547,12 +584,14 @@ class GridFlowTracker:
 
         # depth at the tracked points beside backward LK (which then also tracks the few
         # points the depth check drops: the two take about as long)
-        tracked_depth = _beside(_depth_at, depth, _lookup(uv1, self.height, self.width, cfg), cfg)
+        tracked_depth = _beside(_depth_slope_at, depth,
+                                _lookup(uv1, self.height, self.width, cfg), cfg)
         uv_back, ok = self._lk(grey, prev.grey, uv1)
-        ok &= np.hypot(*(uv_back - uv0[idx]).T) <= cfg.fb_max  # NaN fails
-        z1, has_depth = tracked_depth.result()
+        fb = np.hypot(*(uv_back - uv0[idx]).T).astype(np.float32)
+        ok &= fb <= cfg.fb_max  # NaN fails
+        z1, has_depth, slope1 = tracked_depth.result()
         ok &= has_depth
-        idx, uv1, z1 = idx[ok], uv1[ok], z1[ok]
+        idx, uv1, z1, fb, slope1 = idx[ok], uv1[ok], z1[ok], fb[ok], slope1[ok]
 
         valid = np.zeros(self.n, bool)
         valid[idx] = True
@@ -565,6 +604,10 @@ class GridFlowTracker:
         pts_cur[idx] = backproject(uv1, z1, self.K)
         uv_cur = uv0.copy()
         uv_cur[idx] = uv1
+        fb_error = np.zeros(self.n, np.float32)
+        fb_error[idx] = fb
+        depth_slope = np.zeros(self.n, np.float32)
+        depth_slope[idx] = slope1
         return GridFlow(
             pts_prev=pts_prev,
             pts_cur=pts_cur,
@@ -574,6 +617,8 @@ class GridFlowTracker:
             status=np.int32(Status.OK),
             focal=np.float32(self.K.focal),
             depth_seen=prev.z_grid_ok.copy(),
+            fb_error=fb_error,
+            depth_slope=depth_slope,
         )
 
 

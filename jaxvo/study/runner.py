@@ -1218,7 +1218,8 @@ def _share_data(data: SequenceData | None) -> SequenceData:
         flows = GridFlow(np.zeros((T, n, 3), np.float32), np.zeros((T, n, 3), np.float32),
                          np.zeros((T, n, 2), np.float32), np.zeros((T, n, 2), np.float32),
                          np.zeros((T, n), bool), np.zeros((T,), np.int32),
-                         np.zeros((T,), np.float32), np.zeros((T, n), bool))
+                         np.zeros((T,), np.float32), np.zeros((T, n), bool),
+                         np.zeros((T, n), np.float32), np.zeros((T, n), np.float32))
         data = SequenceData("", flows, np.eye(4), np.zeros(T + 1), None, None, h, w)
     flows = GridFlow(*(_from_first(np.asarray(a)) for a in data.flows))
     T0 = _from_first(np.asarray(data.T_w_c0, np.float64))
