@@ -55,13 +55,19 @@ def _across(ray, rng):
     return a * rng.normal(size=ray.shape[1]) + b * rng.normal(size=ray.shape[1])
 
 
-def noisy_pairs(rng, n, scale=TRUE, T=MOTION):
-    """Column points (3, n) of a rigid scene moving by ``T`` with the model's noise:
-    ``(src, dst)`` float64, depths 0.8-4 m over a 640 x 480 view."""
+def rigid_scene(rng, n, T=MOTION):
+    """Noise-free column points (3, n) of a rigid scene before and after it moves by ``T``:
+    ``(true_prev, true_cur)`` float64, depths 0.8-4 m over a 640 x 480 view."""
     z = rng.uniform(0.8, 4.0, n)
     u, v = rng.uniform(-320, 320, n), rng.uniform(-240, 240, n)
     true_prev = np.stack([u * z / FOCAL, v * z / FOCAL, z])
-    true_cur = T[:3, :3] @ true_prev + T[:3, 3:4]
+    return true_prev, T[:3, :3] @ true_prev + T[:3, 3:4]
+
+
+def noisy_pairs(rng, n, scale=TRUE, T=MOTION):
+    """Column points (3, n) of a rigid scene moving by ``T`` with the model's noise:
+    ``(src, dst)`` float64 (:func:`rigid_scene`)."""
+    true_prev, true_cur = rigid_scene(rng, n, T)
     c = scale.depth_coeff
     src = true_prev + _unit(true_prev) * rng.normal(size=n) * c * true_prev[2] ** 2
     ray = _unit(true_cur)
@@ -163,10 +169,7 @@ def test_the_trackers_own_quality_sets_each_points_noise():
     fb = rng.uniform(0.0, 1.0, n)
     slope = rng.uniform(0.0, 0.02, n)
     s = np.sqrt(base.pixel_sigma ** 2 + 0.25 * fb ** 2)  # per axis, pixels
-    z = rng.uniform(0.8, 4.0, n)
-    u, v = rng.uniform(-320, 320, n), rng.uniform(-240, 240, n)
-    true_prev = np.stack([u * z / FOCAL, v * z / FOCAL, z])
-    true_cur = MOTION[:3, :3] @ true_prev + MOTION[:3, 3:4]
+    true_prev, true_cur = rigid_scene(rng, n)
     c = base.depth_coeff
     src = true_prev + _unit(true_prev) * rng.normal(size=n) * c * true_prev[2] ** 2
     ray = _unit(true_cur)
