@@ -128,9 +128,13 @@ def invalid_flow(uv_grid: np.ndarray, status: int = Status.BAD_INPUT, *,
     )
 
 
-def stack_flows(flows: list[GridFlow]) -> GridFlow:
-    """Stack per-pair flows along a new leading frame axis."""
-    return GridFlow(*(np.stack(field) for field in zip(*flows)))
+def stack_flows(flows: list, empty=None):
+    """Stack per-pair flows (a :class:`GridFlow` or :class:`KeyframeFlow` each) along a new
+    leading frame axis; with none, ``empty`` (one pair's flow) gives the fields' shapes and
+    types for a stack of length 0."""
+    if not flows:
+        return type(empty)(*(np.zeros((0, *np.shape(f)), np.asarray(f).dtype) for f in empty))
+    return type(flows[0])(*(np.stack(field) for field in zip(*flows)))
 
 
 # ----------------------------------------------------------------------------- depth
@@ -352,19 +356,21 @@ def bilinear_depth(
     Returns:
         ``(z, ok)``: (n,) float32 metres (0 where not ok) and (n,) bool.
     """
+    return _bilinear(*_taps(depth, uv, cfg), cfg)
+
+
+def _taps(depth: np.ndarray, uv: np.ndarray, cfg: Config) -> tuple[np.ndarray, _Lookup]:
+    """The (2, 2, n) taps of a refined depth image around ``uv`` (n, 2), and the lookup."""
     look = _lookup(uv, *depth.shape, cfg)
     rows = look.y0 + np.arange(2)[:, None, None]
     cols = look.x0 + np.arange(2)[None, :, None]
-    return _bilinear(depth[rows, cols], look, cfg)
+    return depth[rows, cols], look
 
 
 def bilinear_slope(depth: np.ndarray, uv: np.ndarray, cfg: Config = DEFAULT_CONFIG) -> np.ndarray:
     """Slope of the surface :func:`bilinear_depth` interpolates, at ``uv`` (n, 2): the length
     of its gradient, (n,) float32 metres per pixel (0 where the lookup is not valid)."""
-    look = _lookup(uv, *depth.shape, cfg)
-    rows = look.y0 + np.arange(2)[:, None, None]
-    cols = look.x0 + np.arange(2)[None, :, None]
-    taps = depth[rows, cols]
+    taps, look = _taps(depth, uv, cfg)
     return _slope(taps, look, _bilinear(taps, look, cfg)[1])
 
 
@@ -631,11 +637,6 @@ class KeyframeFlow(NamedTuple):
     renew: np.ndarray  # () bool, the current frame becomes the keyframe after this pair
 
 
-def stack_keyframe_flows(flows: list[KeyframeFlow]) -> KeyframeFlow:
-    """Stack per-pair keyframe flows along a new leading frame axis."""
-    return KeyframeFlow(*(np.stack(field) for field in zip(*flows)))
-
-
 class KeyframeTracker:
     """The grid points of the latest keyframe tracked into each new image (our addition).
 
@@ -743,7 +744,8 @@ class KeyframeTracker:
 
 
 def invalid_keyframe_flow(n: int) -> KeyframeFlow:
-    """An all-invalid :class:`KeyframeFlow` of ``n`` points that renews the keyframe."""
+    """An all-invalid :class:`KeyframeFlow` of ``n`` points that renews the keyframe (the
+    shapes of an empty stack, :func:`stack_flows`)."""
     z = np.zeros((n, 3), np.float32)
     return KeyframeFlow(z, z.copy(), np.zeros(n, bool), np.bool_(True))
 
@@ -973,16 +975,9 @@ def sequence_flows(
                     kf_flows.append(chain.keyframe_flow)
         if i and progress is not None:
             progress(i, n_frames - 1)
-    if not flows:
-        empty = invalid_flow(tracker.uv_grid, focal=seq.intrinsics.focal)
-        stacked = GridFlow(*(np.zeros((0, *np.shape(f)), np.asarray(f).dtype) for f in empty))
-    else:
-        stacked = stack_flows(flows)
-    keyframes = None
-    if cfg.keyframes:
-        keyframes = (stack_keyframe_flows(kf_flows) if kf_flows else KeyframeFlow(
-            *(np.zeros((0, *np.shape(f)), np.asarray(f).dtype)
-              for f in invalid_keyframe_flow(tracker.n))))
+    stacked = stack_flows(flows, invalid_flow(tracker.uv_grid, focal=seq.intrinsics.focal))
+    keyframes = (stack_flows(kf_flows, invalid_keyframe_flow(tracker.n)) if cfg.keyframes
+                 else None)
     return SequenceFlows(stacked, np.asarray(frames, np.int64), dropped, keyframes)
 
 
