@@ -61,11 +61,26 @@ def _flow_key(cfg: Config) -> str:
                         .encode()).hexdigest()[:10]
 
 
+def frames_hash() -> str:
+    """A short hash of the code that makes a case's frames (not its flow): what the peers'
+    runs and the grid truth depend on, so that a change to the tracker re-runs neither."""
+    import inspect
+
+    import jaxvo.host.io
+    import jaxvo.synth.render
+    import jaxvo.synth.scenes
+
+    h = hashlib.sha1()
+    for mod in (jaxvo.host.io, jaxvo.synth.render, jaxvo.synth.scenes):
+        h.update(inspect.getsource(mod).encode())
+    return h.hexdigest()[:16]
+
+
 def prepare(case: Case, cache: Path, cfg: Config) -> dict:
     """Flows, timestamps, ground truth and grid truth of a case, from the cache or computed
     (the flows in one file, keyed by the flow settings; the moving truth in another)."""
     path = cache / f"{case.name}__{_flow_key(cfg)}.npz"
-    truth = cache / f"{case.name}__truth{cfg.cell}_{study.code_hash()}.npz"
+    truth = cache / f"{case.name}__truth{cfg.cell}_{frames_hash()}.npz"
     seq = None
     if path.is_file():
         z = np.load(path, allow_pickle=False)
@@ -136,7 +151,7 @@ def peers_alone(case: Case, cache: Path, seq=None) -> dict:
     """ATE and ms/frame of each peer alone on the case (cached; a peer missing from the
     cache, such as ORB-SLAM3 newly installed, is run and added); {} without ground truth.
     ORB-SLAM3 is not deterministic: its cached figure is one run."""
-    path = cache / f"{case.name}__peers_{study.code_hash()}.json"
+    path = cache / f"{case.name}__peers_{frames_hash()}.json"
     out = json.loads(path.read_text()) if path.is_file() else {}
     todo = [k for k in peer_kinds() if k not in out]
     if not todo:

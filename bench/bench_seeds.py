@@ -1,0 +1,215 @@
+"""jaxvo's accuracy over seeds on the development and validation splits (issue 38).
+
+Every figure of a dynamic case is the median and the spread (worst / best) over ``--seeds``
+seeded runs: one seed is an anecdote. The cases are ``bench/splits.py``'s (their flows
+cached by ``bench_robustness.py``), run for all seeds at once: the per-frame step vmapped
+over the seeds' keys (one compiled program for every 640x480 case, the same frame keys as
+``run_scan``). Per case and seed: ATE against the ground truth, moving F at the grid
+points (composites and synthetic scenes), the share of grid cells reported moving (static
+frames), the points the ego-motion used. On the TUM walking clip, which has no ground
+truth: the distance (ATE after rigid alignment) of each seed's trajectory from the
+people-masked reference, jaxvo on the clip with the depth under the hand-drawn people masks
+set to 0 (``bench/annotations``), the medoid of as many seeded runs (``bench_people.py``'s
+reference).
+
+Run: ``.venv/bin/python bench/bench_seeds.py [--split dev|val|all] [--only CASE ...]
+[--seeds 5] [--set NAME=VALUE ...] [--out results/]``; writes ``seeds.md`` and
+``seeds.json``.
+"""
+
+from __future__ import annotations
+
+import argparse
+import datetime
+import functools
+import json
+import sys
+import time
+from pathlib import Path
+
+import jax
+import jax.numpy as jnp
+import numpy as np
+
+sys.path.insert(0, str(Path(__file__).resolve().parent))
+from _common import log, machine_line, markdown_table
+from bench_robustness import CFG, _flow_key, peers_alone, prepare
+from people_masks import people_masks
+from splits import Case, available, cases
+
+from jaxvo.config import Config, Params, grid_shape, params_as_arrays
+from jaxvo.core.pipeline import frame_key, init_pipeline, step
+from jaxvo.evaluation.metrics import SegmentationScores, ate
+from jaxvo.evaluation.scores import trajectory_scores
+from jaxvo.host.flow import GridFlow, flows_for_sequence
+from jaxvo.host.io import InMemorySequence, Trajectory, data_root, open_sequence
+from jaxvo.host.peers import OPENCV_PEERS
+
+
+@functools.partial(jax.jit, static_argnames=("cfg", "grid"))
+def _seeds_step(states, flow, keys, params, *, cfg: Config, grid):
+    """One frame pair for every seed: the step vmapped over the seeds' states and keys."""
+
+    def one(state, key):
+        return step(state, flow, frame_key(key, state.frame), params, cfg=cfg, grid=grid,
+                    batch_axis="seeds")
+
+    return jax.vmap(one, axis_name="seeds")(states, keys)
+
+
+def run_seeds(flows: dict, T0, params: Params, cfg: Config, seeds: int):
+    """Trajectories (one per seed, float64 poses) and the stacked outputs (S, T, ...) of the
+    seeds 0 .. seeds-1 over the cached ``flows`` (``flow_<field>`` arrays)."""
+    h, w = (int(x) for x in flows["size"])
+    grid = grid_shape(h, w, cfg.cell)
+    state = init_pipeline(cfg=cfg, grid=grid, T_w_c0=T0, params=params)
+    states = jax.tree.map(lambda x: jnp.broadcast_to(x, (seeds,) + jnp.shape(x)), state)
+    keys = jnp.stack([jax.random.key(s) for s in range(seeds)])
+    p = params_as_arrays(params)
+    flow_all = GridFlow(*(flows[f"flow_{k}"] for k in GridFlow._fields))
+    outs = []
+    for k in range(len(flow_all.valid)):
+        flow = GridFlow(*(jnp.asarray(a[k]) for a in flow_all))
+        states, out = _seeds_step(states, flow, keys, p, cfg=cfg, grid=grid)
+        outs.append(out)
+    outs = jax.tree.map(lambda *xs: np.stack([np.asarray(x) for x in xs], axis=1), *outs)
+    t = np.asarray(flows["timestamps"], np.float64)
+    T0 = np.asarray(T0, np.float64)
+    trajs = [Trajectory(t, np.concatenate([T0[None], outs.T_w_c[s].astype(np.float64)]))
+             for s in range(seeds)]
+    return trajs, outs
+
+
+def _without_people_flows(folder: Path, cache: Path, cfg: Config) -> dict:
+    """The TUM clip's flows with the depth under the people masks set to 0 (cached)."""
+    path = cache / f"tum_walking_nopeople__{_flow_key(cfg)}.npz"
+    if path.is_file():
+        z = np.load(path, allow_pickle=False)
+        return {k: z[k] for k in z.files}
+    log("tum_walking: the flows without the people's depth (cached)")
+    seq = InMemorySequence(open_sequence(folder))
+    people = people_masks(folder)
+    seq._frames = [f._replace(depth=np.where(people[i], 0.0, f.depth).astype(np.float32))
+                   for i, f in enumerate(seq._frames)]
+    flows = flows_for_sequence(seq, cfg)
+    data = {f"flow_{k}": np.asarray(v) for k, v in flows._asdict().items()}
+    data["timestamps"] = np.asarray(seq.timestamps, np.float64)
+    data["size"] = np.array([seq.height, seq.width])
+    path.parent.mkdir(parents=True, exist_ok=True)
+    np.savez_compressed(path, **data)
+    return data
+
+
+def _mm(a: Trajectory, b: Trajectory) -> float:
+    return 1e3 * float(ate(a, b).stats.rmse)
+
+
+def spread(values) -> dict:
+    """Median, worst, best and worst / best of per-seed figures (lower is better)."""
+    v = np.asarray(values, np.float64)
+    return {"median": float(np.median(v)), "worst": float(v.max()), "best": float(v.min()),
+            "spread": float(v.max() / max(v.min(), 1e-12)), "values": [float(x) for x in v]}
+
+
+def score_case(case: Case, data: dict, params: Params, seeds: int, cache: Path) -> dict:
+    T0 = data.get("gt_poses", np.eye(4)[None])[0]
+    t0 = time.perf_counter()
+    trajs, outs = run_seeds(data, T0, params, CFG, seeds)
+    row: dict = {"case": case.name, "split": case.split, "kind": case.kind,
+                 "seconds": time.perf_counter() - t0,
+                 "used_points": float(np.median(np.sum(outs.static, axis=-1))),
+                 "moving_cells_pct": spread(100.0 * outs.moving.mean(axis=(1, 2)))}
+    status = np.asarray(outs.status)
+    row["skipped"] = int(np.sum(status != 0))
+    if "gt_poses" in data:
+        gt = Trajectory(data["timestamps"], data["gt_poses"])
+        row["ate_mm"] = spread([1e3 * trajectory_scores(gt, tr)["ate_rmse_m"] for tr in trajs])
+        peers = peers_alone(case, cache)
+        if peers:
+            best = min(OPENCV_PEERS, key=lambda k: peers[k]["ate_rmse_m"])
+            row["best_peer"], row["best_peer_mm"] = best, 1e3 * peers[best]["ate_rmse_m"]
+    if "grid_gt" in data:
+        fs = []
+        for s in range(seeds):
+            sc = SegmentationScores()
+            for k in range(outs.moving.shape[1]):
+                sc.add(outs.moving[s, k], data["grid_gt"][k])
+            fs.append(sc.as_dict()["f_measure"])
+        row["moving_f"] = {"median": float(np.median(fs)), "worst": float(np.min(fs)),
+                           "best": float(np.max(fs)), "values": [float(x) for x in fs]}
+    if case.kind == "people":
+        ref_flows = _without_people_flows(data_root() / case.source, cache, CFG)
+        refs, _ = run_seeds(ref_flows, T0, params, CFG, seeds)
+        d = np.array([[_mm(a, b) if i != j else 0.0 for j, b in enumerate(refs)]
+                      for i, a in enumerate(refs)])
+        medoid = int(np.argmin(np.median(d, axis=1)))
+        row["reference_seed"] = medoid
+        row["reference_spread_mm"] = [float(x) for j, x in enumerate(d[medoid]) if j != medoid]
+        row["distance_mm"] = spread([_mm(refs[medoid], tr) for tr in trajs])
+    return row
+
+
+def _fmt(s: dict | None, spec: str = ".1f") -> str:
+    if not s:
+        return "-"
+    return f"{s['median']:{spec}} [{s['best']:{spec}}-{s['worst']:{spec}}]"
+
+
+def table(rows: list[dict]) -> str:
+    head = ["case", "ATE mm median [best-worst]", "worst/best", "best peer mm",
+            "median / best peer", "distance from people-masked ref mm", "worst/best",
+            "moving F median [worst-best]", "moving cells %", "points used", "skipped"]
+    cells = []
+    for r in rows:
+        a, d = r.get("ate_mm"), r.get("distance_mm")
+        f = r.get("moving_f")
+        cells.append([
+            r["case"], _fmt(a), f"{a['spread']:.2f}" if a else "-",
+            f"{r['best_peer_mm']:.1f}" if "best_peer_mm" in r else "-",
+            f"{a['median'] / r['best_peer_mm']:.2f}" if a and "best_peer_mm" in r else "-",
+            _fmt(d), f"{d['spread']:.2f}" if d else "-",
+            f"{f['median']:.3f} [{f['worst']:.3f}-{f['best']:.3f}]" if f else "-",
+            _fmt(r["moving_cells_pct"], ".2f"), f"{r['used_points']:.0f}", str(r["skipped"])])
+    return markdown_table(head, cells)
+
+
+def main(argv=None) -> int:
+    ap = argparse.ArgumentParser(description=__doc__.split("\n\n")[0])
+    ap.add_argument("--split", choices=("dev", "val", "all"), default="val")
+    ap.add_argument("--only", nargs="*", help="case names")
+    ap.add_argument("--seeds", type=int, default=5)
+    ap.add_argument("--set", nargs="*", default=[], metavar="NAME=VALUE",
+                    help="Params values to run with")
+    ap.add_argument("--cache", type=Path, default=Path("results/cache"))
+    ap.add_argument("--out", type=Path, default=Path("results"))
+    ap.add_argument("--title", default="", help="a line saying what this run is")
+    args = ap.parse_args(argv)
+    params = Params()._replace(**{k: float(v) for k, v in (a.split("=", 1) for a in args.set)})
+    todo = [c for c in cases() if c.split in (("dev", "val") if args.split == "all"
+                                                 else (args.split,))
+            and (not args.only or c.name in args.only)]
+    rows, skipped = [], {}
+    for case in todo:
+        why = available(case)
+        if why:
+            skipped[case.name] = why
+            continue
+        row = score_case(case, prepare(case, args.cache, CFG), params, args.seeds, args.cache)
+        rows.append(row)
+        log(f"{case.name}: ATE {_fmt(row.get('ate_mm'))} distance {_fmt(row.get('distance_mm'))}"
+            f" F {row.get('moving_f', {}).get('median', float('nan')):.3f}"
+            f" cells {row['moving_cells_pct']['median']:.2f} % used {row['used_points']:.0f}")
+    args.out.mkdir(parents=True, exist_ok=True)
+    meta = {"date": datetime.datetime.now().isoformat(timespec="seconds"),
+            "seeds": args.seeds, "set": args.set, "title": args.title, "skipped": skipped}
+    (args.out / "seeds.json").write_text(json.dumps({"meta": meta, "rows": rows}, indent=1))
+    md = [f"# jaxvo over {args.seeds} seeds\n", machine_line(), "",
+          args.title, "", table(rows), ""]
+    md += [f"{k}: skipped, {v}" for k, v in skipped.items()]
+    (args.out / "seeds.md").write_text("\n".join(md) + "\n")
+    print("\n".join(md))
+    return 0
+
+
+if __name__ == "__main__":
+    raise SystemExit(main())
