@@ -23,7 +23,7 @@ import jax.numpy as jnp
 
 from jaxvo.config import Config, Params
 from jaxvo.core.geometry import invert_pose, make_pose, so3_exp
-from jaxvo.core.noise import Points, init_noise, point_noise, residuals
+from jaxvo.core.noise import Points, init_noise, point_noise, residuals, residuals_many
 from jaxvo.core.procrustes import fit_rigid_cols
 from jaxvo.core.robust import CHI_3_Q25, chi2_quantile, huber_weights, mad_scale, quantile_scale
 from jaxvo.status import Status, first_failure
@@ -142,47 +142,96 @@ def estimate_egomotion(pts_prev, pts_cur, weights, params: Params, *, cfg: Confi
     return fit_egomotion(pts, weights, params, cfg=cfg, T_init=T_init)
 
 
-def fit_egomotion(pts: Points, weights, params: Params, *, cfg: Config, T_init=None):
+def fit_egomotion(pts: Points, weights, params: Params, *, cfg: Config, T_init=None,
+                  belief=None, candidates=None):
     """:func:`estimate_egomotion` on a frame's points as the pipeline builds them once
-    (:func:`jaxvo.core.noise.frame_points`); ``weights`` (n,) > 0 where a point may be used."""
+    (:func:`jaxvo.core.noise.frame_points`); ``weights`` (n,) > 0 where a point may be used.
+
+    The fit starts from the candidate motion of least robust cost over ``weights``
+    (``T_init``, the background segment's; ``candidates`` (k, 4, 4), the predicted motion
+    and every segment's; and the plain weighted fit), so that the random hypotheses
+    choose where the deterministic re-weighting starts, not where it ends. With ``belief``
+    (n,) (:func:`jaxvo.core.temporal.belief_weights`: 1 where earlier frames established
+    the point as background) the support then grows: every established point that the
+    fitted motion explains within the inlier test joins it, whatever segment it fell in
+    this frame, and the fit is re-weighted on the grown support, twice. A piece of the
+    background that the spatial stage split off (and so left out of ``weights``) supports
+    the pose again, while an established point that moves now stays out by the test.
+    """
     src, dst, noise = pts.src, pts.dst, pts.noise
-    usable = weights > 0
-    n_usable = jnp.sum(usable)
-    corner = jnp.sqrt(pts.thr)
-    # a point's weight falls with its depth noise (1/sigma rather than the statistically
-    # optimal 1/sigma^2: that let near, mislabelled object points pull the fit, fixed_camera_1
-    # ATE 0.6 -> 190 mm, while 1/sigma keeps most of the gain on static scenes, 6.6 -> 4.9 mm)
-    w_ray = jnp.sqrt(noise.w_ray)
-    w0 = jnp.where(usable, weights * w_ray / jnp.maximum(jnp.max(w_ray), 1e-12), 0.0)
-    w0 = w0.astype(jnp.float32)
+    established = (jnp.zeros(weights.shape, bool) if belief is None
+                   else (belief >= 1.0) & pts.valid)
+    T, ok0 = _robust_fit(pts, weights, params, cfg=cfg, T_init=T_init, candidates=candidates)
 
-    def scaled_residuals(T):
-        r = jnp.sqrt(residuals(T, src, dst, noise)[0] + 1e-12)
-        q = quantile_scale(r, usable, _QUARTILE, CHI_3_Q25)
-        return r, corner * jnp.clip(q, *_SCALE_RANGE)
+    def grown(T):
+        explained = residuals(T, src, dst, noise)[0] <= pts.thr
+        return jnp.where(weights > 0, weights, jnp.where(established & explained, 1.0, 0.0))
 
-    def reweight(_, carry):
-        T, _ok = carry
-        r, c = scaled_residuals(T)
-        return fit_rigid_cols(src, dst, huber_weights(r, c, w0))
-
-    if T_init is None:
-        T0, ok0 = fit_rigid_cols(src, dst, w0)
-    else:
-        T0, ok0 = reweight(0, (jnp.asarray(T_init, jnp.float32), jnp.bool_(True)))
-    T, ok = jax.lax.fori_loop(0, cfg.ego_iters, reweight, (T0, ok0))
-    r, c = scaled_residuals(T)
-    inliers = usable & (r <= c)
+    for _ in range(2):
+        later = grown(T)
+        T, ok, inliers = _reweight(pts, later, T, params, cfg=cfg)
     if cfg.ego_reprojection_iters > 0:
         T = refine_reprojection(T, src, dst, inliers, cfg.ego_reprojection_iters)
-
     status = jnp.where(
-        n_usable < params.min_static_points,
+        jnp.sum(later > 0) < params.min_static_points,
         jnp.int32(Status.NO_STATIC),
         jnp.where(ok & ok0, jnp.int32(Status.OK), jnp.int32(Status.EGO_DEGENERATE)),
     )
     T = jnp.where(status == Status.OK, T, jnp.eye(4, dtype=T.dtype))
     return T, status, inliers
+
+
+def _prior_weights(pts: Points, weights):
+    """(n,) float32 the weights a point enters the fit with: its ``weights`` times its depth
+    precision (1/sigma rather than the statistically optimal 1/sigma^2, which let near,
+    mislabelled object points pull the fit; docs/report/robustness.md)."""
+    w_ray = jnp.sqrt(pts.noise.w_ray)
+    return jnp.where(weights > 0, weights * w_ray / jnp.maximum(jnp.max(w_ray), 1e-12),
+                     0.0).astype(jnp.float32)
+
+
+def _scaled_residuals(pts: Points, T, usable):
+    """Residual lengths in noise units (n,) under ``T`` and the Huber corner of the frame:
+    the inlier test at the frame's robust scale (the lower quartile of the usable points'
+    lengths, within ``_SCALE_RANGE`` of the noise model)."""
+    r = jnp.sqrt(residuals(T, pts.src, pts.dst, pts.noise)[0] + 1e-12)
+    q = quantile_scale(r, usable, _QUARTILE, CHI_3_Q25)
+    return r, jnp.sqrt(pts.thr) * jnp.clip(q, *_SCALE_RANGE)
+
+
+def _reweight(pts: Points, weights, T, params: Params, *, cfg: Config):
+    """``cfg.ego_iters`` Huber re-weightings of the fit on ``weights`` (n,) from ``T``:
+    ``(T, ok, inliers (n,) bool)``."""
+    w0, usable = _prior_weights(pts, weights), weights > 0
+
+    def step(_, carry):
+        T, _ok = carry
+        r, c = _scaled_residuals(pts, T, usable)
+        return fit_rigid_cols(pts.src, pts.dst, huber_weights(r, c, w0))
+
+    T, ok = jax.lax.fori_loop(0, cfg.ego_iters, step, (T, jnp.bool_(True)))
+    r, c = _scaled_residuals(pts, T, usable)
+    return T, ok, usable & (r <= c)
+
+
+def _robust_fit(pts: Points, weights, params: Params, *, cfg: Config, T_init, candidates):
+    """The re-weighted fit on ``weights`` (n,) from the best start: ``(T, ok)``.
+
+    The starts are ``T_init``, ``candidates`` and the plain weighted fit; the best has the
+    least truncated cost (each point's normalised residual, capped at the inlier test)."""
+    w0 = _prior_weights(pts, weights)
+    T_fit, ok_fit = fit_rigid_cols(pts.src, pts.dst, w0)
+    starts = [T_fit[None]]
+    if T_init is not None:
+        starts.append(jnp.asarray(T_init, jnp.float32)[None])
+    if candidates is not None:
+        starts.append(jnp.asarray(candidates, jnp.float32))
+    starts = jnp.concatenate(starts)
+    d2 = residuals_many(starts, pts.src, pts.dst, pts.noise)[0]
+    cost = jnp.sum(w0[None] * jnp.minimum(d2, pts.thr), axis=1)
+    best = jnp.argmin(jnp.where(jnp.all(jnp.isfinite(starts), axis=(1, 2)), cost, jnp.inf))
+    T, ok, _ = _reweight(pts, weights, starts[best], params, cfg=cfg)
+    return T, ok & ((best > 0) | ok_fit)
 
 
 class EgoState(NamedTuple):
@@ -214,17 +263,19 @@ def predicted_motion(state: EgoState):
 
 
 def update_egomotion(state: EgoState, pts: Points, weights, T_init, status, params: Params, *,
-                     cfg: Config):
+                     cfg: Config, belief=None, candidates=None):
     """One frame of the camera's motion: :func:`fit_egomotion` from the background's motion
     ``T_init`` (4, 4) on the points of ``weights`` (n,), and the pose chain.
 
     ``status`` () is the earlier stages' (flow, segmentation): a frame where one of them or
     the fit failed carries the predicted motion (:func:`predicted_motion`), so a moving
-    camera is never frozen by a skipped pair.
+    camera is never frozen by a skipped pair. ``belief`` (n,) and ``candidates`` (k, 4, 4):
+    see :func:`fit_egomotion`.
 
     Returns ``(EgoState, EgoOut)``.
     """
-    T_ego, ego_status, inliers = fit_egomotion(pts, weights, params, cfg=cfg, T_init=T_init)
+    T_ego, ego_status, inliers = fit_egomotion(pts, weights, params, cfg=cfg, T_init=T_init,
+                                               belief=belief, candidates=candidates)
     status = first_failure(status, ego_status)
     ok = status == Status.OK
     T_cur_prev = jnp.where(ok, T_ego, predicted_motion(state))

@@ -135,18 +135,22 @@ def step(state: PipelineState, flow, key, params: Params, *, cfg: Config, grid,
     temporal, bg = update_background(state.temporal, seg, labels, pts,
                                      predicted_motion(state.ego), state.ego.have_last,
                                      params, cfg=cfg)
-    # 3. ego-motion, re-weighted from the background segment's motion; with keyframes
-    # also on the keyframe's static points tracked into this image (jaxvo.core.keyframe)
-    ego_pts, ego_weights = pts, bg.use
+    # 3. ego-motion from the best of the frame's candidate motions, its support grown over
+    # the established background; with keyframes also on the keyframe's static points
+    # tracked into this image (jaxvo.core.keyframe)
+    ego_pts, ego_weights, belief = pts, bg.use, bg.belief
     use_kf = cfg.keyframes and keyframe is not None
     if use_kf:
         kpts = keyframe_points(state.keyframe, keyframe, state.ego.T_w_c, params,
                                focal=flow.focal, scale=state.noise)
         ego_pts = join_points(pts, kpts)
         ego_weights = jnp.concatenate([bg.use, kpts.valid.astype(bg.use.dtype)])
+        belief = jnp.concatenate([belief, kpts.valid.astype(belief.dtype)])
+    candidates = jnp.concatenate([predicted_motion(state.ego)[None], seg.motions])
     ego, eo = update_egomotion(state.ego, ego_pts, ego_weights,
                                seg.motions[jnp.maximum(bg.background - 1, 0)],
-                               first_failure(flow.status, seg.status), params, cfg=cfg)
+                               first_failure(flow.status, seg.status), params, cfg=cfg,
+                               belief=belief, candidates=candidates)
     eo = eo._replace(used=eo.used[:pts.valid.shape[0]])
     # 4. evidence of each point's own motion under the ego-motion
     explained, delta = moving_evidence(seg.labels, pts, eo.T_cur_prev, bg.d2_seg, eo.ok,

@@ -324,6 +324,7 @@ class BackgroundOut(NamedTuple):
     background: jax.Array  # () int32 spatial label of the background segment 1..S, 0 none
     reacquired: jax.Array  # () bool the background took its identifier back this frame
     use: jax.Array  # (n,) float32 each point's weight as background for the ego-motion
+    belief: jax.Array  # (n,) float32 each valid point's belief weight (belief_weights)
     d2_seg: jax.Array  # (max_segments, n) float32 normalised residuals under each segment
 
 
@@ -412,7 +413,7 @@ def update_background(state: TemporalState, seg, labels, pts: Points, T_pred, ha
                   | (jnp.arange(1, cfg.max_segments + 1) == bg))
     in_moving_seg = (seg.labels > 0) & ~static_seg[jnp.clip(seg.labels - 1, 0, None)]
     use = jnp.where(in_moving_seg, 0.0, belief)
-    return state, BackgroundOut(segment_ids, bg, reacquired, use, d2_seg)
+    return state, BackgroundOut(segment_ids, bg, reacquired, use, belief, d2_seg)
 
 
 def evidence_delta(seg_labels, d2_ego, d2_seg, explained, valid, params: Params, *,

@@ -160,18 +160,17 @@ def init_window(*, cfg: Config, grid: tuple[int, int], T_w_c0=None) -> WindowSta
 # --------------------------------------------------------------------------- tracks
 
 
-def _neighbours(uv, flow, grid):
+def _neighbours(uv, grid, cell):
     """Bilinear neighbours on the flow grid of pixel positions ``uv`` (m, 2).
 
     Returns ``(idx (m, 4) int32, w (m, 4) float32, inside (m,) bool)``: the four grid points
     around each position (row-major indices), their bilinear weights, and whether the
-    position lies within the grid's cell centres. The grid's origin and spacing are read
-    off ``flow.uv_prev`` (row-major cell centres).
+    position lies within the grid's cell centres (``cell`` pixels apart, the first at
+    ``(cell - 1) / 2``; :func:`jaxvo.host.camera.grid_pixels`). A grid point placed off its
+    cell's centre (``Config.textured_points``) stands for its cell.
     """
     rows, cols = grid
-    origin = flow.uv_prev[0]
-    spacing = jnp.stack([flow.uv_prev[1, 0] - origin[0], flow.uv_prev[cols, 1] - origin[1]])
-    f = (uv - origin) / jnp.where(spacing > 0, spacing, 1.0)
+    f = (uv - 0.5 * (cell - 1)) / cell
     i0 = jnp.clip(jnp.floor(f[:, 0]), 0, cols - 2)
     j0 = jnp.clip(jnp.floor(f[:, 1]), 0, rows - 2)
     a, b = f[:, 0] - i0, f[:, 1] - j0
@@ -183,7 +182,7 @@ def _neighbours(uv, flow, grid):
     return idx, w.astype(jnp.float32), inside
 
 
-def chain_tracks(uv, flow, usable, grid):
+def chain_tracks(uv, flow, usable, grid, cell):
     """Each track's position and 3D observation in the pair's current image.
 
     The pair's grid flow is interpolated bilinearly at ``uv`` from the four neighbouring
@@ -202,14 +201,14 @@ def chain_tracks(uv, flow, usable, grid):
       uv: (m, 2) positions in the pair's previous image, pixels.
       flow: the pair's ``GridFlow`` (device arrays).
       usable: (n,) bool grid points whose flow may be used (valid, static).
-      grid: static ``(rows, cols)``.
+      grid: static ``(rows, cols)``; cell: static, the grid cell's side, pixels.
 
     Returns:
       ``(uv_new (m, 2) pixels, Q (m, 3) metres in the current camera, ok (m,) bool)``; ``ok``
       is False where a neighbour is not usable, their depths disagree, or the position is
       off the grid.
     """
-    idx, w, inside = _neighbours(uv, flow, grid)
+    idx, w, inside = _neighbours(uv, grid, cell)
     z = flow.pts_cur[idx, 2]  # (m, 4) metres
     use = usable[idx] & (z > 0)
     every = jnp.all(use, axis=1)
@@ -588,7 +587,7 @@ def update_window(state: WindowState, flow, pts: Points, T_cur_prev, static,
     chex.assert_type([flow.pts_prev, flow.pts_cur, T_cur_prev], jnp.float32)
 
     usable = flow.valid & static
-    advanced = _advance(state, flow, pts, T_cur_prev, usable, grid=grid)
+    advanced = _advance(state, flow, pts, T_cur_prev, usable, grid=grid, cell=cfg.cell)
     pb, seen, fixed, frame_valid = _problem(advanced, noise_scale, params)
     # 3. the refinement, in the coordinates of the oldest frame (held fixed)
     T_ref = advanced.T_w_c[fixed]
@@ -605,7 +604,7 @@ def update_window(state: WindowState, flow, pts: Points, T_cur_prev, static,
     return new_state, out
 
 
-def _advance(state: WindowState, flow, pts: Points, T_cur_prev, usable, *, grid):
+def _advance(state: WindowState, flow, pts: Points, T_cur_prev, usable, *, grid, cell):
     """The window moved on by one pair, before its refinement: the oldest frame leaves, the
     pair's current frame enters, tracks chained and seeded, the pair's factor added."""
     K = state.T_w_c.shape[0]
@@ -622,7 +621,7 @@ def _advance(state: WindowState, flow, pts: Points, T_cur_prev, usable, *, grid)
 
     # 2. tracks: chain the living ones, seed dead slots at their usable grid points (the
     # seed's own reading is its observation in the anchor frame)
-    uv_new, Q, ok = chain_tracks(state.uv, flow, usable, grid)
+    uv_new, Q, ok = chain_tracks(state.uv, flow, usable, grid, cell)
     ok = ok & state.alive
     at = seed_index(grid)
     seed = ~ok & usable[at]
