@@ -46,6 +46,9 @@ class Config:
     fill_radius: int = 2  # holes are filled from the (2r+1)^2 neighbourhood, pixels
     fill_min_valid: int = 6  # fewest valid neighbours (of (2r+1)^2 - 1) needed to fill a hole
     depth_smooth: bool = True  # also average valid depth over agreeing (2r+1)^2 windows
+    # each cell's grid point at its most trackable pixel with depth (host.flow.textured_points)
+    # instead of its centre, which on a wall or floor gives LK nothing to follow
+    textured_points: bool = False
 
     # --- spatial segmentation (thesis chapter 3, Algorithms 1 and 2) ---
     # H, the most hypotheses a frame pair may take: a cap. The search stops earlier, once

@@ -154,15 +154,17 @@ def test_forward_backward_rejects_replaced_region(tex0):
 def test_similarity_rejects_changed_patch(tex0):
     # Invert a 5x5 block at the centre of some grid cells: the rest of each LK window still
     # matches, so LK and the forward-backward check mostly pass, but the patches differ.
+    # The grid points stay at the cells' centres (on the blocks).
+    centred = dataclasses.replace(CFG, textured_points=False)
     uv = grid_pixels(H, W, CFG.cell)
     changed = np.arange(200, 1000, 37)
     cur = tex0.copy()
     for x, y in uv[changed]:
         xi, yi = int(x + 0.5), int(y + 0.5)
         cur[yi - 2 : yi + 3, xi - 2 : xi + 3] = 255 - cur[yi - 2 : yi + 3, xi - 2 : xi + 3]
-    loose = dataclasses.replace(CFG, min_similarity=-1.0)
+    loose = dataclasses.replace(centred, min_similarity=-1.0)
     a = grid_flow(bgr(tex0), plane(2.0), bgr(cur), plane(2.0), K, loose)
-    b = grid_flow(bgr(tex0), plane(2.0), bgr(cur), plane(2.0), K, CFG)
+    b = grid_flow(bgr(tex0), plane(2.0), bgr(cur), plane(2.0), K, centred)
     others = np.ones(len(uv), bool)
     others[changed] = False
     others &= interior(uv)
@@ -502,10 +504,17 @@ def test_fast_motion_takes_one_pyramid_level_more(shift, gain):
 
 def reference_flow(b0, d0, b1, d1, cam, cfg) -> GridFlow:
     """The checks of thesis 2.2 applied to every grid point, each on the whole image:
-    LK both ways on all points, whole-image depth refinement, all patches."""
+    LK both ways on all points, whole-image depth refinement, all patches. The grid points
+    are the cells' centres or, with ``cfg.textured_points``, where ``textured_points`` puts
+    them on the first image."""
+    from jaxvo.host.flow import textured_points
+
     g0, g1 = (cv2.cvtColor(b, cv2.COLOR_BGR2GRAY) for b in (b0, b1))
     h, w = g0.shape
     uv0 = grid_pixels(h, w, cfg.cell)
+    if cfg.textured_points:
+        uv0 = textured_points(g0, d0, uv0, (h // cfg.cell, w // cfg.cell), cfg.cell,
+                              cfg.depth_jump)
     lk = {
         "winSize": (cfg.lk_window, cfg.lk_window),
         "maxLevel": cfg.lk_levels,
@@ -607,3 +616,49 @@ def test_real_pair(name, min_valid):
     ref = reference_flow(b0, d0, b1, d1, cam, CFG)
     for field, a, b in zip(GridFlow._fields, flow, ref):
         np.testing.assert_array_equal(a, b, err_msg=field)  # as checking every point
+
+
+def test_textured_points_take_each_cells_most_trackable_pixel_with_depth():
+    """One point per cell: on a flat image every cell keeps its centre; a single corner in a
+    cell draws that cell's point to within 2 px of it (the half-size image's resolution),
+    unless the corner has no depth reading; neighbouring flat cells keep their centres."""
+    from jaxvo.host.flow import textured_points
+
+    cell, grid = 16, (H // 16, W // 16)
+    centres = grid_pixels(H, W, cell)
+    flat = np.full((H, W), 120, np.uint8)
+    depth = np.ones((H, W), np.float32)
+    np.testing.assert_array_equal(textured_points(flat, depth, centres, grid, cell, 0.05), centres)
+
+    img = flat.copy()
+    img[100:, 200:] = 40  # one corner at (200, 100): cell row 6, column 12
+    uv = textured_points(img, depth, centres, grid, cell, 0.05)
+    i = 6 * grid[1] + 12
+    assert np.hypot(*(uv[i] - [200, 100])) <= 3.0  # pixels: a half-size pixel's diagonal and the blur
+    # the cells far from the edges keep their centres
+    np.testing.assert_array_equal(uv[:grid[1] * 4], centres[:grid[1] * 4])
+
+    no_depth = depth.copy()
+    no_depth[96:112, 192:208] = 0.0  # the corner's cell has no depth reading at all
+    uv = textured_points(img, no_depth, centres, grid, cell, 0.05)
+    np.testing.assert_array_equal(uv[i], centres[i])
+
+
+def test_textured_points_give_more_valid_tracks_on_a_half_flat_image(tex0):
+    """Cells that are flat but for a textured part: a point on the texture tracks where the
+    cell's centre on the flat part does not."""
+    img = tex0.copy()
+    img[:, ::32] = 128.0  # keep the texture only in alternate 16-px columns of cells
+    for c0 in range(0, W, 32):
+        img[:, c0:c0 + 12] = 128.0
+    A = np.float32([[1, 0, 2.0], [0, 1, 1.0]])
+    nxt = warp(img, A)
+    depth = np.full((H, W), 2.0, np.float32)
+    counts = {}
+    for textured in (False, True):
+        cfg = dataclasses.replace(CFG, textured_points=textured)
+        f = grid_flow(bgr(img), depth, bgr(nxt), depth, K, cfg)
+        counts[textured] = int(np.sum(f.valid))
+        d = (f.uv_cur - f.uv_prev)[f.valid]
+        np.testing.assert_allclose(np.median(d, axis=0), [2.0, 1.0], atol=0.1)  # pixels
+    assert counts[True] >= 1.5 * counts[False]

@@ -447,13 +447,65 @@ def patch_correlation(a: np.ndarray, b: np.ndarray) -> np.ndarray:
 # ----------------------------------------------------------------------------- front end
 
 
+# A cell's point moves off its centre only to a pixel whose minimum eigenvalue reaches this
+# fraction of the image's largest (the texture test of OpenCV's goodFeaturesToTrack, its
+# qualityLevel, at the value the issue measured the cells with)
+TEXTURE_FRACTION = 0.01
+
+
+def smooth_depth(z: np.ndarray, depth_jump: float) -> np.ndarray:
+    """(h, w) bool pixels of ``z`` (metres, 0 = none) whose 3 x 3 neighbourhood all has depth
+    within ``depth_jump`` of its nearest: on one surface, not on a depth edge (where a
+    pixel's depth is either surface's, or between them)."""
+    kernel = np.ones((3, 3), np.uint8)
+    near = cv2.erode(z, kernel, borderType=cv2.BORDER_REPLICATE)
+    far = cv2.dilate(z, kernel, borderType=cv2.BORDER_REPLICATE)
+    return (near > 0) & (far - near <= depth_jump * near)
+
+
+def textured_points(grey: np.ndarray, depth: np.ndarray, centres: np.ndarray,
+                    grid: tuple[int, int], cell: int, depth_jump: float) -> np.ndarray:
+    """(n, 2) float32 one point per grid cell: its most trackable pixel on a surface.
+
+    The minimum eigenvalue of the gradient structure tensor (``cv2.cornerMinEigenVal``,
+    3 x 3) on the half-size image (a quarter of the pixels; a cell of 16 pixels is 8 there)
+    scores each pixel; pixels without depth, or on a depth edge (:func:`smooth_depth`: an
+    object's outline is textured, but its depth belongs to neither surface), score nothing.
+    A cell whose best score is under :data:`TEXTURE_FRACTION` of the image's best keeps its
+    ``centres`` point.
+
+    Args:
+        grey: (H, W) uint8; depth: (H, W) float metres (0 = no reading).
+        centres: (n, 2) the cells' centres (:func:`jaxvo.host.camera.grid_pixels`).
+        grid: ``(rows, cols)``; cell: the cell's side, pixels (even).
+        depth_jump: the largest depth change on one surface, a fraction of the depth
+            (``Config.depth_jump``).
+    """
+    rows, cols = grid
+    half = cell // 2
+    small = cv2.pyrDown(grey)
+    score = cv2.cornerMinEigenVal(small, 3)[:rows * half, :cols * half]
+    z = np.ascontiguousarray(depth[:rows * cell:2, :cols * cell:2], np.float32)
+    score = np.where(smooth_depth(z, depth_jump), score, 0.0)
+    blocks = score.reshape(rows, half, cols, half).transpose(0, 2, 1, 3).reshape(rows * cols, -1)
+    best = np.argmax(blocks, axis=1)
+    top = blocks[np.arange(len(best)), best]
+    r, c = np.divmod(np.arange(rows * cols), cols)
+    uv = np.stack([2.0 * (c * half + best % half), 2.0 * (r * half + best // half)], axis=1)
+    textured = top >= TEXTURE_FRACTION * max(float(score.max()), 1e-12)
+    h, w = grey.shape
+    uv = np.clip(uv, 1.0, [w - 2.0, h - 2.0])
+    return np.where(textured[:, None], uv, centres).astype(np.float32)
+
+
 class _Frame(NamedTuple):
     """What the tracker keeps of a frame so that it is processed once."""
 
     grey: np.ndarray  # (H, W) uint8, for LK
     grey_f: np.ndarray  # (H, W) float32, for the similarity patches
-    z_grid: np.ndarray  # (n,) float32 metres at the grid centres (0 = none)
+    z_grid: np.ndarray  # (n,) float32 metres at the grid points (0 = none)
     z_grid_ok: np.ndarray  # (n,) bool
+    uv: np.ndarray  # (n, 2) float32 the grid points of this image (grid_points), pixels
 
 
 def _as_grey(bgr, height: int, width: int) -> np.ndarray | None:
@@ -536,8 +588,8 @@ class GridFlowTracker:
         d = _as_depth(depth, self.height, self.width)
         if grey is None or d is None:
             return invalid_flow(self.uv_grid, Status.BAD_INPUT, focal=self.K.focal)
-        # this frame's depth at the grid is read by the next pair only: refined beside LK
-        grid_depth = _beside(_depth_at, d, self._grid_lookup, self.cfg)
+        # this frame's grid points and their depth are read by the next pair only: beside LK
+        grid_depth = _beside(self._grid_points, grey, d)
         prev = self._prev
         self._before = (prev, self._levels)
         held = prev.grey_f if prev is not None else None
@@ -546,6 +598,23 @@ class GridFlowTracker:
         flow = None if prev is None else self._track(prev, grey, grey_f, d)
         self._prev = _Frame(grey, grey_f, *grid_depth.result())
         return flow
+
+    def _grid_points(self, grey: np.ndarray, depth: np.ndarray):
+        """This image's grid points and their refined depth: ``(z (n,), ok (n,), uv (n, 2))``.
+
+        With ``cfg.textured_points`` each cell's point is its most trackable pixel with a
+        depth reading (the largest minimum eigenvalue of the image's gradient structure,
+        Shi and Tomasi's measure, on the half-size image) where that reaches
+        :data:`TEXTURE_FRACTION` of the image's largest, else the cell's centre: a cell
+        centre on a textureless wall or floor gives LK nothing to follow, while a textured
+        pixel elsewhere in the same cell does. One point per cell keeps the grid and its
+        model as they are."""
+        if not self.cfg.textured_points:
+            return (*_depth_at(depth, self._grid_lookup, self.cfg), self.uv_grid)
+        uv = textured_points(grey, depth, self.uv_grid, self.grid, self.cfg.cell,
+                             self.cfg.depth_jump)
+        look = _lookup(uv, self.height, self.width, self.cfg)
+        return (*_depth_at(depth, look, self.cfg), uv)
 
     def _lk(self, src: np.ndarray, dst: np.ndarray, pts: np.ndarray):
         """LK positions in ``dst`` of ``pts`` (m, 2) in ``src``, and whether each converged."""
@@ -570,7 +639,7 @@ class GridFlowTracker:
         gives the same flow as checking every point. ``grey``, ``grey_f`` and ``depth`` are
         the current frame's."""
         cfg = self.cfg
-        uv0 = self.uv_grid
+        uv0 = prev.uv
         idx = np.flatnonzero(prev.z_grid_ok)  # no depth at the start: never a valid track
 
         uv1, ok = self._lk(prev.grey, grey, uv0[idx])
@@ -674,7 +743,7 @@ class KeyframeTracker:
         kf = kf._replace(grey_f=kf.grey_f.copy())
         self._kf = kf
         self._idx = np.flatnonzero(kf.z_grid_ok & self._sub)
-        self._track = self.t.uv_grid[self._idx].copy()
+        self._track = kf.uv[self._idx].copy()
         self._ref, self._age = 0, 0
 
     def _seed(self, flow: GridFlow) -> np.ndarray:
@@ -701,7 +770,7 @@ class KeyframeTracker:
         t, cfg, kf = self.t, self.t.cfg, self._kf
         cur = t._prev
         seed = self._seed(flow)
-        p0 = t.uv_grid[self._idx]
+        p0 = kf.uv[self._idx]
         ok = np.zeros(len(p0), bool)
         p1 = seed.copy()
         if len(p0):
@@ -728,7 +797,7 @@ class KeyframeTracker:
         valid[idx] = True
         pts_kf = np.zeros((n, 3), np.float32)
         pts_cur = np.zeros((n, 3), np.float32)
-        pts_kf[idx] = backproject(t.uv_grid[idx], kf.z_grid[idx], t.K)
+        pts_kf[idx] = backproject(kf.uv[idx], kf.z_grid[idx], t.K)
         pts_cur[idx] = backproject(p1[ok], z1, t.K) if len(idx) else pts_cur[idx]
         self._track = np.where(ok[:, None], p1, seed).astype(np.float32)
         count = int(ok.sum())
