@@ -3,7 +3,6 @@
 from __future__ import annotations
 
 import os
-import re
 from pathlib import Path
 from typing import NamedTuple
 
@@ -20,6 +19,18 @@ from jaxvo.host.camera import (
     read_camera_file,
 )
 
+# what every sequence reader shares; its names stay importable from here too
+from jaxvo.host.frames import (
+    Frame,
+    associate,
+    check_frame_size,
+    describe,
+    frame_index,
+    given_camera,
+    preset_from_name,
+)
+from jaxvo.host.rosbag import BagSequence, is_bag
+
 
 def data_root() -> Path:
     """Where the real sequences live: ``$JAXVO_DATA``, else ``../shared/data`` beside the repo."""
@@ -30,47 +41,6 @@ def data_root() -> Path:
 
     checkout = Path(jaxvo.__file__).resolve().parent.parent  # the folder holding jaxvo/
     return checkout.parent / "shared" / "data"
-
-
-class Frame(NamedTuple):
-    """One RGB-D frame on the host."""
-
-    index: int
-    timestamp: float  # seconds
-    bgr: np.ndarray  # (H, W, 3) uint8, OpenCV channel order
-    depth: np.ndarray  # (H, W) float32 metres, 0 = no reading
-    mask: np.ndarray | None = None  # (H, W) uint8 moving-object id, 0 = static (synthetic only)
-
-
-def frame_index(index: int, n: int) -> int:
-    """``index`` into a sequence of ``n`` frames as 0 .. n-1 (negative counts from the end).
-
-    Raises:
-      IndexError: out of range.
-    """
-    if not -n <= index < n:
-        raise IndexError(f"frame {index} out of range for {n} frames")
-    return int(index) % n
-
-
-def check_frame_size(where: str, image: np.ndarray, height: int, width: int) -> None:
-    """Raise :class:`InputError` when ``image`` (H, W, ...) is not the sequence's size."""
-    if image.shape[:2] != (height, width):
-        raise InputError(f"{where}: image is {image.shape[1]}x{image.shape[0]}, the sequence "
-                         f"is {width}x{height}")
-
-
-def given_camera(camera) -> tuple[Intrinsics, str] | None:
-    """The intrinsics a caller gave (an :class:`Intrinsics`, or a preset name) and where they
-    came from, in words; None when ``camera`` is None."""
-    if isinstance(camera, Intrinsics):
-        return camera, "given"
-    if camera is None:
-        return None
-    try:
-        return preset(camera), f"preset {camera}"
-    except ValueError as exc:
-        raise InputError(str(exc)) from None
 
 
 class Trajectory(NamedTuple):
@@ -203,63 +173,6 @@ def write_trajectory(path: str | Path, traj: Trajectory, *, comment: str = "") -
     Path(path).write_text("\n".join(lines) + "\n")
 
 
-def associate(
-    t_a: np.ndarray,
-    t_b: np.ndarray,
-    max_diff: float,
-    *,
-    names: tuple[str, str] = ("first", "second"),
-) -> tuple[np.ndarray, np.ndarray]:
-    """Pair timestamps of two lists by nearest time, one-to-one (TUM ``associate.py``).
-
-    Every pair of stamps closer than ``max_diff`` is a candidate; candidates are taken in
-    order of increasing time difference, skipping any whose stamp is already used. Where
-    the stamps of each list are further apart than ``2 * max_diff`` this is the same as
-    evo's nearest-neighbour association.
-
-    Args:
-      t_a: (N,) seconds.
-      t_b: (M,) seconds.
-      max_diff: largest accepted time difference, seconds.
-      names: what to call the two lists in the error message (e.g. the file names).
-    Returns:
-      ``(idx_a, idx_b)``, int arrays of equal length, sorted by ``t_a``.
-    Raises:
-      InputError: no pair matches; the message gives both time ranges.
-    """
-    t_a = np.asarray(t_a, np.float64)
-    t_b = np.asarray(t_b, np.float64)
-    if max_diff < 0:
-        raise InputError(f"max time difference must be >= 0 s, got {max_diff}")
-    order_b = np.argsort(t_b, kind="stable")
-    sb = t_b[order_b]
-    lo = np.searchsorted(sb, t_a - max_diff, side="left")
-    hi = np.searchsorted(sb, t_a + max_diff, side="right")
-    counts = hi - lo
-    ia = np.repeat(np.arange(len(t_a)), counts)
-    starts = np.repeat(lo - np.concatenate([[0], np.cumsum(counts)[:-1]]), counts)
-    ib = order_b[np.arange(len(ia)) + starts] if len(ia) else np.zeros(0, np.int64)
-    diff = np.abs(t_a[ia] - t_b[ib])
-    keep = diff <= max_diff
-    ia, ib, diff = ia[keep], ib[keep], diff[keep]
-    used_a = np.zeros(len(t_a), bool)
-    used_b = np.zeros(len(t_b), bool)
-    pairs = []
-    for k in np.lexsort((ib, ia, diff)):
-        a, b = ia[k], ib[k]
-        if not used_a[a] and not used_b[b]:
-            used_a[a] = used_b[b] = True
-            pairs.append((a, b))
-    if not pairs:
-        raise InputError(
-            f"no timestamps match within {max_diff:g} s: {names[0]} spans "
-            f"{_time_range(t_a)}, {names[1]} spans {_time_range(t_b)}"
-        )
-    pairs.sort()
-    out = np.asarray(pairs, np.int64)
-    return out[:, 0], out[:, 1]
-
-
 def pose_at(traj: Trajectory, t: float, *, max_diff: float = 0.02) -> np.ndarray | None:
     """The pose of ``traj`` nearest in time to ``t``, or None when none lies within ``max_diff``.
 
@@ -277,12 +190,6 @@ def pose_at(traj: Trajectory, t: float, *, max_diff: float = 0.02) -> np.ndarray
     if abs(stamps[k] - t) > max_diff:
         return None
     return np.asarray(traj.poses[k], np.float64)
-
-
-def _time_range(t: np.ndarray) -> str:
-    if len(t) == 0:
-        return "nothing (0 stamps)"
-    return f"{t.min():.6f} .. {t.max():.6f} s ({len(t)} stamps)"
 
 
 # --- RGB-D sequences in the TUM layout -------------------------------------------------
@@ -344,17 +251,6 @@ def _read_image(path: Path, flags: int) -> np.ndarray:
     if img is None:
         raise InputError(f"cannot read image: {path}")
     return img
-
-
-def preset_from_name(name: str) -> str | None:
-    """The calibration a folder's name points to, as the benchmarks name their downloads:
-    TUM RGB-D (``rgbd_dataset_freiburg3_walking_xyz``, or short ``fr3_walking_xyz``) and
-    Bonn RGB-D Dynamic (``rgbd_bonn_balloon``); ``None`` if the name names neither."""
-    low = name.lower()
-    if re.search(r"(?:^|[^a-z0-9])bonn(?:[^a-z0-9]|$)", low):
-        return "bonn"
-    m = re.search(r"freiburg([123])|(?:^|[^a-z0-9])fr([123])(?:[^0-9]|$)", low)
-    return None if m is None else f"tum_fr{m.group(1) or m.group(2)}"
 
 
 class TumSequence:
@@ -488,8 +384,8 @@ class TumSequence:
                 in_folder = None  # overridden anyway; its faults are not this run's
             if in_folder != K:
                 self.warnings.append(
-                    f"the camera {source} ({_describe(K)}) overrides {cam_file} "
-                    f"({_describe(in_folder) if in_folder else 'unreadable'})"
+                    f"the camera {source} ({describe(K)}) overrides {cam_file} "
+                    f"({describe(in_folder) if in_folder else 'unreadable'})"
                 )
         return K, source
 
@@ -589,17 +485,11 @@ def _imread_unchanged() -> int:
     return cv2.IMREAD_UNCHANGED
 
 
-def _describe(K: Intrinsics) -> str:
-    return f"fx {K.fx:g} fy {K.fy:g} cx {K.cx:g} cy {K.cy:g} depth_scale {K.depth_scale:g}"
-
-
 def open_sequence(path: str | Path, *, rgb_topic: str | None = None,
                   depth_topic: str | None = None, **kwargs) -> TumSequence:
     """Open the RGB-D sequence at ``path``: a folder in the TUM layout, or a ROS bag (a
     ``.bag`` file or a ROS 2 bag folder, :class:`jaxvo.host.rosbag.BagSequence`, whose image
     topics ``rgb_topic`` / ``depth_topic`` choose); ``kwargs`` go to the reader."""
-    from jaxvo.host.rosbag import BagSequence, is_bag
-
     if is_bag(path):
         if kwargs.pop("depth_scale", None) is not None:
             raise InputError(f"{path}: --depth-scale is for folders; a bag's depth says its unit "

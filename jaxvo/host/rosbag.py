@@ -11,7 +11,7 @@ beside the colour topic (``/camera/rgb/image_color`` -> ``/camera/rgb/camera_inf
 Encodings (``sensor_msgs/Image``): colour ``rgb8``, ``bgr8``, ``rgba8``, ``bgra8``, ``mono8``;
 depth ``32FC1`` metres (TUM's bags; NaN = no reading) or ``16UC1`` / ``mono16``
 millimetres (ROS REP 118). Frames are the colour images, each paired with the depth image
-nearest in time within ``max_diff`` (:func:`jaxvo.host.io.associate`, as for folders), both
+nearest in time within ``max_diff`` (:func:`jaxvo.host.frames.associate`, as for folders), both
 timed by their header stamps (sensor time, as TUM's ``rgb.txt``), not by when they were
 recorded. Opening reads the two image topics once to learn the stamps; frames are decoded
 only when asked for.
@@ -26,7 +26,7 @@ import numpy as np
 
 from jaxvo.errors import InputError
 from jaxvo.host.camera import Intrinsics, check_intrinsics, depth_metres, preset
-from jaxvo.host.io import (
+from jaxvo.host.frames import (
     Frame,
     associate,
     check_frame_size,
