@@ -85,7 +85,8 @@ def add_arguments(p: argparse.ArgumentParser) -> None:
                         "y axis points up, as ICL-NUIM's); overrides camera.txt like --camera")
     p.add_argument("--depth-scale", type=float, metavar="UNITS",
                    help="raw depth units per metre of the 16-bit depth images (TUM 5000, "
-                   "millimetres 1000); overrides the camera's")
+                   "millimetres 1000); overrides the camera's (a bag's 16UC1 depth: "
+                   "millimetres unless given)")
     p.add_argument("--max-diff", type=float, default=0.02, metavar="S",
                    help="largest rgb/depth (and ground-truth) timestamp difference when "
                    "associating, seconds (default 0.02)")

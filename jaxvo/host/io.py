@@ -491,9 +491,6 @@ def open_sequence(path: str | Path, *, rgb_topic: str | None = None,
     ``.bag`` file or a ROS 2 bag folder, :class:`jaxvo.host.rosbag.BagSequence`, whose image
     topics ``rgb_topic`` / ``depth_topic`` choose); ``kwargs`` go to the reader."""
     if is_bag(path):
-        if kwargs.pop("depth_scale", None) is not None:
-            raise InputError(f"{path}: --depth-scale is for folders; a bag's depth says its unit "
-                             "(32FC1 metres, 16UC1 millimetres)")
         return BagSequence(path, rgb_topic=rgb_topic, depth_topic=depth_topic, **kwargs)
     if rgb_topic or depth_topic:
         raise InputError(f"{path}: not a ROS bag; --rgb-topic and --depth-topic are for bags")
