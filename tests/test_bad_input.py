@@ -258,7 +258,7 @@ GOOD_CAMERA = "fx 525\nfy 525\ncx 319.5\ncy 239.5\n"
         ("fx 525\nfy 525\ncx 3195\ncy 239.5\n",
          ["camera.txt: principal point (3195, 239.5) lies outside the 640x480 image"]),
         ("fx 1\nfy 525\ncx 319.5\ncy 239.5\n", ["camera.txt: fx 1 gives a 179.6 degree field"]),
-        (GOOD_CAMERA + "depth_scale 0\n", ["camera.txt: depth_scale must be positive"]),
+        (GOOD_CAMERA + "depth_scale 0\n", ["camera.txt: depth_scale must be a positive number"]),
         (GOOD_CAMERA + "depth-scale 1000\n", ["camera.txt:5: unknown key 'depth-scale'"]),
         (GOOD_CAMERA + "fx 530\n", ["camera.txt:5: fx given twice"]),
         ("fx 525 pixels\n", ["camera.txt:1: expected 'key value'"]),
@@ -1084,3 +1084,89 @@ def test_eval_ate_help_says_what_scale_does_with_and_without_the_alignment(capsy
         main(["eval", "ate", "--help"])
     text = " ".join(capsys.readouterr().out.split())
     assert "with the alignment Sim(3), as evo's -as; with --no-align the scale alone" in text
+
+
+@pytest.mark.parametrize("scale, needle", [
+    ("1e-300", ("puts every 16-bit depth reading (1 to 65535 units: 1e+300 to 6.55e+304 m) "
+                "beyond 15 m")),
+    ("1e300", "nearer than 0.1 m"),
+    ("1e6", "nearer than 0.1 m"),
+    ("0.01", "beyond 15 m"),
+    ("-5000", "--depth-scale must be a positive number of raw units per metre, got -5000"),
+])
+def test_a_depth_scale_no_sensor_has_is_named_before_any_work(base, tmp_path, capsys, scale,
+                                                               needle):
+    """1e-300 and 1e300 gave numpy overflow warnings, then every pair blamed on too few
+    valid flow vectors."""
+    res = run_json(capsys, base, tmp_path / "t.txt", "--depth-scale", scale)
+    assert_one_line_error(res, "--depth-scale", needle)
+    assert not (tmp_path / "t.txt").exists()
+
+
+def test_a_camera_txt_depth_scale_no_sensor_has_is_named(base, tmp_path, capsys):
+    seq = copy_seq(base, tmp_path / "seq")
+    (seq / "camera.txt").write_text(GOOD_CAMERA + "depth_scale 1e9\n")
+    assert_one_line_error(run_json(capsys, seq, tmp_path / "t.txt"),
+                          "camera.txt: depth_scale 1e+09 raw units per metre", "nearer than 0.1 m")
+
+
+@pytest.mark.parametrize("suffix", [".tiff", ".npy"])
+def test_infinite_float_depth_is_no_reading(base, tmp_path, capsys, suffix):
+    """+inf in float depth (a sensor's 'too far') is no reading: the pixels read inf are
+    left out, and a first frame that is all inf is named as the cause, with no numpy
+    warning."""
+    seq = copy_seq(base, tmp_path / "seq", images=("depth",))
+    rng = np.random.default_rng(0)
+
+    def write(png: Path, metres: np.ndarray) -> Path:
+        metres = metres.copy()
+        metres[rng.random(metres.shape) < 0.05] = np.inf
+        new = png.with_suffix(suffix)
+        if suffix == ".npy":
+            np.save(new, metres)
+        else:
+            assert cv2.imwrite(str(new), metres)
+        return new
+
+    _rewrite_depth(seq, write)
+    frame = open_sequence(seq)[0]
+    assert np.isfinite(frame.depth).all() and (frame.depth == 0).mean() >= 0.05
+    res = run_json(capsys, seq, tmp_path / "t.txt")
+    assert res.rc == 0 and res.summary["warnings"] == [], res
+    assert not any("RuntimeWarning" in line or "overflow" in line for line in res.err), res.err
+    assert_usable_trajectory(tmp_path / "t.txt", FRAMES)
+
+    first = min((seq / "depth").iterdir())
+    all_inf = np.full(frame.depth.shape, np.inf, np.float32)
+    np.save(first, all_inf) if suffix == ".npy" else cv2.imwrite(str(first), all_inf)
+    res = run_json(capsys, seq, tmp_path / "u.txt")
+    assert res.summary is not None, res
+    assert any("frame 0: no depth reading (every value is 0, negative, NaN or infinite)" in w
+               for w in res.summary["warnings"]), res.summary["warnings"]
+
+
+def test_odometry_takes_infinite_and_float64_depth_as_no_reading(base_seq):
+    """Float64 depth beyond float32 and +inf are no reading, with no overflow warning."""
+    import warnings
+
+    f = base_seq[0]
+    depth = f.depth.astype(np.float64)
+    depth[:10] = np.inf
+    depth[10:20] = 1e300
+    odo = Odometry(base_seq.intrinsics)
+    with warnings.catch_warnings():
+        warnings.simplefilter("error")
+        r = odo.process(f.bgr, depth, f.timestamp)
+    assert r.dropped is None and odo.warnings == []
+
+
+def test_eth3d_calibration_with_a_fifth_number_is_not_guessed(base, tmp_path, capsys):
+    """A fifth number was taken as the depth scale without a word."""
+    seq = copy_seq(base, tmp_path / "seq")
+    (seq / "camera.txt").unlink()
+    (seq / "calibration.txt").write_text("525 525 319.5 239.5 1000\n")
+    assert_one_line_error(cli(capsys, "run", seq, "--out", tmp_path / "t.txt"),
+                          "calibration.txt: ETH3D's calibration is 4 numbers 'fx fy cx cy', "
+                          "got 5 (525 525 319.5 239.5 1000)", "--depth-scale")
+    res = run_json(capsys, seq, tmp_path / "t.txt", "--intrinsics", "525,525,319.5,239.5")
+    assert res.rc == 0, res  # the camera given: the folder's calibration is not read

@@ -148,16 +148,14 @@ def _check_options(args: argparse.Namespace):
 
     from jaxvo.config import Config, check_config
     from jaxvo.errors import InputError, check_seed
-    from jaxvo.host.camera import as_intrinsics, check_intrinsics
+    from jaxvo.host.camera import as_intrinsics, check_depth_scale_value, check_intrinsics
 
     if not (math.isfinite(args.max_diff) and args.max_diff >= 0):
         raise InputError(f"--max-diff must be a number of seconds >= 0, got {args.max_diff}")
     if args.frames is not None and args.frames < 2:
         raise InputError(f"--frames must be at least 2 (odometry needs a pair), got {args.frames}")
-    if args.depth_scale is not None and not (math.isfinite(args.depth_scale)
-                                             and args.depth_scale > 0):
-        raise InputError(f"--depth-scale must be a positive number of raw units per metre, "
-                         f"got {args.depth_scale}")
+    if args.depth_scale is not None:
+        check_depth_scale_value(args.depth_scale, name="--depth-scale")
     check_seed(args.seed, name="--seed")
     cfg = Config(cell=args.cell, num_hypotheses=args.hypotheses, window=args.window,
                  keyframes=Config.keyframes if args.keyframes is None else args.keyframes)

@@ -10,6 +10,7 @@ import numpy as np
 
 from jaxvo.errors import InputError
 from jaxvo.host.camera import (
+    DEPTH_HARD_M,
     PRESETS,
     Intrinsics,
     check_intrinsics,
@@ -666,7 +667,7 @@ class TrajectoryWriter:
 # metres); outside the soft band it is possible but unusual for the structured-light and
 # time-of-flight cameras of these datasets (0.5 m: the nearest range of the Kinect and
 # Xtion sensors of TUM, Bonn and ICL-style data), so it is said but run.
-_DEPTH_HARD_M = (0.1, 15.0)
+_DEPTH_HARD_M = DEPTH_HARD_M
 _DEPTH_SOFT_M = (0.5, 8.0)
 # The depth scales of the sensors' files: TUM, Bonn, ETH3D 5000 per metre; millimetres 1000.
 # A wrong one of these is the usual mistake, and it can stay inside the soft band (a room
@@ -692,15 +693,17 @@ def check_depth_scale(depth: np.ndarray, K, *, where: str, raw_units: bool = Tru
       raw_units: the depth was raw units divided by ``K.depth_scale`` (else it was given as
         float metres, and the message says so).
     Returns:
-      a one-line warning when the median lies outside 0.5 to 8 m, or when another common
-      depth scale (5000 or 1000 per metre) puts it nearer the typical 2 m; else None (also
-      for a frame without readings, which the pipeline reports per frame).
+      a one-line warning when the frame has no depth reading at all (every value 0, NaN or
+      infinite: every pair with it lacks depth), when the median lies outside 0.5 to 8 m,
+      or when another common depth scale (5000 or 1000 per metre) puts it nearer the typical
+      2 m; else None.
     Raises:
       InputError: the median lies outside 0.1 to 15 m.
     """
     valid = depth[np.isfinite(depth) & (depth > 0)]
     if valid.size == 0:
-        return None
+        return (f"{where}: no depth reading (every value is 0, negative, NaN or infinite): "
+                "frame pairs without depth give no motion; check the depth images")
     med = float(np.median(valid))
     likelier = []
     if raw_units:
