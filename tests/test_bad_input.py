@@ -1170,3 +1170,29 @@ def test_eth3d_calibration_with_a_fifth_number_is_not_guessed(base, tmp_path, ca
                           "got 5 (525 525 319.5 239.5 1000)", "--depth-scale")
     res = run_json(capsys, seq, tmp_path / "t.txt", "--intrinsics", "525,525,319.5,239.5")
     assert res.rc == 0, res  # the camera given: the folder's calibration is not read
+
+
+def test_odometry_takes_the_times_numpy_and_ros_users_hold(base_seq):
+    """np.datetime64 was taken as seconds and came out as nanoseconds written as seconds."""
+    from types import SimpleNamespace
+
+    from jaxvo.odometry import timestamp_seconds
+
+    t_ns = 1305031102175304000
+    for t in (np.datetime64(t_ns, "ns"), np.datetime64(t_ns // 1000, "us"), t_ns,
+              np.int64(t_ns), SimpleNamespace(sec=1305031102, nanosec=175304000),
+              SimpleNamespace(secs=1305031102, nsecs=175304000)):
+        assert abs(timestamp_seconds(t) - 1305031102.175304) < 1e-6, t  # tol 1 us
+    assert timestamp_seconds(np.timedelta64(1500, "ms")) == pytest.approx(1.5, abs=1e-12)
+    assert timestamp_seconds(12) == 12.0 and timestamp_seconds(np.float32(0.5)) == 0.5
+    for bad, needle in ((1305031102175, "neither seconds nor nanoseconds"),
+                        ("1.0", "got str"), (True, "got bool"), (None, "got NoneType"),
+                        (np.datetime64("NaT"), "NaT"), (float("inf"), "finite")):
+        with pytest.raises(ValueError, match=needle):
+            timestamp_seconds(bad)
+    odo = Odometry(base_seq.intrinsics)
+    for k in range(2):
+        f = base_seq[k]
+        odo.process(f.bgr, f.depth, np.datetime64(t_ns + k * 33_000_000, "ns"))
+    np.testing.assert_allclose(odo.trajectory.timestamps, [1305031102.175304, 1305031102.208304],
+                               atol=1e-6)  # tol 1 us
