@@ -1196,3 +1196,14 @@ def test_odometry_takes_the_times_numpy_and_ros_users_hold(base_seq):
         odo.process(f.bgr, f.depth, np.datetime64(t_ns + k * 33_000_000, "ns"))
     np.testing.assert_allclose(odo.trajectory.timestamps, [1305031102.175304, 1305031102.208304],
                                atol=1e-6)  # tol 1 us
+
+
+@pytest.mark.parametrize("count", ["0", "1000"])
+def test_study_cpu_devices_beyond_the_cores_is_one_line(tmp_path, capsys, count):
+    """1000 CPU devices compiled a 3-frame study past 5 minutes at 8.8 GB."""
+    spec = tmp_path / "s.json"
+    spec.write_text(json.dumps({"sequences": [{"path": str(tmp_path / "missing")}]}))
+    cores = len(os.sched_getaffinity(0))
+    res = cli(capsys, "study", spec, "--out", tmp_path / "r", "--cpu-devices", count)
+    assert_one_line_error(res, f"--cpu-devices must be 1 to {cores} (this machine's cores",
+                          f"got {count}")
