@@ -1207,3 +1207,39 @@ def test_study_cpu_devices_beyond_the_cores_is_one_line(tmp_path, capsys, count)
     res = cli(capsys, "study", spec, "--out", tmp_path / "r", "--cpu-devices", count)
     assert_one_line_error(res, f"--cpu-devices must be 1 to {cores} (this machine's cores",
                           f"got {count}")
+
+
+def test_out_dash_writes_the_trajectory_to_standard_output(base, tmp_path, capsys):
+    """--out - wrote a file named '-'; now the trajectory goes to stdout (as command-line
+    tools do) and the summary to stderr."""
+    res = cli(capsys, "run", base, "--out", "-", "-q", "--json")
+    assert res.rc == 0, res.err
+    assert not Path("-").exists()
+    piped = tmp_path / "piped.txt"
+    piped.write_text(res.out)
+    summary = json.loads("\n".join(res.err))
+    assert summary["trajectory"] == "-" and summary["poses_written"] == FRAMES
+    assert "ate_rmse_m" in summary  # scored from the poses written
+    assert cli(capsys, "run", base, "--out", tmp_path / "file.txt", "-q").rc == 0
+    np.testing.assert_array_equal(read_trajectory(piped).poses,
+                                  read_trajectory(tmp_path / "file.txt").poses)
+    text = cli(capsys, "run", base, "--out", "-", "-q")
+    assert text.rc == 0 and "poses -> standard output" in "\n".join(text.err)
+    assert text.out.startswith("# jaxvo run") and "ATE" not in text.out
+
+
+@pytest.mark.skipif(not Path("/dev/full").exists(), reason="needs /dev/full (Linux)")
+def test_a_full_disk_names_the_file(base, tmp_path, capfd):
+    """'No space left on device' named no file; libpng added 'libpng error: Write Error'."""
+    rc = main(["run", str(base), "--out", "/dev/full", "-q"])
+    err = [ln for ln in capfd.readouterr().err.splitlines() if ln.strip()]
+    assert rc == 2 and err == ["jaxvo: error: /dev/full: No space left on device"], err
+    masks = tmp_path / "masks"
+    masks.mkdir()
+    for t in read_trajectory(base / "groundtruth.txt").timestamps:
+        (masks / f"{t:.6f}.png").symlink_to("/dev/full")  # every mask lands on a full disk
+    rc = main(["run", str(base), "--out", str(tmp_path / "t.txt"), "--masks", str(masks), "-q"])
+    err = [ln for ln in capfd.readouterr().err.splitlines() if ln.strip()]
+    assert rc == 2 and len(err) == 1, err
+    assert re.fullmatch(r"jaxvo: error: .*/masks/\d+\.\d{6}\.png: No space left on device",
+                        err[0]), err

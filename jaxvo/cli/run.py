@@ -75,7 +75,8 @@ def add_arguments(p: argparse.ArgumentParser) -> None:
                    help="a bag's depth topic (32FC1 metres or 16UC1 millimetres; default "
                    "/camera/depth/image)")
     p.add_argument("--out", "-o", required=True, metavar="FILE",
-                   help="trajectory to write (TUM format, camera-to-world; evo reads it)")
+                   help="trajectory to write (TUM format, camera-to-world; evo reads it); "
+                   "'-' writes it to standard output, and the summary to standard error")
     camera = p.add_mutually_exclusive_group()
     camera.add_argument("--camera", metavar="PRESET",
                         help="intrinsics preset (" + ", ".join(sorted(PRESETS)) + "); overrides "
@@ -180,7 +181,7 @@ def _open(args: argparse.Namespace, cfg, camera):
     nothing is written here but the output folders (created)."""
     from jaxvo.config import check_config
     from jaxvo.errors import InputError
-    from jaxvo.host.io import check_outputs, open_sequence, output_file, output_folder
+    from jaxvo.host.io import STDOUT, check_outputs, open_sequence, output_file, output_folder
     from jaxvo.host.memory import check_memory, run_bytes
 
     seq = open_sequence(args.sequence, camera=camera, max_diff=args.max_diff,
@@ -195,9 +196,10 @@ def _open(args: argparse.Namespace, cfg, camera):
     given = {option: folder for option, folder in (
         ("--masks", args.masks), ("--dynamic-masks", args.dynamic_masks),
         ("--overlays", args.overlays)) if folder}
-    check_outputs(seq.files(n), files={"--out": Path(args.out)},
+    to_stdout = args.out == STDOUT
+    check_outputs(seq.files(n), files={} if to_stdout else {"--out": Path(args.out)},
                   folders={k: Path(v) for k, v in given.items()})
-    out = output_file(args.out, what="--out")
+    out = args.out if to_stdout else output_file(args.out, what="--out")
     folders = {option: output_folder(folder, what=option) for option, folder in given.items()}
     return seq, n, out, folders
 
@@ -256,11 +258,14 @@ def run(args: argparse.Namespace) -> int:
     progress.close()
     summary = _summary(args, seq, n, start, rec, compiling, warnings, out)
     if gt is not None and rec.written >= 3:
-        summary.update(_scores(gt, out, args.max_diff))
-    if args.json:
-        print(json.dumps(summary, indent=1))
-    else:
-        _print_summary(summary, n, rec.interrupted)
+        summary.update(_scores(gt, out, writer, args.max_diff))
+    # the trajectory on standard output (--out -): the summary goes beside the warnings
+    stream = sys.stderr if str(out) == "-" else sys.stdout
+    with contextlib.redirect_stdout(stream):
+        if args.json:
+            print(json.dumps(summary, indent=1))
+        else:
+            _print_summary(summary, n, rec.interrupted)
     if rec.interrupted:
         print("jaxvo: interrupted; the poses computed so far are in the trajectory file",
               file=sys.stderr)
@@ -425,14 +430,15 @@ def _summary(args, seq, n: int, start: str, rec: _Recorder, compiling, warnings,
     }
 
 
-def _scores(gt, out: Path, max_diff: float) -> dict:
+def _scores(gt, out, writer, max_diff: float) -> dict:
     """ATE and RPE of the written trajectory against the folder's ground truth, or why
-    they could not be computed."""
+    they could not be computed: the file as ``jaxvo eval`` reads it, or the poses the
+    writer wrote where they went to standard output."""
     from jaxvo.errors import InputError
     from jaxvo.evaluation.metrics import ate, rpe
-    from jaxvo.host.io import read_trajectory
+    from jaxvo.host.io import STDOUT, read_trajectory
 
-    est = read_trajectory(out)
+    est = writer.trajectory if str(out) == STDOUT else read_trajectory(out)
     try:
         a = ate(gt, est, max_diff=max_diff)
         r1 = rpe(gt, est, delta=1, delta_unit="frames", max_diff=max_diff)
@@ -444,7 +450,8 @@ def _scores(gt, out: Path, max_diff: float) -> dict:
 
 
 def _print_summary(summary: dict, n: int, interrupted: bool) -> None:
-    print(f"jaxvo run: {summary['poses_written']} poses -> {summary['trajectory']}"
+    where = "standard output" if summary["trajectory"] == "-" else summary["trajectory"]
+    print(f"jaxvo run: {summary['poses_written']} poses -> {where}"
           + (" (interrupted)" if interrupted else ""))
     compiles = summary["compile"]
     how = ("the step loaded from the compile cache" if compiles and all(

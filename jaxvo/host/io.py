@@ -171,7 +171,10 @@ def write_trajectory(path: str | Path, traj: Trajectory, *, comment: str = "") -
     fmt = " ".join([_TIME_FMT] + [_VALUE_FMT] * 7)
     for t, T, qi in zip(stamps, poses, q):
         lines.append(fmt % (t, *T[:3, 3], *qi))
-    Path(path).write_text("\n".join(lines) + "\n")
+    try:
+        Path(path).write_text("\n".join(lines) + "\n")
+    except OSError as exc:  # a full disk fails in write() or close(), which name no file
+        raise OSError(exc.errno, exc.strerror, str(path)) from None
 
 
 def pose_at(traj: Trajectory, t: float, *, max_diff: float = 0.02) -> np.ndarray | None:
@@ -610,8 +613,10 @@ def output_folder(path: str | Path, *, what: str, empty: bool = False) -> Path:
 
 
 def write_image(path: str | Path, image: np.ndarray) -> None:
-    """``cv2.imwrite`` that raises ``OSError`` when nothing was written (OpenCV only returns
-    False, and a run would go on writing nothing).
+    """Write an image as ``cv2.imwrite`` does, but raise ``OSError`` naming the file and the
+    cause when it cannot be written (OpenCV only returns False, and on a full disk libpng
+    prints ``libpng error: Write Error`` on its own line): encoded in memory by OpenCV,
+    written by Python.
 
     Args:
       path: the file; its extension picks the format (``.png``).
@@ -619,13 +624,25 @@ def write_image(path: str | Path, image: np.ndarray) -> None:
     """
     import cv2
 
-    if not cv2.imwrite(str(path), image):
-        raise OSError(f"{path}: could not write the image")
+    ok, data = cv2.imencode(Path(path).suffix or ".png", image)
+    if not ok:
+        raise OSError(f"{path}: OpenCV could not encode the image")
+    try:
+        with open(path, "wb") as fh:
+            fh.write(data)
+    except OSError as exc:  # write() and close() errors name no file of their own
+        raise OSError(exc.errno, exc.strerror, str(path)) from None
+
+
+# the file name that writes a trajectory to standard output, as command-line tools take it
+STDOUT = "-"
 
 
 class TrajectoryWriter:
     """Writes a TUM trajectory one pose at a time, flushed, so nothing computed is lost
-    when a long run is interrupted. Same format as :func:`write_trajectory`.
+    when a long run is interrupted. Same format as :func:`write_trajectory`; ``"-"``
+    writes to standard output. A write that fails (a full disk) raises ``OSError`` naming
+    the file.
 
     Example::
 
@@ -635,25 +652,52 @@ class TrajectoryWriter:
     """
 
     def __init__(self, path: str | Path, *, comment: str = ""):
+        import sys
+
         self.path = Path(path)
-        if self.path.parent and not self.path.parent.exists():
-            raise InputError(f"folder of the output trajectory does not exist: {self.path.parent}")
-        self._fh = open(self.path, "w")  # noqa: SIM115 (held open across writes; closed by close())
-        for line in comment.splitlines():
-            self._fh.write(f"# {line}\n")
-        self._fh.write("# timestamp tx ty tz qx qy qz qw\n")
+        self.timestamps: list[float] = []  # what was written, as given
+        self.poses: list[np.ndarray] = []
+        self._stdout = str(path) == STDOUT
+        if self._stdout:
+            self._fh = sys.stdout
+        else:
+            if self.path.parent and not self.path.parent.exists():
+                raise InputError(f"folder of the output trajectory does not exist: "
+                                 f"{self.path.parent}")
+            self._fh = open(self.path, "w")  # noqa: SIM115 (held open across writes; closed by close())
         self._fmt = " ".join([_TIME_FMT] + [_VALUE_FMT] * 7) + "\n"
+        self._put("".join(f"# {line}\n" for line in comment.splitlines())
+                  + "# timestamp tx ty tz qx qy qz qw\n")
+
+    def _put(self, text: str) -> None:
+        try:
+            self._fh.write(text)
+            self._fh.flush()
+        except OSError as exc:  # write() and flush() errors name no file of their own
+            raise OSError(exc.errno, exc.strerror, str(self.path)) from None
 
     def write(self, timestamp: float, T_w_c: np.ndarray) -> None:
         from jaxvo.host.transforms import rotation_to_quat
 
         T = np.asarray(T_w_c, np.float64)
         q = rotation_to_quat(T[:3, :3])
-        self._fh.write(self._fmt % (timestamp, *T[:3, 3], *q))
-        self._fh.flush()
+        self._put(self._fmt % (timestamp, *T[:3, 3], *q))
+        self.timestamps.append(float(timestamp))
+        self.poses.append(T)
+
+    @property
+    def trajectory(self) -> Trajectory:
+        """The poses written so far, as given (before the file's rounding)."""
+        return Trajectory(np.asarray(self.timestamps, np.float64),
+                          np.asarray(self.poses, np.float64).reshape(-1, 4, 4))
 
     def close(self) -> None:
-        self._fh.close()
+        if self._stdout:
+            return
+        try:
+            self._fh.close()
+        except OSError as exc:
+            raise OSError(exc.errno, exc.strerror, str(self.path)) from None
 
     def __enter__(self):
         return self
