@@ -209,7 +209,14 @@ def _settings(args: argparse.Namespace) -> str:
     return (f"--hypotheses {args.hypotheses}, --window {args.window}, --cell {args.cell}")
 
 
-def run(args: argparse.Namespace) -> int:
+def prepare(args: argparse.Namespace):
+    """Every option and file checked, the sequence opened and the outputs made ready, before
+    JAX loads: ``(cfg, seq, n, out, folders)`` for :func:`run`."""
+    cfg, camera = _check_options(args)
+    return (cfg, *_open(args, cfg, camera))
+
+
+def run(args: argparse.Namespace, prepared=None) -> int:
     import contextlib
     import itertools
     import warnings as py_warnings
@@ -220,8 +227,7 @@ def run(args: argparse.Namespace) -> int:
     from jaxvo.host.prefetch import BackgroundWriter, read_ahead
     from jaxvo.host.progress import Progress
 
-    cfg, camera = _check_options(args)
-    seq, n, out, folders = _open(args, cfg, camera)
+    cfg, seq, n, out, folders = prepared or prepare(args)
     # JAX's pipeline loads once the input is known to be usable: a one-line error waits
     # for no heavy import
     from jaxvo.odometry import Odometry, choose_start_pose

@@ -55,14 +55,14 @@ def add_arguments(p: argparse.ArgumentParser) -> None:
     p.add_argument("--quiet", "-q", action="store_true", help="no progress line")
 
 
-def run(args: argparse.Namespace) -> int:
+def run(args: argparse.Namespace, prepared=None) -> int:
     import time
 
     from jaxvo.host.progress import Progress
     from jaxvo.study import runner as study
     from jaxvo.study.report import write_report
 
-    spec, first = _start(args)
+    spec, first = _start(args, prepared or prepare(args))
     quiet = args.quiet or args.json or not first
     progress = Progress("jaxvo study", enabled=not quiet, unit="config-frames")
     start = time.perf_counter()
@@ -89,9 +89,9 @@ def run(args: argparse.Namespace) -> int:
     return 0
 
 
-def _start(args: argparse.Namespace):
-    """The spec, read before JAX starts (a multi-process study must join before), the
-    devices set up and the processes joined; returns ``(spec, this is the first process)``."""
+def prepare(args: argparse.Namespace):
+    """The options checked and the spec read, before JAX loads (a multi-process study must
+    join before it starts): ``(spec, coordinator, processes, process id)`` for :func:`run`."""
     from jaxvo.errors import InputError
     from jaxvo.study import runner as study
 
@@ -105,8 +105,17 @@ def _start(args: argparse.Namespace):
     pid = args.process_id if args.process_id is not None else dist.get("process_id")
     if not pid:  # the first process (or the only one) reads the sequences: they must exist
         spec = study.load_spec(args.spec)
+    return spec, coordinator, nproc, pid
 
+
+def _start(args: argparse.Namespace, prepared):
+    """The devices set up and the processes joined; returns ``(spec, this is the first
+    process)``."""
     import jax
+
+    from jaxvo.study import runner as study
+
+    spec, coordinator, nproc, pid = prepared
 
     if args.cpu_devices is not None:
         jax.config.update("jax_num_cpu_devices", args.cpu_devices)
