@@ -400,6 +400,23 @@ class SequenceResult(NamedTuple):
     # with Config.window: each frame's pose as the step gave it (``trajectory`` then holds
     # the final poses, each from when its frame left the window); None without a window
     immediate: Trajectory | None = None
+    # the KeyframeFlow of every pair the scan consumed beside ``flows`` (cfg.keyframes)
+    keyframes: object = None
+
+
+def scan_flows(flows, keyframes, T_w_c0, *, cfg: Config, grid: tuple[int, int], seed: int = 0,
+               params: Params | None = None):
+    """The whole-sequence scan as :func:`run_sequence` calls it: the same argument types
+    every time, so a second call with a result's ``flows``, ``keyframes`` and first pose
+    runs the program the first one compiled (a call with other types, e.g. ``keyframes``
+    left out instead of given as None, compiles it again).
+
+    Returns:
+      ``(final_state, outputs)`` of :func:`jaxvo.core.pipeline.run_scan`, not waited for.
+    """
+    p = params_as_arrays(params if params is not None else Params())
+    return run_scan(flows, jax.random.key(seed), p, jnp.asarray(T_w_c0, jnp.float32),
+                    cfg=cfg, grid=grid, keyframes=keyframes)
 
 
 def run_sequence(
@@ -457,9 +474,8 @@ def run_sequence(
     T0, start = choose_start_pose(start_pose, getattr(seq, "groundtruth", None), stamps[0])
 
     t0 = time.perf_counter()
-    p = params_as_arrays(params if params is not None else Params())
-    _, outs = run_scan(chain.flows, jax.random.key(seed), p, jnp.asarray(T0, jnp.float32),
-                       cfg=cfg, grid=grid, keyframes=chain.keyframes)
+    _, outs = scan_flows(chain.flows, chain.keyframes, T0, cfg=cfg, grid=grid, seed=seed,
+                         params=params)
     outs = jax.tree.map(np.asarray, jax.block_until_ready(outs))
     scan_s = time.perf_counter() - t0
 
@@ -470,7 +486,7 @@ def run_sequence(
         poses = np.asarray(window_trajectory(outs.window), np.float64)
         poses[0] = T0  # float64, as without the window
     return SequenceResult(Trajectory(stamps, poses), outs, chain.flows, flow_s, scan_s, grid,
-                          chain.frames, chain.dropped, start, immediate)
+                          chain.frames, chain.dropped, start, immediate, chain.keyframes)
 
 
 def _shape_settings(cfg: Config) -> str:
