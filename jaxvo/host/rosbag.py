@@ -241,8 +241,9 @@ class BagSequence:
 
     def _decode(self, topic: str, at, decode):
         """``decode`` of the image of ``topic`` at ``at``, its failure naming bag and topic."""
+        msg = self._message(topic, at)  # its own errors name the bag and topic
         try:
-            return decode(self._message(topic, at))
+            return decode(msg)
         except InputError as exc:
             raise InputError(f"{self.path} {topic}: {exc}") from None
 
@@ -255,7 +256,11 @@ class BagSequence:
             raw = self._recent.get((topic, t_ns, place))
             if raw is None:
                 raw = self._raw(conn, topic, t_ns, place)
-        return self._reader.deserialize(raw, conn.msgtype)
+        try:
+            return self._reader.deserialize(raw, conn.msgtype)
+        except Exception as exc:  # noqa: BLE001 (a damaged message raises what the parser trips on)
+            raise InputError(f"{self.path} {topic}: cannot read the image at bag time {t_ns} "
+                             f"ns ({_why(exc)})") from None
 
     def _raw(self, conn, topic: str, t_ns: int, place: int) -> bytes:
         """The raw message: read on from the topic's cursor at this bag time (messages that
