@@ -142,6 +142,22 @@ def val_case(name, seq, target, repeats: int, *, truth_keep=None, reference=None
     return res
 
 
+def people_reference(seq, hand):
+    """The TUM clip's reference: the medoid of :data:`REFERENCE_RUNS` runs of ORB-SLAM3 with
+    the depth under the hand-drawn people masks (``hand(i)``: keep) set to 0; returns its
+    trajectory and what the report says of it (the others' distances from it)."""
+    log(f"tum_walking: the reference, the medoid of {REFERENCE_RUNS} runs of ORB-SLAM3 "
+        "with the depth under the hand-drawn people masks set to 0")
+    refs = [orb.run_orbslam3(seq, keep=hand, masking=orb.Masking(False, 0))[0].trajectory
+            for _ in range(REFERENCE_RUNS)]
+    dist = np.array([[error_m(a, b) if a is not b else 0.0 for b in refs] for a in refs])
+    medoid = int(np.argmin(np.median(dist, axis=1)))
+    return refs[medoid], {"masking": "depth", "runs": REFERENCE_RUNS,
+                          "tracked": len(refs[medoid]),
+                          "others_from_it_m": [float(x) for j, x in enumerate(dist[medoid])
+                                               if j != medoid]}
+
+
 def val_cases(repeats: int, only) -> dict:
     from people_masks import people_masks
 
@@ -151,18 +167,10 @@ def val_cases(repeats: int, only) -> dict:
         seq = InMemorySequence(open_sequence(data_root() / TUM_WALKING))
         people = people_masks(data_root() / TUM_WALKING)
         hand = lambda i: ~people[i]
-        log(f"tum_walking: the reference, the medoid of {REFERENCE_RUNS} runs of ORB-SLAM3 "
-            "with the depth under the hand-drawn people masks set to 0")
-        refs = [orb.run_orbslam3(seq, keep=hand, masking=orb.Masking(False, 0))[0].trajectory
-                for _ in range(REFERENCE_RUNS)]
-        dist = np.array([[error_m(a, b) if a is not b else 0.0 for b in refs] for a in refs])
-        medoid = int(np.argmin(np.median(dist, axis=1)))
+        ref, reference = people_reference(seq, hand)
         out["tum_walking"] = val_case(
-            "tum_walking", seq, refs[medoid], repeats, truth_keep=("hand-drawn masks", hand),
-            reference={"masking": "depth", "runs": REFERENCE_RUNS,
-                       "tracked": len(refs[medoid]),
-                       "others_from_it_m": [float(x) for j, x in enumerate(dist[medoid])
-                                            if j != medoid]})
+            "tum_walking", seq, ref, repeats, truth_keep=("hand-drawn masks", hand),
+            reference=reference)
     if want("7scenes_static_300") and (data_root() / SEVEN_SCENES).is_dir():
         seq = InMemorySequence(open_sequence(data_root() / SEVEN_SCENES))
         out["7scenes_static_300"] = val_case("7scenes_static_300", seq, seq.groundtruth, repeats)

@@ -7,9 +7,10 @@
 jaxvo runs in this process and ORB-SLAM3 in a child process (``bench/orbslam3_peer.py``),
 fed over a pipe, so the two work side by side and jaxvo never loads the GPL code. Each step
 of jaxvo labels the previous image of its frame pair, so every frame reaches ORB-SLAM3 one
-frame late (33 ms at 30 Hz), with its dynamic pixels taken out (``mask_frame``: depth set to
-0 and colour blacked out, the mask grown by 8 px, the way that served ORB-SLAM3 best on the
-development split), so ORB-SLAM3 finds no features and makes no points on the people. The
+frame late (33 ms at 30 Hz), with its dynamic pixels taken out (``mask_frame``: their depth
+set to 0, as ``jaxvo run --dynamic-masks`` writes them, the way that served ORB-SLAM3 best
+on the TUM walking clip: docs/report/orbslam3_clip_masking.md), so ORB-SLAM3 makes no map
+points on the people. The
 vocabulary is ``$PYORBSLAM3_VOCAB``, else the one
 beside the shared data (``bench/orbslam3_peer.py`` says more).
 

@@ -13,9 +13,10 @@ from pathlib import Path
 import cv2
 
 import jaxvo
+from jaxvo.host.io import data_root
 from jaxvo.host.masks import overlay_panel
 
-default = jaxvo.host.io.data_root() / "tum_fr3_walking_halfsphere_50"
+default = data_root() / "tum_fr3_walking_halfsphere_50"
 root = Path(sys.argv[1]) if len(sys.argv) > 1 else default
 jaxvo.setup_compile_cache()  # later runs load the compiled step (~20 s saved)
 try:

@@ -172,7 +172,10 @@ class Odometry:
           depth: (H, W) depth registered to the colour image: ``uint16`` raw sensor units
             (divided by ``intrinsics.depth_scale``, as Open3D does; what ``cv2.imread(path,
             cv2.IMREAD_UNCHANGED)`` gives) or float metres; 0 (or NaN) = no reading.
-          timestamp: seconds, later than the previous frame's; None: the frame's index / 30.
+          timestamp: seconds, later than the previous frame's (a float, or what numpy and
+            ROS hold: ``np.datetime64``, an int of nanoseconds as ROS stamps count them, a
+            ROS ``Time`` / header stamp; see :func:`timestamp_seconds`); None: the frame's
+            index / 30.
         Returns:
           this frame's :class:`FrameResult` (a result still pending from :meth:`submit` is
           completed first).
@@ -209,9 +212,7 @@ class Odometry:
 
     def _dispatch(self, bgr, depth, timestamp):
         """Host flow of this frame's pair and the (asynchronous) device step."""
-        t = float(self._index) / 30.0 if timestamp is None else float(timestamp)
-        if not np.isfinite(t):
-            raise ValueError(f"timestamp must be a finite number of seconds, got {timestamp}")
+        t = float(self._index) / 30.0 if timestamp is None else timestamp_seconds(timestamp)
         if self._last_t is not None and t <= self._last_t:
             raise ValueError(
                 f"timestamp {t:.6f} s does not follow the previous frame's {self._last_t:.6f} s"
@@ -273,6 +274,52 @@ class Odometry:
                 left = (self.timestamps[int(w.left_id)], self._final[-1])
         return FrameResult(index, t, T, Status(int(out.status)), out.ids, out.static, out,
                            left=left)
+
+
+# A number of seconds at or above this is no time (3170 years); at or above NS_FROM it is
+# nanoseconds, as ROS stamps and np.datetime64 count them (1e17 ns: 1973); between the two
+# (milli- or microseconds) it is refused rather than guessed.
+_MAX_SECONDS = 1e11
+_NS_FROM = 1e17
+
+
+def timestamp_seconds(timestamp) -> float:
+    """Seconds from what users hold for a frame's time.
+
+    Args:
+      timestamp: a float or int of seconds; an int (or float) of nanoseconds, from 1e17 on
+        (ROS's ``header.stamp`` as one number: ``1305031102175304000``); an
+        ``np.datetime64`` (any unit; since the epoch) or ``np.timedelta64``; an object with
+        ``sec`` and ``nanosec`` (ROS 2, rosbags) or ``secs`` and ``nsecs`` (ROS 1).
+    Returns:
+      seconds, float64.
+    Raises:
+      ValueError: anything else, a value that is not finite, or a number in between (1e11
+        to 1e17: milli- or microseconds?), saying what is accepted.
+    """
+    accepted = ("timestamp must be seconds (a float), nanoseconds (an int from 1e17 on, as "
+                "ROS stamps), an np.datetime64 or a ROS Time")
+    if isinstance(timestamp, np.datetime64 | np.timedelta64):
+        if np.isnat(timestamp):
+            raise ValueError(f"{accepted}; got NaT")
+        zero = np.timedelta64(0, "ns") if isinstance(timestamp, np.timedelta64) else (
+            np.datetime64(0, "ns"))
+        return int((timestamp - zero) / np.timedelta64(1, "ns")) * 1e-9
+    for sec, nsec in (("sec", "nanosec"), ("secs", "nsecs")):
+        if hasattr(timestamp, sec) and hasattr(timestamp, nsec):
+            return int(getattr(timestamp, sec)) + int(getattr(timestamp, nsec)) * 1e-9
+    if isinstance(timestamp, bool | str | bytes) or not isinstance(
+            timestamp, int | float | np.integer | np.floating):
+        raise ValueError(f"{accepted}; got {type(timestamp).__name__} {timestamp!r}")  # noqa: TRY004 (the API says ValueError for any bad input)
+    if not np.isfinite(timestamp):
+        raise ValueError(f"timestamp must be a finite number of seconds, got {timestamp}")
+    if abs(timestamp) >= _NS_FROM:
+        return int(timestamp) * 1e-9 if isinstance(timestamp, int | np.integer) else (
+            float(timestamp) * 1e-9)
+    if abs(timestamp) >= _MAX_SECONDS:
+        raise ValueError(f"timestamp {timestamp} is neither seconds nor nanoseconds (milli- or "
+                         f"microseconds?); {accepted}")
+    return float(timestamp)
 
 
 def _frame_arrays(bgr, depth, K: Intrinsics) -> tuple[np.ndarray, np.ndarray]:
@@ -353,6 +400,23 @@ class SequenceResult(NamedTuple):
     # with Config.window: each frame's pose as the step gave it (``trajectory`` then holds
     # the final poses, each from when its frame left the window); None without a window
     immediate: Trajectory | None = None
+    # the KeyframeFlow of every pair the scan consumed beside ``flows`` (cfg.keyframes)
+    keyframes: object = None
+
+
+def scan_flows(flows, keyframes, T_w_c0, *, cfg: Config, grid: tuple[int, int], seed: int = 0,
+               params: Params | None = None):
+    """The whole-sequence scan as :func:`run_sequence` calls it: the same argument types
+    every time, so a second call with a result's ``flows``, ``keyframes`` and first pose
+    runs the program the first one compiled (a call with other types, e.g. ``keyframes``
+    left out instead of given as None, compiles it again).
+
+    Returns:
+      ``(final_state, outputs)`` of :func:`jaxvo.core.pipeline.run_scan`, not waited for.
+    """
+    p = params_as_arrays(params if params is not None else Params())
+    return run_scan(flows, jax.random.key(seed), p, jnp.asarray(T_w_c0, jnp.float32),
+                    cfg=cfg, grid=grid, keyframes=keyframes)
 
 
 def run_sequence(
@@ -410,9 +474,8 @@ def run_sequence(
     T0, start = choose_start_pose(start_pose, getattr(seq, "groundtruth", None), stamps[0])
 
     t0 = time.perf_counter()
-    p = params_as_arrays(params if params is not None else Params())
-    _, outs = run_scan(chain.flows, jax.random.key(seed), p, jnp.asarray(T0, jnp.float32),
-                       cfg=cfg, grid=grid, keyframes=chain.keyframes)
+    _, outs = scan_flows(chain.flows, chain.keyframes, T0, cfg=cfg, grid=grid, seed=seed,
+                         params=params)
     outs = jax.tree.map(np.asarray, jax.block_until_ready(outs))
     scan_s = time.perf_counter() - t0
 
@@ -423,7 +486,7 @@ def run_sequence(
         poses = np.asarray(window_trajectory(outs.window), np.float64)
         poses[0] = T0  # float64, as without the window
     return SequenceResult(Trajectory(stamps, poses), outs, chain.flows, flow_s, scan_s, grid,
-                          chain.frames, chain.dropped, start, immediate)
+                          chain.frames, chain.dropped, start, immediate, chain.keyframes)
 
 
 def _shape_settings(cfg: Config) -> str:

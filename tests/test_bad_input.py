@@ -258,7 +258,7 @@ GOOD_CAMERA = "fx 525\nfy 525\ncx 319.5\ncy 239.5\n"
         ("fx 525\nfy 525\ncx 3195\ncy 239.5\n",
          ["camera.txt: principal point (3195, 239.5) lies outside the 640x480 image"]),
         ("fx 1\nfy 525\ncx 319.5\ncy 239.5\n", ["camera.txt: fx 1 gives a 179.6 degree field"]),
-        (GOOD_CAMERA + "depth_scale 0\n", ["camera.txt: depth_scale must be positive"]),
+        (GOOD_CAMERA + "depth_scale 0\n", ["camera.txt: depth_scale must be a positive number"]),
         (GOOD_CAMERA + "depth-scale 1000\n", ["camera.txt:5: unknown key 'depth-scale'"]),
         (GOOD_CAMERA + "fx 530\n", ["camera.txt:5: fx given twice"]),
         ("fx 525 pixels\n", ["camera.txt:1: expected 'key value'"]),
@@ -1041,3 +1041,231 @@ def test_eval_outputs_never_go_over_its_trajectories_or_each_other(base, tmp_pat
               tmp_path / "r")
     assert_one_line_error(res, "--plot and --save_results are the same file")
     assert not (tmp_path / "r").exists()
+
+
+# --- issue 37: the doors added since (eval options, depth values and scales, API types) ---
+
+
+@pytest.mark.parametrize("args, needles", [
+    (["rpe", "--delta", "inf"], ["--delta must be a positive number of frames, got inf"]),
+    (["rpe", "--delta", "nan"], ["--delta must be a positive number of frames, got nan"]),
+    (["rpe", "--delta", "inf", "--delta_unit", "s"], ["positive number of seconds, got inf"]),
+    (["rpe", "--delta", "0", "-u", "seconds"], ["positive number of seconds, got 0"]),
+    (["ate", "--max-diff", "nan"], ["--max-diff must be a number of seconds >= 0, got nan"]),
+    (["ate", "--t_max_diff", "inf"], ["--max-diff", "got inf"]),
+    (["rpe", "--delta_unit", "m"], ["--delta_unit 'm'", "not offered"]),
+])
+def test_eval_options_out_of_range_are_one_line_before_any_work(base, tmp_path, capsys, args,
+                                                                 needles):
+    """--delta inf raised OverflowError, --delta nan ValueError; both now say the option,
+    and before the files are read (a missing estimate is not what is named)."""
+    gt = base / "groundtruth.txt"
+    res = cli(capsys, "eval", args[0], gt, tmp_path / "missing.txt", *args[1:])
+    assert_one_line_error(res, *needles)
+
+
+@pytest.mark.parametrize("plot, needle", [
+    ("out.xyz", "its extension .xyz names no image format matplotlib writes"),
+    ("out", "no extension names no image format"),
+    ("out.png.docx", ".docx names no image format"),
+])
+def test_eval_plot_format_is_checked_before_any_work(base, tmp_path, capsys, plot, needle):
+    pytest.importorskip("matplotlib", reason="--plot needs matplotlib (jaxvo[plot])")
+    gt = base / "groundtruth.txt"
+    res = cli(capsys, "eval", "ate", gt, tmp_path / "missing.txt", "--plot", tmp_path / plot)
+    assert_one_line_error(res, needle, ".png", ".pdf", ".svg")
+    assert list(tmp_path.iterdir()) == []
+    res = cli(capsys, "eval", "ate", gt, gt, "--plot", tmp_path / "ok.JPG", "--json")
+    assert res.rc == 0 and (tmp_path / "ok.JPG").read_bytes()[:2] == b"\xff\xd8", res.err
+
+
+def test_eval_ate_help_says_what_scale_does_with_and_without_the_alignment(capsys):
+    with pytest.raises(SystemExit):
+        main(["eval", "ate", "--help"])
+    text = " ".join(capsys.readouterr().out.split())
+    assert "with the alignment Sim(3), as evo's -as; with --no-align the scale alone" in text
+
+
+@pytest.mark.parametrize("scale, needle", [
+    ("1e-300", ("puts every 16-bit depth reading (1 to 65535 units: 1e+300 to 6.55e+304 m) "
+                "beyond 15 m")),
+    ("1e300", "nearer than 0.1 m"),
+    ("1e6", "nearer than 0.1 m"),
+    ("0.01", "beyond 15 m"),
+    ("-5000", "--depth-scale must be a positive number of raw units per metre, got -5000"),
+])
+def test_a_depth_scale_no_sensor_has_is_named_before_any_work(base, tmp_path, capsys, scale,
+                                                               needle):
+    """1e-300 and 1e300 gave numpy overflow warnings, then every pair blamed on too few
+    valid flow vectors."""
+    res = run_json(capsys, base, tmp_path / "t.txt", "--depth-scale", scale)
+    assert_one_line_error(res, "--depth-scale", needle)
+    assert not (tmp_path / "t.txt").exists()
+
+
+def test_a_camera_txt_depth_scale_no_sensor_has_is_named(base, tmp_path, capsys):
+    seq = copy_seq(base, tmp_path / "seq")
+    (seq / "camera.txt").write_text(GOOD_CAMERA + "depth_scale 1e9\n")
+    assert_one_line_error(run_json(capsys, seq, tmp_path / "t.txt"),
+                          "camera.txt: depth_scale 1e+09 raw units per metre", "nearer than 0.1 m")
+
+
+@pytest.mark.parametrize("suffix", [".tiff", ".npy"])
+def test_infinite_float_depth_is_no_reading(base, tmp_path, capsys, suffix):
+    """+inf in float depth (a sensor's 'too far') is no reading: the pixels read inf are
+    left out, and a first frame that is all inf is named as the cause, with no numpy
+    warning."""
+    seq = copy_seq(base, tmp_path / "seq", images=("depth",))
+    rng = np.random.default_rng(0)
+
+    def write(png: Path, metres: np.ndarray) -> Path:
+        metres = metres.copy()
+        metres[rng.random(metres.shape) < 0.05] = np.inf
+        new = png.with_suffix(suffix)
+        if suffix == ".npy":
+            np.save(new, metres)
+        else:
+            assert cv2.imwrite(str(new), metres)
+        return new
+
+    _rewrite_depth(seq, write)
+    frame = open_sequence(seq)[0]
+    assert np.isfinite(frame.depth).all() and (frame.depth == 0).mean() >= 0.05
+    res = run_json(capsys, seq, tmp_path / "t.txt")
+    assert res.rc == 0 and res.summary["warnings"] == [], res
+    assert not any("RuntimeWarning" in line or "overflow" in line for line in res.err), res.err
+    assert_usable_trajectory(tmp_path / "t.txt", FRAMES)
+
+    first = min((seq / "depth").iterdir())
+    all_inf = np.full(frame.depth.shape, np.inf, np.float32)
+    np.save(first, all_inf) if suffix == ".npy" else cv2.imwrite(str(first), all_inf)
+    res = run_json(capsys, seq, tmp_path / "u.txt")
+    assert res.summary is not None, res
+    assert any("frame 0: no depth reading (every value is 0, negative, NaN or infinite)" in w
+               for w in res.summary["warnings"]), res.summary["warnings"]
+
+
+def test_odometry_takes_infinite_and_float64_depth_as_no_reading(base_seq):
+    """Float64 depth beyond float32 and +inf are no reading, with no overflow warning."""
+    import warnings
+
+    f = base_seq[0]
+    depth = f.depth.astype(np.float64)
+    depth[:10] = np.inf
+    depth[10:20] = 1e300
+    odo = Odometry(base_seq.intrinsics)
+    with warnings.catch_warnings():
+        warnings.simplefilter("error")
+        r = odo.process(f.bgr, depth, f.timestamp)
+    assert r.dropped is None and odo.warnings == []
+
+
+def test_eth3d_calibration_with_a_fifth_number_is_not_guessed(base, tmp_path, capsys):
+    """A fifth number was taken as the depth scale without a word."""
+    seq = copy_seq(base, tmp_path / "seq")
+    (seq / "camera.txt").unlink()
+    (seq / "calibration.txt").write_text("525 525 319.5 239.5 1000\n")
+    assert_one_line_error(cli(capsys, "run", seq, "--out", tmp_path / "t.txt"),
+                          "calibration.txt: ETH3D's calibration is 4 numbers 'fx fy cx cy', "
+                          "got 5 (525 525 319.5 239.5 1000)", "--depth-scale")
+    res = run_json(capsys, seq, tmp_path / "t.txt", "--intrinsics", "525,525,319.5,239.5")
+    assert res.rc == 0, res  # the camera given: the folder's calibration is not read
+
+
+def test_odometry_takes_the_times_numpy_and_ros_users_hold(base_seq):
+    """np.datetime64 was taken as seconds and came out as nanoseconds written as seconds."""
+    from types import SimpleNamespace
+
+    from jaxvo.odometry import timestamp_seconds
+
+    t_ns = 1305031102175304000
+    for t in (np.datetime64(t_ns, "ns"), np.datetime64(t_ns // 1000, "us"), t_ns,
+              np.int64(t_ns), SimpleNamespace(sec=1305031102, nanosec=175304000),
+              SimpleNamespace(secs=1305031102, nsecs=175304000)):
+        assert abs(timestamp_seconds(t) - 1305031102.175304) < 1e-6, t  # tol 1 us
+    assert timestamp_seconds(np.timedelta64(1500, "ms")) == pytest.approx(1.5, abs=1e-12)
+    assert timestamp_seconds(12) == 12.0 and timestamp_seconds(np.float32(0.5)) == 0.5
+    for bad, needle in ((1305031102175, "neither seconds nor nanoseconds"),
+                        ("1.0", "got str"), (True, "got bool"), (None, "got NoneType"),
+                        (np.datetime64("NaT"), "NaT"), (float("inf"), "finite")):
+        with pytest.raises(ValueError, match=needle):
+            timestamp_seconds(bad)
+    odo = Odometry(base_seq.intrinsics)
+    for k in range(2):
+        f = base_seq[k]
+        odo.process(f.bgr, f.depth, np.datetime64(t_ns + k * 33_000_000, "ns"))
+    np.testing.assert_allclose(odo.trajectory.timestamps, [1305031102.175304, 1305031102.208304],
+                               atol=1e-6)  # tol 1 us
+
+
+@pytest.mark.parametrize("count", ["0", "1000"])
+def test_study_cpu_devices_beyond_the_cores_is_one_line(tmp_path, capsys, count):
+    """1000 CPU devices compiled a 3-frame study past 5 minutes at 8.8 GB."""
+    spec = tmp_path / "s.json"
+    spec.write_text(json.dumps({"sequences": [{"path": str(tmp_path / "missing")}]}))
+    cores = len(os.sched_getaffinity(0))
+    res = cli(capsys, "study", spec, "--out", tmp_path / "r", "--cpu-devices", count)
+    assert_one_line_error(res, f"--cpu-devices must be 1 to {cores} (this machine's cores",
+                          f"got {count}")
+
+
+def test_out_dash_writes_the_trajectory_to_standard_output(base, tmp_path, capsys):
+    """--out - wrote a file named '-'; now the trajectory goes to stdout (as command-line
+    tools do) and the summary to stderr."""
+    res = cli(capsys, "run", base, "--out", "-", "-q", "--json")
+    assert res.rc == 0, res.err
+    assert not Path("-").exists()
+    piped = tmp_path / "piped.txt"
+    piped.write_text(res.out)
+    summary = json.loads("\n".join(res.err))
+    assert summary["trajectory"] == "-" and summary["poses_written"] == FRAMES
+    assert "ate_rmse_m" in summary  # scored from the poses written
+    assert cli(capsys, "run", base, "--out", tmp_path / "file.txt", "-q").rc == 0
+    np.testing.assert_array_equal(read_trajectory(piped).poses,
+                                  read_trajectory(tmp_path / "file.txt").poses)
+    text = cli(capsys, "run", base, "--out", "-", "-q")
+    assert text.rc == 0 and "poses -> standard output" in "\n".join(text.err)
+    assert text.out.startswith("# jaxvo run") and "ATE" not in text.out
+
+
+@pytest.mark.skipif(not Path("/dev/full").exists(), reason="needs /dev/full (Linux)")
+def test_a_full_disk_names_the_file(base, tmp_path, capfd):
+    """'No space left on device' named no file; libpng added 'libpng error: Write Error'."""
+    rc = main(["run", str(base), "--out", "/dev/full", "-q"])
+    err = [ln for ln in capfd.readouterr().err.splitlines() if ln.strip()]
+    assert rc == 2 and err == ["jaxvo: error: /dev/full: No space left on device"], err
+    masks = tmp_path / "masks"
+    masks.mkdir()
+    for t in read_trajectory(base / "groundtruth.txt").timestamps:
+        (masks / f"{t:.6f}.png").symlink_to("/dev/full")  # every mask lands on a full disk
+    rc = main(["run", str(base), "--out", str(tmp_path / "t.txt"), "--masks", str(masks), "-q"])
+    err = [ln for ln in capfd.readouterr().err.splitlines() if ln.strip()]
+    assert rc == 2 and len(err) == 1, err
+    assert re.fullmatch(r"jaxvo: error: .*/masks/\d+\.\d{6}\.png: No space left on device",
+                        err[0]), err
+
+
+def test_one_line_answers_about_options_and_files_come_before_jax_loads(base, tmp_path):
+    """`jaxvo run /missing` took 0.75-0.95 s: JAX (0.37 s of imports) loaded first, for the
+    compile cache. Each command's checks now run before (bench: median 0.20 s against
+    0.89 s before, 7 runs each on a loaded 2-core machine)."""
+    full = tmp_path / "full"
+    full.mkdir()
+    (full / "x").write_text("")
+    cases = [
+        ["run", str(tmp_path / "missing"), "--out", str(tmp_path / "t.txt")],
+        ["run", str(base), "--out", str(tmp_path / "t.txt"), "--depth-scale", "1e-300"],
+        ["run", str(base), "--out", str(base / "rgb.txt")],
+        ["study", str(tmp_path / "missing.toml"), "--out", str(tmp_path / "s")],
+        ["synth", "static", str(full), "--frames", "3"],
+        ["demo", "--frames", "1"],
+    ]
+    code = ("import json, sys\nfrom jaxvo.cli.main import main\n"
+            f"codes = [main(argv) for argv in {cases!r}]\n"
+            "print(json.dumps([codes, sorted(m for m in ('jax', 'jaxlib') if m in sys.modules)]))\n")
+    done = subprocess.run([sys.executable, "-c", code], capture_output=True, text=True,
+                          timeout=120, check=False)
+    codes, loaded = json.loads(done.stdout.splitlines()[-1])
+    assert codes == [2] * len(cases) and loaded == [], (codes, loaded, done.stderr)
+    lines = done.stderr.splitlines()
+    assert len(lines) == len(cases) and all(ln.startswith("jaxvo: error: ") for ln in lines)

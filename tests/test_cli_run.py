@@ -140,3 +140,39 @@ def test_an_image_that_cannot_be_written_mid_run_is_one_line_and_exit_2(
     # computed are kept, and no mask after the failed one is written
     assert len(read_trajectory(traj)) >= 3
     assert len(list((tmp_path / "m").glob("*.png"))) == 2
+
+
+_COMPILING = {"on": False, "events": []}
+
+
+def _note_compile(event: str, duration: float, **kwargs) -> None:
+    if _COMPILING["on"] and event in ("/jax/core/compile/jaxpr_trace_duration",
+                                      "/jax/core/compile/backend_compile_duration"):
+        _COMPILING["events"].append(event)
+
+
+def test_the_demos_timed_scan_compiles_nothing(capsys, monkeypatch):
+    """The demo's 'second, already compiled run of the scan' was called with other argument
+    types than run_sequence's and compiled again (1.71 s against 0.26 s), so its ms/frame
+    was the compile's, not the steady state's."""
+    import jax
+
+    from jaxvo.cli import demo
+
+    jax.monitoring.register_event_duration_secs_listener(_note_compile)  # cannot be removed
+    timed = demo._timed_scan
+    seconds = []
+
+    def watched(*args, **kwargs):
+        _COMPILING["on"] = True
+        try:
+            seconds.append(timed(*args, **kwargs))
+            return seconds[-1]
+        finally:
+            _COMPILING["on"] = False
+
+    monkeypatch.setattr(demo, "_timed_scan", watched)
+    assert main(["demo", "--frames", "3", "--peers", "none", "--json"]) == 0
+    row = json.loads(capsys.readouterr().out)["methods"]["jaxvo"]
+    assert len(seconds) == 1 and _COMPILING["events"] == []  # no trace, no compile
+    assert row["ms_per_frame"] > 0

@@ -203,3 +203,56 @@ def test_the_command_line_starts_without_jax_or_opencv():
     done = subprocess.run([sys.executable, "-c", code], capture_output=True, text=True,
                           timeout=120, check=False)
     assert done.returncode == 0, done.stderr[-2000:]
+
+
+# --- a busy or broken cache never fails a command ----------------------------------------
+
+# A child that turns the cache on in argv[1] with the lock wait cut to 0.5 s, makes every
+# entry write fail as a full disk does when argv[2] is "full", and compiles three programs.
+BROKEN_CHILD = """
+import errno, sys
+import jax, jax.numpy as jnp
+from jax._src import lru_cache
+from jaxvo.host import compile_cache
+compile_cache.LOCK_TIMEOUT_S = 0.5
+if sys.argv[2] == "full":
+    def put(self, key, value):
+        raise OSError(errno.ENOSPC, "No space left on device")
+    lru_cache.LRUCache.put = put
+choice = compile_cache.setup_compile_cache(sys.argv[1])
+for k in range(3):
+    jax.jit(lambda x, k=k: jnp.sin(x) * k + x)(jnp.ones(4)).block_until_ready()
+print("on" if choice.folder else "off")
+"""
+
+
+def run_broken_child(cache: Path, how: str) -> tuple[str, list[str]]:
+    env = dict(os.environ, JAX_PLATFORMS="cpu")
+    done = subprocess.run([sys.executable, "-c", BROKEN_CHILD, str(cache), how],
+                          capture_output=True, text=True, timeout=300, env=env, check=False)
+    assert done.returncode == 0, done.stderr[-2000:]
+    return done.stdout.strip(), [ln for ln in done.stderr.splitlines() if ln.strip()]
+
+
+def test_a_cache_locked_by_another_process_is_one_warning_and_the_run_goes_on(tmp_path):
+    """Another process held the lock under heavy load: the run failed with exit 2 (filelock's
+    Timeout is an OSError)."""
+    import filelock
+
+    folder = tmp_path / VERSIONED
+    folder.mkdir()
+    with filelock.FileLock(folder / ".lockfile"):
+        state, err = run_broken_child(tmp_path, "busy")
+    assert state == "off"
+    assert err == [(f"jaxvo: warning: compile cache {folder} is locked by another process "
+                    "for over 0.5 s; running without it")], err
+
+
+def test_a_full_cache_disk_is_one_line(tmp_path):
+    """Every entry JAX could not write printed a warning of its own (14 lines a run)."""
+    state, err = run_broken_child(tmp_path, "full")
+    assert state == "on"
+    assert len(err) == 1, err
+    assert err[0] == (f"jaxvo: warning: compile cache {tmp_path / VERSIONED}: writing an entry "
+                      "failed (OSError: [Errno 28] No space left on device); going on without "
+                      "it (further cache errors not shown)"), err

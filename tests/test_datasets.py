@@ -241,3 +241,43 @@ def test_corrupt_archive_is_one_line(tmp_path, sequence_dir, capsys):
                            "--mirror", srv.url, "-q")
     assert code == 2 and "cannot unpack" in err and err.count("\n") == 1
     assert sorted(p.name for p in tmp_path.iterdir()) == [name]  # kept, to look at
+
+
+def flat_tgz_of(folder: Path) -> bytes:
+    """The sequence's files at the archive's top level, without its folder."""
+    buf = io.BytesIO()
+    with tarfile.open(fileobj=buf, mode="w:gz") as t:
+        for p in sorted(folder.iterdir()):
+            t.add(p, arcname=p.name)
+    return buf.getvalue()
+
+
+@pytest.mark.parametrize("make", ["flat", "renamed"])
+def test_an_archive_without_the_expected_folder_moves_nothing(sequence_dir, tmp_path, capsys,
+                                                               make):
+    """rgb/, depth/ and the lists were moved into --dir (default: the current folder) before
+    the error; now nothing leaves the staging folder but the complete sequence."""
+    blob = flat_tgz_of(sequence_dir) if make == "flat" else zip_of(sequence_dir, "other_name")
+    name = "rgbd_dataset_freiburg3_walking_xyz.tgz"
+    dest = tmp_path / "data"
+    with Server({name: blob}) as srv:
+        code, _, err = cli(capsys, "data", "get", "tum", "fr3/walking_xyz", "--dir", dest,
+                           "--mirror", srv.url, "-q")
+    assert code == 2 and err.count("\n") == 1, err
+    assert "holds no rgbd_dataset_freiburg3_walking_xyz/rgb.txt (its top level: " in err
+    assert ("depth, depth.txt" if make == "flat" else "other_name") in err
+    assert sorted(p.name for p in dest.iterdir()) == [name]  # the archive, to look at
+
+
+def test_only_the_sequence_folder_is_moved_out_of_the_archive(sequence_dir, tmp_path):
+    buf = io.BytesIO()
+    with tarfile.open(fileobj=buf, mode="w:gz") as t:
+        t.add(sequence_dir, arcname=sequence_dir.name)
+        t.add(sequence_dir / "rgb.txt", arcname="stray.txt")
+    archive = tmp_path / "a.tgz"
+    archive.write_bytes(buf.getvalue())
+    dest = tmp_path / "out"
+    dest.mkdir()
+    tops = unpack(archive, dest, require=f"{sequence_dir.name}/rgb.txt")
+    assert tops == [dest / sequence_dir.name]
+    assert sorted(p.name for p in dest.iterdir()) == [sequence_dir.name]

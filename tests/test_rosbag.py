@@ -55,9 +55,12 @@ def info_msg(ts, stamp: float, K: Intrinsics, h: int, w: int, ros1: bool):
 
 
 def write_bag(path: Path, frames, *, ros1: bool, rgb_encoding="rgb8", depth_encoding="32FC1",
-              K: Intrinsics | None = K_INFO, topics=TUM_TOPICS, depth_offset=1e-5):
+              K: Intrinsics | None = K_INFO, topics=TUM_TOPICS, depth_offset=1e-5,
+              bag_time: int | None = None, depth_units: float = 1000.0):
     """Write ``frames`` (``Frame``s: BGR uint8, depth float32 metres) as a TUM-like bag:
-    colour at the frame's time, depth ``depth_offset`` s later, camera info once."""
+    colour at the frame's time, depth ``depth_offset`` s later, camera info once; 16-bit
+    depth in ``depth_units`` per metre. ``bag_time``: every message recorded at that bag
+    time (ns), as converters that write ``writer.write(conn, 0, ...)``."""
     ts = get_typestore(Stores.ROS1_NOETIC if ros1 else Stores.ROS2_HUMBLE)
     writer = Writer1(path) if ros1 else Writer2(path, version=9)
     serialize = ts.serialize_ros1 if ros1 else ts.serialize_cdr
@@ -67,17 +70,19 @@ def write_bag(path: Path, frames, *, ros1: bool, rgb_encoding="rgb8", depth_enco
         c_info = w.add_connection(topics[2], "sensor_msgs/msg/CameraInfo", typestore=ts)
         for k, f in enumerate(frames):
             bgr = f.bgr
-            colour = {"rgb8": bgr[..., ::-1], "bgr8": bgr, "mono8": bgr[..., 1]}[rgb_encoding]
+            # an encoding jaxvo does not read is written as BGR bytes under that name
+            colour = {"rgb8": bgr[..., ::-1], "mono8": bgr[..., 1]}.get(rgb_encoding, bgr)
             depth = (f.depth if depth_encoding == "32FC1"
-                     else np.round(f.depth * 1000).astype(np.uint16))
+                     else np.round(f.depth * depth_units).astype(np.uint16))
             t_ns = int(f.timestamp * 1e9) + 1000  # recorded a moment after the stamp
+            t_ns = t_ns if bag_time is None else bag_time
             if k == 0 and K is not None:
                 h, w_ = bgr.shape[:2]
                 w.write(c_info, t_ns, serialize(info_msg(ts, f.timestamp, K, h, w_, ros1),
                                                 "sensor_msgs/msg/CameraInfo"))
             w.write(c_rgb, t_ns, serialize(image_msg(ts, f.timestamp, colour, rgb_encoding,
                                                      ros1), "sensor_msgs/msg/Image"))
-            w.write(c_depth, t_ns + 2000, serialize(
+            w.write(c_depth, t_ns + (2000 if bag_time is None else 0), serialize(
                 image_msg(ts, f.timestamp + depth_offset, depth, depth_encoding, ros1),
                 "sensor_msgs/msg/Image"))
     return path
@@ -213,3 +218,70 @@ def test_a_study_takes_a_bag(tmp_path, frames):
     os.utime(bag, ns=(0, 0))  # as if written again
     study.sequence_key.cache_clear()  # memoised within a process; a new run computes it anew
     assert study.sequence_key(s, Config()) != key
+
+
+@pytest.mark.parametrize("ros1", [True, False], ids=["ros1", "ros2"])
+def test_messages_at_one_bag_time_are_found_by_themselves(tmp_path, frames, ros1):
+    """A converter that writes every message at bag time 0 (header stamps differ): each
+    frame is its own image, not the first one again."""
+    path = write_bag(tmp_path / ("zero.bag" if ros1 else "zero"), frames, ros1=ros1,
+                     bag_time=0)
+    seq = open_sequence(path)
+    assert len(seq) == len(frames)
+    np.testing.assert_allclose(seq.timestamps, [f.timestamp for f in frames], atol=1e-6)
+    order = [2, 0, 3, 1, 1, 3]  # out of order and again: each read finds its own message
+    for i in order:
+        np.testing.assert_array_equal(seq[i].bgr, frames[i].bgr)
+        np.testing.assert_array_equal(seq[i].depth, frames[i].depth)
+
+
+def test_bags_of_random_bytes_or_cut_short_are_one_line(tmp_path, frames, capsys):
+    rng = np.random.default_rng(0)
+    junk = tmp_path / "junk.bag"
+    junk.write_bytes(rng.bytes(4096))  # rosbags raised UnicodeDecodeError (34 lines)
+    whole = write_bag(tmp_path / "whole.bag", frames, ros1=True).read_bytes()
+    cut = tmp_path / "cut.bag"
+    cut.write_bytes(whole[: len(whole) // 2])
+    ros2 = tmp_path / "ros2"
+    ros2.mkdir()
+    (ros2 / "metadata.yaml").write_bytes(rng.bytes(300))
+    for path in (junk, cut, ros2):
+        with pytest.raises(InputError, match=str(path.name)):
+            open_sequence(path)
+        code, _, err = cli(capsys, "run", path, "--out", tmp_path / "t.txt")
+        assert code == 2 and err.count("\n") == 1 and err.startswith("jaxvo: error: "), err
+        assert str(path) in err, err
+
+
+def test_a_colour_encoding_not_read_names_the_bag_and_topic(tmp_path, frames):
+    path = write_bag(tmp_path / "yuv.bag", frames, ros1=True, rgb_encoding="yuv422")
+    with pytest.raises(InputError, match=r"yuv.bag /camera/rgb/image_color: colour encoding "
+                                         r"'yuv422' is not read"):
+        open_sequence(path)
+
+
+def test_camera_info_without_calibration_is_said_as_such(tmp_path, frames):
+    path = write_bag(tmp_path / "zero_k.bag", frames, ros1=True,
+                     K=Intrinsics(0.0, 0.0, 0.0, 0.0, 1000.0))
+    with pytest.raises(InputError, match=r"the camera info on /camera/rgb/camera_info "
+                                         r"gives no camera: its K is all zero .*; pass --camera"):
+        open_sequence(path)
+
+
+def test_16_bit_depth_in_other_units_takes_depth_scale(tmp_path, frames, capsys):
+    """16UC1 depth in TUM's 5000 per metre: read as millimetres it is 5 times too far, and
+    the warning's advice (--depth-scale 5000) is one a bag takes."""
+    path = write_bag(tmp_path / "tum_units.bag", frames, ros1=True, depth_encoding="16UC1",
+                     depth_units=5000.0)
+    seq = open_sequence(path)
+    assert seq.intrinsics.depth_scale == 1000.0 and not seq.float_depth
+    np.testing.assert_allclose(seq[1].depth, frames[1].depth * 5, atol=2e-3)  # tol 5 raw units
+    code, _, err = cli(capsys, "run", path, "--out", tmp_path / "a.txt", "--frames", 2, "-q")
+    assert "depth_scale 5000 is likelier (--depth-scale)" in err, err
+    seq = open_sequence(path, depth_scale=5000.0)
+    assert seq.intrinsics.depth_scale == 5000.0 and "depth_scale 5000 given" in seq.camera_source
+    np.testing.assert_allclose(seq[1].depth, frames[1].depth, atol=1e-4)  # tol 0.5 raw unit
+    metres = write_bag(tmp_path / "metres.bag", frames, ros1=True)
+    code, _, err = cli(capsys, "run", metres, "--out", tmp_path / "b.txt", "--depth-scale", 5000)
+    assert code == 2 and err.count("\n") == 1, err
+    assert "/camera/depth/image: depth is 32FC1 metres; --depth-scale is for 16-bit" in err

@@ -94,10 +94,7 @@ def _get(args: argparse.Namespace) -> int:
     if args.sha256 is not None:
         check_sha256(archive, args.sha256)
     if not args.bag:
-        tops = unpack(archive, dest)
-        if not (target / "rgb.txt").is_file():
-            raise InputError(f"{archive} unpacked to {', '.join(str(t) for t in tops)}, not "
-                             f"{target} with an rgb.txt")
+        unpack(archive, dest, require=f"{entry.folder}/rgb.txt")
         if not args.keep_archive:
             archive.unlink()
     size = _size(target)

@@ -38,12 +38,14 @@ def add_arguments(parser: argparse.ArgumentParser) -> None:
         "ate",
         help="absolute trajectory error (thesis eqs. 5.6-5.8), metres",
         description="Absolute trajectory error: the estimate is aligned onto the ground "
-        "truth by a rigid Umeyama fit of the matched positions (no scale unless --scale), "
-        "then the distance of each matched position is summarised.",
+        "truth by a rigid Umeyama fit of the matched positions (Sim(3) with --scale or -as; "
+        "--no-align --scale or -s alone: the scale only), then the distance of each matched "
+        "position is summarised.",
     )
     _common(p)
     p.add_argument("--scale", action="store_true",
-                   help="also fit a scale: Sim(3) alignment, as evo's -as")
+                   help="also fit a scale: with the alignment Sim(3), as evo's -as; with "
+                   "--no-align the scale alone, as evo's -s")
     p.add_argument("--no-align", dest="align", action="store_false",
                    help="compare the trajectories as given (evo_ape without -a)")
 
@@ -103,7 +105,8 @@ def _common(p: argparse.ArgumentParser) -> None:
                    help="write the result as evo's result zip, which evo_res reads")
     p.add_argument("--plot", metavar="FILE",
                    help="draw evo's figures (errors over time, trajectory coloured by error) "
-                   "into an image (.png, .pdf, .svg); needs matplotlib (jaxvo[plot])")
+                   "into an image whose extension gives the format (.png, .pdf, .svg, .jpg, .eps, "
+                   ".tiff, ...: matplotlib's); needs matplotlib (jaxvo[plot])")
     p.add_argument("--plot_mode", "--plot-mode", choices=PLOT_MODES, default="xyz",
                    help="axes of the trajectory panel (default xyz, 3D, as evo)")
 
@@ -140,19 +143,39 @@ def _outputs(args) -> None:
                                                ("--plot", args.plot)) if p}
     check_outputs((Path(args.gt), Path(args.est)), files=given)
     if args.plot:
-        require_matplotlib()
+        require_matplotlib(args.plot)
     for option, path in given.items():
         output_file(path, what=option)
 
 
+def _delta(args) -> tuple[float | int, str]:
+    """RPE's ``(delta, unit)`` from --delta and --delta_unit, checked (InputError)."""
+    import math
+
+    from jaxvo.errors import InputError
+
+    unit = _delta_unit(args.delta_unit)
+    delta = args.delta
+    if not (math.isfinite(delta) and delta > 0):
+        raise InputError(f"--delta must be a positive number of {unit}, got {delta:g}")
+    if unit == "frames":
+        if delta != int(delta):
+            raise InputError(f"--delta in frames must be a whole number, got {delta:g}")
+        delta = int(delta)
+    return delta, unit
+
+
 def run(args: argparse.Namespace) -> int:
+    import math
+
     from jaxvo.errors import InputError
     from jaxvo.evaluation import evo_results, metrics
     from jaxvo.host.io import read_trajectory
 
-    if not args.max_diff >= 0:
-        raise InputError(f"--max-diff must be >= 0 seconds, got {args.max_diff}")
+    if not (math.isfinite(args.max_diff) and args.max_diff >= 0):
+        raise InputError(f"--max-diff must be a number of seconds >= 0, got {args.max_diff}")
     align, scale = _alignment(args)
+    delta, unit = _delta(args) if args.metric == "rpe" else (None, None)
     _outputs(args)
     gt = read_trajectory(args.gt)
     est = read_trajectory(args.est)
@@ -163,12 +186,6 @@ def run(args: argparse.Namespace) -> int:
         report = _ate_report(args, res, len(gt), len(est), line)
         evo = evo_results.ape_result(res, ref_name=args.gt, est_name=args.est, align_line=line)
     else:
-        unit = _delta_unit(args.delta_unit)
-        delta = args.delta
-        if unit == "frames":
-            if delta != int(delta):
-                raise InputError(f"--delta in frames must be a whole number, got {delta:g}")
-            delta = int(delta)
         res = metrics.rpe(gt, est, delta=delta, delta_unit=unit, max_diff=args.max_diff,
                           all_pairs=args.all_pairs, align=align, scale=scale, names=names)
         report = _rpe_report(args, res, len(gt), len(est), line)

@@ -75,7 +75,8 @@ def add_arguments(p: argparse.ArgumentParser) -> None:
                    help="a bag's depth topic (32FC1 metres or 16UC1 millimetres; default "
                    "/camera/depth/image)")
     p.add_argument("--out", "-o", required=True, metavar="FILE",
-                   help="trajectory to write (TUM format, camera-to-world; evo reads it)")
+                   help="trajectory to write (TUM format, camera-to-world; evo reads it); "
+                   "'-' writes it to standard output, and the summary to standard error")
     camera = p.add_mutually_exclusive_group()
     camera.add_argument("--camera", metavar="PRESET",
                         help="intrinsics preset (" + ", ".join(sorted(PRESETS)) + "); overrides "
@@ -85,7 +86,8 @@ def add_arguments(p: argparse.ArgumentParser) -> None:
                         "y axis points up, as ICL-NUIM's); overrides camera.txt like --camera")
     p.add_argument("--depth-scale", type=float, metavar="UNITS",
                    help="raw depth units per metre of the 16-bit depth images (TUM 5000, "
-                   "millimetres 1000); overrides the camera's")
+                   "millimetres 1000); overrides the camera's (a bag's 16UC1 depth: "
+                   "millimetres unless given)")
     p.add_argument("--max-diff", type=float, default=0.02, metavar="S",
                    help="largest rgb/depth (and ground-truth) timestamp difference when "
                    "associating, seconds (default 0.02)")
@@ -147,16 +149,14 @@ def _check_options(args: argparse.Namespace):
 
     from jaxvo.config import Config, check_config
     from jaxvo.errors import InputError, check_seed
-    from jaxvo.host.camera import as_intrinsics, check_intrinsics
+    from jaxvo.host.camera import as_intrinsics, check_depth_scale_value, check_intrinsics
 
     if not (math.isfinite(args.max_diff) and args.max_diff >= 0):
         raise InputError(f"--max-diff must be a number of seconds >= 0, got {args.max_diff}")
     if args.frames is not None and args.frames < 2:
         raise InputError(f"--frames must be at least 2 (odometry needs a pair), got {args.frames}")
-    if args.depth_scale is not None and not (math.isfinite(args.depth_scale)
-                                             and args.depth_scale > 0):
-        raise InputError(f"--depth-scale must be a positive number of raw units per metre, "
-                         f"got {args.depth_scale}")
+    if args.depth_scale is not None:
+        check_depth_scale_value(args.depth_scale, name="--depth-scale")
     check_seed(args.seed, name="--seed")
     cfg = Config(cell=args.cell, num_hypotheses=args.hypotheses, window=args.window,
                  keyframes=Config.keyframes if args.keyframes is None else args.keyframes)
@@ -181,7 +181,7 @@ def _open(args: argparse.Namespace, cfg, camera):
     nothing is written here but the output folders (created)."""
     from jaxvo.config import check_config
     from jaxvo.errors import InputError
-    from jaxvo.host.io import check_outputs, open_sequence, output_file, output_folder
+    from jaxvo.host.io import STDOUT, check_outputs, open_sequence, output_file, output_folder
     from jaxvo.host.memory import check_memory, run_bytes
 
     seq = open_sequence(args.sequence, camera=camera, max_diff=args.max_diff,
@@ -196,9 +196,10 @@ def _open(args: argparse.Namespace, cfg, camera):
     given = {option: folder for option, folder in (
         ("--masks", args.masks), ("--dynamic-masks", args.dynamic_masks),
         ("--overlays", args.overlays)) if folder}
-    check_outputs(seq.files(n), files={"--out": Path(args.out)},
+    to_stdout = args.out == STDOUT
+    check_outputs(seq.files(n), files={} if to_stdout else {"--out": Path(args.out)},
                   folders={k: Path(v) for k, v in given.items()})
-    out = output_file(args.out, what="--out")
+    out = args.out if to_stdout else output_file(args.out, what="--out")
     folders = {option: output_folder(folder, what=option) for option, folder in given.items()}
     return seq, n, out, folders
 
@@ -208,7 +209,14 @@ def _settings(args: argparse.Namespace) -> str:
     return (f"--hypotheses {args.hypotheses}, --window {args.window}, --cell {args.cell}")
 
 
-def run(args: argparse.Namespace) -> int:
+def prepare(args: argparse.Namespace):
+    """Every option and file checked, the sequence opened and the outputs made ready, before
+    JAX loads: ``(cfg, seq, n, out, folders)`` for :func:`run`."""
+    cfg, camera = _check_options(args)
+    return (cfg, *_open(args, cfg, camera))
+
+
+def run(args: argparse.Namespace, prepared=None) -> int:
     import contextlib
     import itertools
     import warnings as py_warnings
@@ -219,8 +227,7 @@ def run(args: argparse.Namespace) -> int:
     from jaxvo.host.prefetch import BackgroundWriter, read_ahead
     from jaxvo.host.progress import Progress
 
-    cfg, camera = _check_options(args)
-    seq, n, out, folders = _open(args, cfg, camera)
+    cfg, seq, n, out, folders = prepared or prepare(args)
     # JAX's pipeline loads once the input is known to be usable: a one-line error waits
     # for no heavy import
     from jaxvo.odometry import Odometry, choose_start_pose
@@ -257,11 +264,14 @@ def run(args: argparse.Namespace) -> int:
     progress.close()
     summary = _summary(args, seq, n, start, rec, compiling, warnings, out)
     if gt is not None and rec.written >= 3:
-        summary.update(_scores(gt, out, args.max_diff))
-    if args.json:
-        print(json.dumps(summary, indent=1))
-    else:
-        _print_summary(summary, n, rec.interrupted)
+        summary.update(_scores(gt, out, writer, args.max_diff))
+    # the trajectory on standard output (--out -): the summary goes beside the warnings
+    stream = sys.stderr if str(out) == "-" else sys.stdout
+    with contextlib.redirect_stdout(stream):
+        if args.json:
+            print(json.dumps(summary, indent=1))
+        else:
+            _print_summary(summary, n, rec.interrupted)
     if rec.interrupted:
         print("jaxvo: interrupted; the poses computed so far are in the trajectory file",
               file=sys.stderr)
@@ -426,14 +436,15 @@ def _summary(args, seq, n: int, start: str, rec: _Recorder, compiling, warnings,
     }
 
 
-def _scores(gt, out: Path, max_diff: float) -> dict:
+def _scores(gt, out, writer, max_diff: float) -> dict:
     """ATE and RPE of the written trajectory against the folder's ground truth, or why
-    they could not be computed."""
+    they could not be computed: the file as ``jaxvo eval`` reads it, or the poses the
+    writer wrote where they went to standard output."""
     from jaxvo.errors import InputError
     from jaxvo.evaluation.metrics import ate, rpe
-    from jaxvo.host.io import read_trajectory
+    from jaxvo.host.io import STDOUT, read_trajectory
 
-    est = read_trajectory(out)
+    est = writer.trajectory if str(out) == STDOUT else read_trajectory(out)
     try:
         a = ate(gt, est, max_diff=max_diff)
         r1 = rpe(gt, est, delta=1, delta_unit="frames", max_diff=max_diff)
@@ -445,7 +456,8 @@ def _scores(gt, out: Path, max_diff: float) -> dict:
 
 
 def _print_summary(summary: dict, n: int, interrupted: bool) -> None:
-    print(f"jaxvo run: {summary['poses_written']} poses -> {summary['trajectory']}"
+    where = "standard output" if summary["trajectory"] == "-" else summary["trajectory"]
+    print(f"jaxvo run: {summary['poses_written']} poses -> {where}"
           + (" (interrupted)" if interrupted else ""))
     compiles = summary["compile"]
     how = ("the step loaded from the compile cache" if compiles and all(

@@ -35,11 +35,12 @@ def add_arguments(parser: argparse.ArgumentParser) -> None:
                         help="let the colour gain drift like auto exposure")
 
 
-def run(args: argparse.Namespace) -> int:
+def prepare(args: argparse.Namespace):
+    """The options checked, a composite's sequence opened and the (empty) output folder
+    made, before JAX loads: ``(opts, real, frames)`` for :func:`run`."""
     from dataclasses import replace
     from pathlib import Path
 
-    from jaxvo.cli.main import interrupt_at_safe_points
     from jaxvo.config import Config
     from jaxvo.errors import InputError, check_seed
     from jaxvo.host.io import check_outputs, output_folder
@@ -57,7 +58,7 @@ def run(args: argparse.Namespace) -> int:
     opts = synth.SensorOptions.ideal() if args.ideal else synth.SensorOptions()
     opts = replace(opts, motion_blur=args.motion_blur,
                          exposure_change=args.exposure_change)
-    reads = []
+    reads, real = [], None
     if args.composite:
         from jaxvo.host.io import open_sequence
 
@@ -75,6 +76,14 @@ def run(args: argparse.Namespace) -> int:
     # before any frame is rendered: a folder of its own, never one holding what it reads
     check_outputs(reads, folders={"OUT_DIR": Path(args.out_dir)})
     output_folder(args.out_dir, what="OUT_DIR", empty=True)
+    return opts, real, frames
+
+
+def run(args: argparse.Namespace, prepared=None) -> int:
+    from jaxvo.cli.main import interrupt_at_safe_points
+    from jaxvo.synth import scenes as synth
+
+    opts, real, frames = prepared or prepare(args)
     start = time.perf_counter()
     if args.composite:
         seq = synth.composite_sequence(real, args.scenario, frames=args.frames,

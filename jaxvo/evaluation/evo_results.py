@@ -165,12 +165,24 @@ def save_results(path: str | Path, result: EvoResult) -> None:
             archive.writestr(f"{name}.npy", buf.getvalue())
 
 
-def require_matplotlib() -> None:
-    """Raise :class:`InputError` in one line when matplotlib (the ``plot`` extra) is absent."""
+def require_matplotlib(path: str | Path | None = None) -> None:
+    """Raise :class:`InputError` in one line when matplotlib (the ``plot`` extra) is absent,
+    or when ``path``'s extension names no format matplotlib writes (checked before any work:
+    matplotlib says so only when it saves)."""
     try:
         import matplotlib  # noqa: F401
     except ImportError:
         raise InputError("--plot needs matplotlib: pip install 'jaxvo[plot]'") from None
+    if path is None:
+        return
+    from matplotlib.backend_bases import FigureCanvasBase
+
+    formats = FigureCanvasBase.get_supported_filetypes()
+    ext = Path(path).suffix.lower().lstrip(".")
+    if ext not in formats:
+        said = f"its extension .{ext}" if ext else "no extension"
+        raise InputError(f"--plot {path}: {said} names no image format matplotlib writes; "
+                         f"give one of {', '.join('.' + f for f in sorted(formats))}")
 
 
 def plot_result(path: str | Path, result: EvoResult, *, plot_mode: str = "xyz") -> None:

@@ -120,8 +120,9 @@ def read_calibration_file(path: str | Path) -> Intrinsics:
     5000 raw units per metre, as ETH3D's depth PNGs).
 
     Raises:
-      InputError: naming the file for a file that is not four finite numbers, or values no
-        camera has (:func:`check_intrinsics`).
+      InputError: naming the file for a file that is not four finite numbers (a fifth, which
+        could be meant as the depth scale, is refused, not guessed), or values no camera has
+        (:func:`check_intrinsics`).
     """
     path = Path(path)
     try:
@@ -130,6 +131,10 @@ def read_calibration_file(path: str | Path) -> Intrinsics:
         why = getattr(exc, "strerror", None) or "not a text file"
         raise InputError(f"{path}: cannot read ({why})") from None
     values = [v for ln in lines for v in ln]
+    if len(values) == 5:
+        raise InputError(f"{path}: ETH3D's calibration is 4 numbers 'fx fy cx cy', got 5 "
+                         f"({' '.join(values)}); give a depth scale with --depth-scale or a "
+                         "camera.txt (ETH3D's depth: 5000 per metre)")
     try:
         K = as_intrinsics([float(v) for v in values], where=str(path))
     except (ValueError, TypeError):
@@ -178,6 +183,35 @@ def as_intrinsics(camera, *, where: str = "intrinsics") -> Intrinsics:
     raise ValueError(f"{expected}; got shape {a.shape}")
 
 
+# Median depth of a frame, metres, outside which no RGB-D sensor reads (host.io's
+# check_depth_scale); a depth scale that puts every 16-bit reading (1 to 65535 raw units)
+# outside it is no sensor's either.
+DEPTH_HARD_M = (0.1, 15.0)
+_UINT16_MAX = 65535
+
+
+def check_depth_scale_value(scale: float, *, name: str) -> None:
+    """Raise :class:`~jaxvo.errors.InputError` for a depth scale (raw units per metre) that
+    is not a positive number, or that puts every 16-bit reading nearer than 0.1 m or beyond
+    15 m (``--depth-scale 1e-300`` made every depth infinite, ``1e300`` every depth 0).
+
+    Args:
+      scale: raw units per metre.
+      name: what to call it in the message (``--depth-scale``, ``FILE: depth_scale``).
+    """
+    if not (np.isfinite(scale) and scale > 0):
+        raise InputError(f"{name} must be a positive number of raw units per metre, got "
+                         f"{scale:g}")
+    near, far = 1.0 / scale, _UINT16_MAX / scale
+    if far < DEPTH_HARD_M[0] or near > DEPTH_HARD_M[1]:
+        where_to = (f"nearer than {DEPTH_HARD_M[0]:g} m" if far < DEPTH_HARD_M[0]
+                    else f"beyond {DEPTH_HARD_M[1]:g} m")
+        raise InputError(
+            f"{name} {scale:g} raw units per metre puts every 16-bit depth "
+            f"reading (1 to {_UINT16_MAX} units: {near:.3g} to {far:.3g} m) {where_to}, where "
+            "no RGB-D sensor reads; TUM's scale is 5000 per metre, millimetres 1000")
+
+
 # The principal point of a real camera lies near the image centre: beyond a quarter of
 # the image side from it, the intrinsics are another image size's (a 640x480 camera.txt
 # kept beside images resized to 320x240 puts it at the image corner).
@@ -203,9 +237,9 @@ def check_intrinsics(
     for name, value in zip(Intrinsics._fields, K):
         if not np.isfinite(value):
             raise InputError(f"{where}: {name} is {value}, not a finite number")
-    for name in ("fx", "depth_scale"):
-        if getattr(K, name) <= 0:
-            raise InputError(f"{where}: {name} must be positive, got {getattr(K, name):g}")
+    if K.fx <= 0:
+        raise InputError(f"{where}: fx must be positive, got {K.fx:g}")
+    check_depth_scale_value(K.depth_scale, name=f"{where}: depth_scale")
     if K.fy == 0:
         raise InputError(f"{where}: fy must not be 0 (negative: a camera whose y axis points up)")
     if width is None or height is None:
@@ -243,7 +277,8 @@ def depth_metres(depth: np.ndarray, K: Intrinsics) -> np.ndarray:
 
     ``uint16`` images are raw sensor units, divided by ``K.depth_scale`` (what
     ``cv2.imread(path, cv2.IMREAD_UNCHANGED)`` gives for TUM, Bonn or RealSense PNGs, and
-    what Open3D scales by its ``depth_scale``); float images are metres already.
+    what Open3D scales by its ``depth_scale``); float images are metres already, and a value
+    that is not finite (infinite: a sensor's "too far") or beyond float32 is no reading (0).
 
     Args:
       depth: (H, W) uint16 raw units or float metres.
@@ -260,7 +295,11 @@ def depth_metres(depth: np.ndarray, K: Intrinsics) -> np.ndarray:
         # 0 stays 0 (no reading) under the division
         return depth.astype(np.float32) / np.float32(K.depth_scale)
     if np.issubdtype(depth.dtype, np.floating):
-        return depth.astype(np.float32, copy=False)
+        with np.errstate(over="ignore"):  # float64 beyond float32's range: no reading
+            d = depth.astype(np.float32, copy=False)
+        if np.isinf(d).any():  # a pass over the image; copied only where it holds one
+            d = np.where(np.isinf(d), np.float32(0), d)
+        return d
     raise ValueError(
         f"depth must be uint16 raw units (divided by depth_scale {K.depth_scale:g}) or "
         f"float metres, got {depth.dtype}"

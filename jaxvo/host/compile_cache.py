@@ -25,6 +25,11 @@ processes that compiled the same program stores it. An entry left empty by a pro
 killed while writing it would be read, fail and never be rewritten; :func:`use_compile_cache`
 removes such entries (under the same lock) before the first compile.
 
+A busy or broken cache never fails a command: a lock another process holds past
+:data:`LOCK_TIMEOUT_S`, or a folder that fails when repaired, turns the cache off with one
+warning line; JAX's own errors reading or writing an entry (a full disk, a lock held past
+its timeout) are said in one line, the first, instead of a warning per program.
+
 JAX trusts what it loads from the cache: keep it in a folder only you can write to.
 """
 
@@ -53,6 +58,12 @@ MIN_COMPILE_SECONDS = 0.0
 # The lock file JAX's bounded cache takes (jax._src.lru_cache); the repair takes it too.
 _LOCK_NAME = ".lockfile"
 _ENTRY_SUFFIX = "-cache"
+# How long the repair waits for another process's hold on the lock (JAX's own wait, per
+# entry read or written, is also 10 s) before the command goes on without the cache.
+LOCK_TIMEOUT_S = 10.0
+# The start of JAX's warnings for an entry it could not read or write (jax._src.compiler)
+_JAX_CACHE_ERRORS = ("Error reading persistent compilation cache entry",
+                     "Error writing persistent compilation cache entry")
 
 
 class CacheChoice(NamedTuple):
@@ -113,6 +124,7 @@ def use_compile_cache(folder: str | os.PathLike | None) -> None:
         jax.config.update("jax_enable_compilation_cache", False)
         return
     _drop_empty_entries(Path(folder))
+    _one_line_for_cache_errors(Path(folder), sys.stderr)
     jax.config.update("jax_enable_compilation_cache", True)
     jax.config.update("jax_compilation_cache_dir", str(folder))
     jax.config.update("jax_persistent_cache_min_compile_time_secs", MIN_COMPILE_SECONDS)
@@ -124,7 +136,7 @@ def _drop_empty_entries(folder: Path) -> None:
     under the lock JAX takes to write, so an entry being written now is never touched."""
     import filelock
 
-    with filelock.FileLock(folder / _LOCK_NAME, timeout=10):
+    with filelock.FileLock(folder / _LOCK_NAME, timeout=LOCK_TIMEOUT_S):
         for entry in folder.glob(f"*{_ENTRY_SUFFIX}"):
             with contextlib.suppress(OSError):  # another process removed it first
                 if entry.stat().st_size == 0:
@@ -167,8 +179,52 @@ def setup_compile_cache(
                 raise
             print(f"jaxvo: warning: {exc}; running without it", file=stream or sys.stderr)
             choice = CacheChoice(None, f"off ({choice.source} folder not writable)")
-    use_compile_cache(choice.folder)
+    try:
+        use_compile_cache(choice.folder)
+    except OSError as exc:  # filelock's Timeout is one: another process holds the lock
+        import filelock
+
+        why = (f"is locked by another process for over {LOCK_TIMEOUT_S:g} s"
+               if isinstance(exc, filelock.Timeout)
+               else f"cannot be used ({exc.strerror or exc})")
+        print(f"jaxvo: warning: compile cache {choice.folder} {why}; running without it",
+              file=stream or sys.stderr)
+        use_compile_cache(None)
+        choice = CacheChoice(None, f"off ({choice.source} folder busy or broken)")
     return choice
+
+
+_funnel_installed = False
+
+
+def _one_line_for_cache_errors(folder: Path, stream: TextIO) -> None:
+    """Say JAX's warnings about cache entries it could not read or write (a full disk: 14
+    lines a run) as one line, the first, and none after it: a compile goes on without the
+    entry either way. Other warnings pass as before (``warnings.showwarning``, the hook
+    Python offers for this)."""
+    global _funnel_installed
+    import warnings
+
+    if _funnel_installed:
+        return
+    previous = warnings.showwarning
+    said = False
+
+    def show(message, category, filename, lineno, file=None, line=None):
+        nonlocal said
+        text = str(message)
+        if not text.startswith(_JAX_CACHE_ERRORS):
+            previous(message, category, filename, lineno, file, line)
+        elif not said:
+            said = True
+            what = "reading" if text.startswith(_JAX_CACHE_ERRORS[0]) else "writing"
+            why = text.split("': ", 1)[-1]
+            stream.write(f"jaxvo: warning: compile cache {folder}: {what} an entry failed "
+                         f"({why}); going on without it (further cache errors not shown)\n")
+            stream.flush()
+
+    warnings.showwarning = show
+    _funnel_installed = True
 
 
 def add_compile_cache_options(parser) -> None:

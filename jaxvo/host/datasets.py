@@ -228,7 +228,7 @@ def _entries(archive: Path):
             pass
 
 
-def unpack(archive: Path, dest: Path) -> list[Path]:
+def unpack(archive: Path, dest: Path, *, require: str | None = None) -> list[Path]:
     """Unpack a zip or tar(.gz) ``archive`` into folder ``dest``, safely: no member with an
     absolute path or ``..``, no links or devices, files written by us (never by the
     archive's own extraction) into a staging folder that is moved into place only when
@@ -237,11 +237,14 @@ def unpack(archive: Path, dest: Path) -> list[Path]:
     Args:
       archive: the archive.
       dest: the folder to unpack into (exists).
+      require: a path the archive must hold (``FOLDER/rgb.txt``); then only its top-level
+        folder is moved into ``dest``, and an archive without it moves nothing (a
+        sequence's ``rgb/``, ``depth/`` and lists at the top would land in ``dest`` itself).
     Returns:
       the top-level paths it created in ``dest``.
     Raises:
-      InputError: an unsafe member, a corrupt archive (its CRC), or a top-level entry that
-        already exists in ``dest``.
+      InputError: an unsafe member, a corrupt archive (its CRC), an archive without
+        ``require``, or a top-level entry that already exists in ``dest``.
     """
     staging = dest / f".{archive.name}.unpacking"
     shutil.rmtree(staging, ignore_errors=True)
@@ -256,6 +259,12 @@ def unpack(archive: Path, dest: Path) -> list[Path]:
             with src, open(target, "wb") as dst:
                 shutil.copyfileobj(src, dst, _CHUNK)
         tops = sorted(p.name for p in staging.iterdir())
+        if require is not None:
+            if not staging.joinpath(*Path(require).parts).is_file():
+                held = ", ".join(tops[:6]) + (", ..." if len(tops) > 6 else "") or "nothing"
+                raise InputError(f"{archive}: holds no {require} (its top level: {held}); "
+                                 f"nothing unpacked into {dest}")
+            tops = [Path(require).parts[0]]
         for top in tops:
             if (dest / top).exists():
                 raise InputError(f"{dest / top} exists already; remove it or choose --dir")

@@ -3,7 +3,6 @@
 from __future__ import annotations
 
 import os
-import re
 from pathlib import Path
 from typing import NamedTuple
 
@@ -11,6 +10,7 @@ import numpy as np
 
 from jaxvo.errors import InputError
 from jaxvo.host.camera import (
+    DEPTH_HARD_M,
     PRESETS,
     Intrinsics,
     check_intrinsics,
@@ -19,6 +19,26 @@ from jaxvo.host.camera import (
     read_calibration_file,
     read_camera_file,
 )
+
+# what every sequence reader shares; its names stay importable from here too
+from jaxvo.host.frames import (
+    Frame,
+    associate,
+    check_frame_size,
+    describe,
+    frame_index,
+    given_camera,
+    preset_from_name,
+)
+
+# the output checks, in a module of their own; their names stay importable from here too
+from jaxvo.host.outputs import (  # noqa: F401 (re-exported)
+    check_outputs,
+    output_file,
+    output_folder,
+    write_image,
+)
+from jaxvo.host.rosbag import BagSequence, is_bag
 
 
 def data_root() -> Path:
@@ -30,47 +50,6 @@ def data_root() -> Path:
 
     checkout = Path(jaxvo.__file__).resolve().parent.parent  # the folder holding jaxvo/
     return checkout.parent / "shared" / "data"
-
-
-class Frame(NamedTuple):
-    """One RGB-D frame on the host."""
-
-    index: int
-    timestamp: float  # seconds
-    bgr: np.ndarray  # (H, W, 3) uint8, OpenCV channel order
-    depth: np.ndarray  # (H, W) float32 metres, 0 = no reading
-    mask: np.ndarray | None = None  # (H, W) uint8 moving-object id, 0 = static (synthetic only)
-
-
-def frame_index(index: int, n: int) -> int:
-    """``index`` into a sequence of ``n`` frames as 0 .. n-1 (negative counts from the end).
-
-    Raises:
-      IndexError: out of range.
-    """
-    if not -n <= index < n:
-        raise IndexError(f"frame {index} out of range for {n} frames")
-    return int(index) % n
-
-
-def check_frame_size(where: str, image: np.ndarray, height: int, width: int) -> None:
-    """Raise :class:`InputError` when ``image`` (H, W, ...) is not the sequence's size."""
-    if image.shape[:2] != (height, width):
-        raise InputError(f"{where}: image is {image.shape[1]}x{image.shape[0]}, the sequence "
-                         f"is {width}x{height}")
-
-
-def given_camera(camera) -> tuple[Intrinsics, str] | None:
-    """The intrinsics a caller gave (an :class:`Intrinsics`, or a preset name) and where they
-    came from, in words; None when ``camera`` is None."""
-    if isinstance(camera, Intrinsics):
-        return camera, "given"
-    if camera is None:
-        return None
-    try:
-        return preset(camera), f"preset {camera}"
-    except ValueError as exc:
-        raise InputError(str(exc)) from None
 
 
 class Trajectory(NamedTuple):
@@ -200,64 +179,10 @@ def write_trajectory(path: str | Path, traj: Trajectory, *, comment: str = "") -
     fmt = " ".join([_TIME_FMT] + [_VALUE_FMT] * 7)
     for t, T, qi in zip(stamps, poses, q):
         lines.append(fmt % (t, *T[:3, 3], *qi))
-    Path(path).write_text("\n".join(lines) + "\n")
-
-
-def associate(
-    t_a: np.ndarray,
-    t_b: np.ndarray,
-    max_diff: float,
-    *,
-    names: tuple[str, str] = ("first", "second"),
-) -> tuple[np.ndarray, np.ndarray]:
-    """Pair timestamps of two lists by nearest time, one-to-one (TUM ``associate.py``).
-
-    Every pair of stamps closer than ``max_diff`` is a candidate; candidates are taken in
-    order of increasing time difference, skipping any whose stamp is already used. Where
-    the stamps of each list are further apart than ``2 * max_diff`` this is the same as
-    evo's nearest-neighbour association.
-
-    Args:
-      t_a: (N,) seconds.
-      t_b: (M,) seconds.
-      max_diff: largest accepted time difference, seconds.
-      names: what to call the two lists in the error message (e.g. the file names).
-    Returns:
-      ``(idx_a, idx_b)``, int arrays of equal length, sorted by ``t_a``.
-    Raises:
-      InputError: no pair matches; the message gives both time ranges.
-    """
-    t_a = np.asarray(t_a, np.float64)
-    t_b = np.asarray(t_b, np.float64)
-    if max_diff < 0:
-        raise InputError(f"max time difference must be >= 0 s, got {max_diff}")
-    order_b = np.argsort(t_b, kind="stable")
-    sb = t_b[order_b]
-    lo = np.searchsorted(sb, t_a - max_diff, side="left")
-    hi = np.searchsorted(sb, t_a + max_diff, side="right")
-    counts = hi - lo
-    ia = np.repeat(np.arange(len(t_a)), counts)
-    starts = np.repeat(lo - np.concatenate([[0], np.cumsum(counts)[:-1]]), counts)
-    ib = order_b[np.arange(len(ia)) + starts] if len(ia) else np.zeros(0, np.int64)
-    diff = np.abs(t_a[ia] - t_b[ib])
-    keep = diff <= max_diff
-    ia, ib, diff = ia[keep], ib[keep], diff[keep]
-    used_a = np.zeros(len(t_a), bool)
-    used_b = np.zeros(len(t_b), bool)
-    pairs = []
-    for k in np.lexsort((ib, ia, diff)):
-        a, b = ia[k], ib[k]
-        if not used_a[a] and not used_b[b]:
-            used_a[a] = used_b[b] = True
-            pairs.append((a, b))
-    if not pairs:
-        raise InputError(
-            f"no timestamps match within {max_diff:g} s: {names[0]} spans "
-            f"{_time_range(t_a)}, {names[1]} spans {_time_range(t_b)}"
-        )
-    pairs.sort()
-    out = np.asarray(pairs, np.int64)
-    return out[:, 0], out[:, 1]
+    try:
+        Path(path).write_text("\n".join(lines) + "\n")
+    except OSError as exc:  # a full disk fails in write() or close(), which name no file
+        raise OSError(exc.errno, exc.strerror, str(path)) from None
 
 
 def pose_at(traj: Trajectory, t: float, *, max_diff: float = 0.02) -> np.ndarray | None:
@@ -277,12 +202,6 @@ def pose_at(traj: Trajectory, t: float, *, max_diff: float = 0.02) -> np.ndarray
     if abs(stamps[k] - t) > max_diff:
         return None
     return np.asarray(traj.poses[k], np.float64)
-
-
-def _time_range(t: np.ndarray) -> str:
-    if len(t) == 0:
-        return "nothing (0 stamps)"
-    return f"{t.min():.6f} .. {t.max():.6f} s ({len(t)} stamps)"
 
 
 # --- RGB-D sequences in the TUM layout -------------------------------------------------
@@ -344,17 +263,6 @@ def _read_image(path: Path, flags: int) -> np.ndarray:
     if img is None:
         raise InputError(f"cannot read image: {path}")
     return img
-
-
-def preset_from_name(name: str) -> str | None:
-    """The calibration a folder's name points to, as the benchmarks name their downloads:
-    TUM RGB-D (``rgbd_dataset_freiburg3_walking_xyz``, or short ``fr3_walking_xyz``) and
-    Bonn RGB-D Dynamic (``rgbd_bonn_balloon``); ``None`` if the name names neither."""
-    low = name.lower()
-    if re.search(r"(?:^|[^a-z0-9])bonn(?:[^a-z0-9]|$)", low):
-        return "bonn"
-    m = re.search(r"freiburg([123])|(?:^|[^a-z0-9])fr([123])(?:[^0-9]|$)", low)
-    return None if m is None else f"tum_fr{m.group(1) or m.group(2)}"
 
 
 class TumSequence:
@@ -488,8 +396,8 @@ class TumSequence:
                 in_folder = None  # overridden anyway; its faults are not this run's
             if in_folder != K:
                 self.warnings.append(
-                    f"the camera {source} ({_describe(K)}) overrides {cam_file} "
-                    f"({_describe(in_folder) if in_folder else 'unreadable'})"
+                    f"the camera {source} ({describe(K)}) overrides {cam_file} "
+                    f"({describe(in_folder) if in_folder else 'unreadable'})"
                 )
         return K, source
 
@@ -589,21 +497,12 @@ def _imread_unchanged() -> int:
     return cv2.IMREAD_UNCHANGED
 
 
-def _describe(K: Intrinsics) -> str:
-    return f"fx {K.fx:g} fy {K.fy:g} cx {K.cx:g} cy {K.cy:g} depth_scale {K.depth_scale:g}"
-
-
 def open_sequence(path: str | Path, *, rgb_topic: str | None = None,
                   depth_topic: str | None = None, **kwargs) -> TumSequence:
     """Open the RGB-D sequence at ``path``: a folder in the TUM layout, or a ROS bag (a
     ``.bag`` file or a ROS 2 bag folder, :class:`jaxvo.host.rosbag.BagSequence`, whose image
     topics ``rgb_topic`` / ``depth_topic`` choose); ``kwargs`` go to the reader."""
-    from jaxvo.host.rosbag import BagSequence, is_bag
-
     if is_bag(path):
-        if kwargs.pop("depth_scale", None) is not None:
-            raise InputError(f"{path}: --depth-scale is for folders; a bag's depth says its unit "
-                             "(32FC1 metres, 16UC1 millimetres)")
         return BagSequence(path, rgb_topic=rgb_topic, depth_topic=depth_topic, **kwargs)
     if rgb_topic or depth_topic:
         raise InputError(f"{path}: not a ROS bag; --rgb-topic and --depth-topic are for bags")
@@ -615,129 +514,15 @@ def open_sequence(path: str | Path, *, rgb_topic: str | None = None,
     return TumSequence(root, **kwargs)
 
 
-def check_outputs(reads, *, files: dict[str, Path] | None = None,
-                  folders: dict[str, Path] | None = None) -> None:
-    """Refuse outputs that would overwrite what a command reads, or each other.
-
-    Checked before any work, with paths resolved (symbolic links followed): no output file
-    is a file the command reads or another output file; no output folder (where the command
-    names the files it writes: masks by timestamp, a study's tables) holds a file the
-    command reads, is another output folder, or holds an output file.
-
-    Args:
-      reads: the files (and folders) the command reads.
-      files: option -> output file (e.g. ``{"--out": Path("traj.txt")}``).
-      folders: option -> output folder (e.g. ``{"--masks": Path("masks")}``).
-    Raises:
-      InputError: one line naming the options, the paths and the clash.
-    """
-    files, folders = dict(files or {}), dict(folders or {})
-    read = {Path(os.path.realpath(p)): Path(p) for p in reads}
-    parents = {}
-    for real, given in read.items():
-        parents.setdefault(real.parent, given)
-    seen_files: dict[Path, str] = {}
-    for what, p in files.items():
-        real = Path(os.path.realpath(p))
-        if real in read:
-            raise InputError(f"{what} {p} would overwrite the input {read[real]}")
-        if real in seen_files:
-            raise InputError(f"{what} and {seen_files[real]} are the same file {p}; each "
-                             "output needs its own")
-        seen_files[real] = what
-    seen_folders: dict[Path, str] = {}
-    for what, p in folders.items():
-        real = Path(os.path.realpath(p))
-        if real in read or real in parents:
-            held = parents.get(real, read.get(real))
-            raise InputError(f"{what} {p} holds {held}, which this command reads; writing "
-                             "there could overwrite it: choose another folder")
-        if real in seen_folders:
-            raise InputError(f"{what} and {seen_folders[real]} are the same folder {p}; each "
-                             "output needs its own")
-        seen_folders[real] = what
-    for real, what in seen_files.items():
-        if real.parent in seen_folders:
-            other = seen_folders[real.parent]
-            raise InputError(f"{what} {files[what]} lies in the folder of {other}, which "
-                             f"{other} writes into; put it elsewhere")
-
-
-def output_file(path: str | Path, *, what: str) -> Path:
-    """``path`` as a file this run can write, checked before any work is done (what it must
-    not overwrite: :func:`check_outputs`).
-
-    Args:
-      path: the file (it may exist; it is not changed here).
-      what: how to name it in a message (e.g. ``--out``).
-    Returns:
-      the path.
-    Raises:
-      InputError: the path is a folder, its folder does not exist, or it cannot be written.
-    """
-    p = Path(path)
-    if p.is_dir():
-        raise InputError(f"{what} {p}: is a folder, not a file")
-    if not p.parent.is_dir():
-        raise InputError(f"{what} {p}: folder {p.parent} does not exist")
-    existed = p.exists()
-    try:
-        with open(p, "a"):  # "a": an existing file stays as it is
-            pass
-    except OSError as exc:
-        raise InputError(f"{what} {p}: cannot write ({exc.strerror})") from None
-    if not existed:
-        p.unlink()
-    return p
-
-
-def output_folder(path: str | Path, *, what: str, empty: bool = False) -> Path:
-    """``path`` as a folder this run can write into, created if missing.
-
-    Args:
-      path: the folder.
-      what: how to name it in a message (e.g. ``--masks``).
-      empty: refuse a folder that already holds anything (a command that writes a whole
-        folder, whose old files would be left mixed with the new ones or overwritten).
-    Returns:
-      the path.
-    Raises:
-      InputError: it exists and is not a folder (or, with ``empty``, is not empty), or
-        cannot be created or written into.
-    """
-    import tempfile
-
-    p = Path(path)
-    if p.exists() and not p.is_dir():
-        raise InputError(f"{what} {p}: exists and is not a folder")
-    if empty and p.is_dir() and any(p.iterdir()):
-        raise InputError(f"{what} {p}: the folder is not empty; give a new or empty folder "
-                         "(nothing in it is changed)")
-    try:
-        p.mkdir(parents=True, exist_ok=True)
-        tempfile.TemporaryFile(dir=p).close()
-    except OSError as exc:
-        raise InputError(f"{what} {p}: cannot write there ({exc.strerror})") from None
-    return p
-
-
-def write_image(path: str | Path, image: np.ndarray) -> None:
-    """``cv2.imwrite`` that raises ``OSError`` when nothing was written (OpenCV only returns
-    False, and a run would go on writing nothing).
-
-    Args:
-      path: the file; its extension picks the format (``.png``).
-      image: (H, W) or (H, W, 3) array as OpenCV writes it.
-    """
-    import cv2
-
-    if not cv2.imwrite(str(path), image):
-        raise OSError(f"{path}: could not write the image")
+# the file name that writes a trajectory to standard output, as command-line tools take it
+STDOUT = "-"
 
 
 class TrajectoryWriter:
     """Writes a TUM trajectory one pose at a time, flushed, so nothing computed is lost
-    when a long run is interrupted. Same format as :func:`write_trajectory`.
+    when a long run is interrupted. Same format as :func:`write_trajectory`; ``"-"``
+    writes to standard output. A write that fails (a full disk) raises ``OSError`` naming
+    the file.
 
     Example::
 
@@ -747,25 +532,52 @@ class TrajectoryWriter:
     """
 
     def __init__(self, path: str | Path, *, comment: str = ""):
+        import sys
+
         self.path = Path(path)
-        if self.path.parent and not self.path.parent.exists():
-            raise InputError(f"folder of the output trajectory does not exist: {self.path.parent}")
-        self._fh = open(self.path, "w")  # noqa: SIM115 (held open across writes; closed by close())
-        for line in comment.splitlines():
-            self._fh.write(f"# {line}\n")
-        self._fh.write("# timestamp tx ty tz qx qy qz qw\n")
+        self.timestamps: list[float] = []  # what was written, as given
+        self.poses: list[np.ndarray] = []
+        self._stdout = str(path) == STDOUT
+        if self._stdout:
+            self._fh = sys.stdout
+        else:
+            if self.path.parent and not self.path.parent.exists():
+                raise InputError(f"folder of the output trajectory does not exist: "
+                                 f"{self.path.parent}")
+            self._fh = open(self.path, "w")  # noqa: SIM115 (held open across writes; closed by close())
         self._fmt = " ".join([_TIME_FMT] + [_VALUE_FMT] * 7) + "\n"
+        self._put("".join(f"# {line}\n" for line in comment.splitlines())
+                  + "# timestamp tx ty tz qx qy qz qw\n")
+
+    def _put(self, text: str) -> None:
+        try:
+            self._fh.write(text)
+            self._fh.flush()
+        except OSError as exc:  # write() and flush() errors name no file of their own
+            raise OSError(exc.errno, exc.strerror, str(self.path)) from None
 
     def write(self, timestamp: float, T_w_c: np.ndarray) -> None:
         from jaxvo.host.transforms import rotation_to_quat
 
         T = np.asarray(T_w_c, np.float64)
         q = rotation_to_quat(T[:3, :3])
-        self._fh.write(self._fmt % (timestamp, *T[:3, 3], *q))
-        self._fh.flush()
+        self._put(self._fmt % (timestamp, *T[:3, 3], *q))
+        self.timestamps.append(float(timestamp))
+        self.poses.append(T)
+
+    @property
+    def trajectory(self) -> Trajectory:
+        """The poses written so far, as given (before the file's rounding)."""
+        return Trajectory(np.asarray(self.timestamps, np.float64),
+                          np.asarray(self.poses, np.float64).reshape(-1, 4, 4))
 
     def close(self) -> None:
-        self._fh.close()
+        if self._stdout:
+            return
+        try:
+            self._fh.close()
+        except OSError as exc:
+            raise OSError(exc.errno, exc.strerror, str(self.path)) from None
 
     def __enter__(self):
         return self
@@ -779,7 +591,7 @@ class TrajectoryWriter:
 # metres); outside the soft band it is possible but unusual for the structured-light and
 # time-of-flight cameras of these datasets (0.5 m: the nearest range of the Kinect and
 # Xtion sensors of TUM, Bonn and ICL-style data), so it is said but run.
-_DEPTH_HARD_M = (0.1, 15.0)
+_DEPTH_HARD_M = DEPTH_HARD_M
 _DEPTH_SOFT_M = (0.5, 8.0)
 # The depth scales of the sensors' files: TUM, Bonn, ETH3D 5000 per metre; millimetres 1000.
 # A wrong one of these is the usual mistake, and it can stay inside the soft band (a room
@@ -805,15 +617,17 @@ def check_depth_scale(depth: np.ndarray, K, *, where: str, raw_units: bool = Tru
       raw_units: the depth was raw units divided by ``K.depth_scale`` (else it was given as
         float metres, and the message says so).
     Returns:
-      a one-line warning when the median lies outside 0.5 to 8 m, or when another common
-      depth scale (5000 or 1000 per metre) puts it nearer the typical 2 m; else None (also
-      for a frame without readings, which the pipeline reports per frame).
+      a one-line warning when the frame has no depth reading at all (every value 0, NaN or
+      infinite: every pair with it lacks depth), when the median lies outside 0.5 to 8 m,
+      or when another common depth scale (5000 or 1000 per metre) puts it nearer the typical
+      2 m; else None.
     Raises:
       InputError: the median lies outside 0.1 to 15 m.
     """
     valid = depth[np.isfinite(depth) & (depth > 0)]
     if valid.size == 0:
-        return None
+        return (f"{where}: no depth reading (every value is 0, negative, NaN or infinite): "
+                "frame pairs without depth give no motion; check the depth images")
     med = float(np.median(valid))
     likelier = []
     if raw_units:

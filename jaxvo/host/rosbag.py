@@ -10,11 +10,13 @@ Topics: the TUM RGB-D bags' by default (:data:`TUM_TOPICS`); the camera info is 
 beside the colour topic (``/camera/rgb/image_color`` -> ``/camera/rgb/camera_info``).
 Encodings (``sensor_msgs/Image``): colour ``rgb8``, ``bgr8``, ``rgba8``, ``bgra8``, ``mono8``;
 depth ``32FC1`` metres (TUM's bags; NaN = no reading) or ``16UC1`` / ``mono16``
-millimetres (ROS REP 118). Frames are the colour images, each paired with the depth image
-nearest in time within ``max_diff`` (:func:`jaxvo.host.io.associate`, as for folders), both
+millimetres (ROS REP 118; ``depth_scale`` gives other units, e.g. TUM's 5000 per metre).
+Frames are the colour images, each paired with the depth image
+nearest in time within ``max_diff`` (:func:`jaxvo.host.frames.associate`, as for folders), both
 timed by their header stamps (sensor time, as TUM's ``rgb.txt``), not by when they were
 recorded. Opening reads the two image topics once to learn the stamps; frames are decoded
-only when asked for.
+only when asked for, each found again by its bag time and its place among the topic's
+messages at that time (a converter may write every message at one bag time).
 """
 
 from __future__ import annotations
@@ -26,7 +28,7 @@ import numpy as np
 
 from jaxvo.errors import InputError
 from jaxvo.host.camera import Intrinsics, check_intrinsics, depth_metres, preset
-from jaxvo.host.io import (
+from jaxvo.host.frames import (
     Frame,
     associate,
     check_frame_size,
@@ -42,6 +44,8 @@ INFO_TYPE = "sensor_msgs/msg/CameraInfo"
 # ROS REP 118: 16-bit depth images are millimetres
 ROS_DEPTH_UNITS_PER_METRE = 1000.0
 # colour encodings -> (channels, the channel order that makes BGR)
+# raw messages a cursor keeps after passing them (frames read ahead arrive nearly in order)
+_RECENT = 8
 _COLOUR = {"rgb8": (3, [2, 1, 0]), "bgr8": (3, [0, 1, 2]), "rgba8": (4, [2, 1, 0]),
            "bgra8": (4, [0, 1, 2]), "mono8": (1, [0, 0, 0])}
 
@@ -63,7 +67,15 @@ def _open_reader(path: Path):
         reader.open()
     except AnyReaderError as exc:  # rosbags wraps each format's reader errors in it
         raise InputError(f"{path}: cannot read the bag ({exc})") from None
+    except Exception as exc:  # noqa: BLE001 (random bytes raise what the parser trips on)
+        raise InputError(f"{path}: cannot read the bag ({_why(exc)})") from None
     return reader
+
+
+def _why(exc: Exception) -> str:
+    """A reader failure in a few words (its type where its text says nothing)."""
+    text = str(exc).splitlines()[0][:160] if str(exc) else ""
+    return f"{type(exc).__name__}: {text}" if text else type(exc).__name__
 
 
 def _stamp(msg) -> float:
@@ -93,26 +105,36 @@ def colour_bgr(msg) -> np.ndarray:
     return np.ascontiguousarray(_pixels(msg, channels, "uint8")[..., order])
 
 
-def depth_m(msg) -> np.ndarray:
+def is_float_depth(msg) -> bool:
+    """Whether a depth ``sensor_msgs/Image`` holds float metres (``32FC1``), not raw units."""
+    return msg.encoding.upper() == "32FC1"
+
+
+def depth_m(msg, units_per_metre: float = ROS_DEPTH_UNITS_PER_METRE) -> np.ndarray:
     """(H, W) float32 metres, 0 = no reading, from a depth ``sensor_msgs/Image``
-    (``32FC1`` metres, or ``16UC1`` / ``mono16`` millimetres)."""
+    (``32FC1`` metres, or ``16UC1`` / ``mono16`` raw units, ``units_per_metre`` of them a
+    metre: millimetres by default, as ROS REP 118)."""
     enc = msg.encoding.upper()
     if enc == "32FC1":
         d = _pixels(msg, 1, "float32")[..., 0]
         return np.where(np.isfinite(d) & (d > 0), d, np.float32(0)).astype(np.float32)
     if enc in ("16UC1", "MONO16"):
         raw = _pixels(msg, 1, "uint16")[..., 0]
-        return depth_metres(raw, Intrinsics(1, 1, 0, 0, ROS_DEPTH_UNITS_PER_METRE))
+        return depth_metres(raw, Intrinsics(1, 1, 0, 0, units_per_metre))
     raise InputError(f"depth encoding {msg.encoding!r} is not read (32FC1 metres, 16UC1 "
                      "millimetres are)")
 
 
-def info_intrinsics(msg) -> Intrinsics | None:
+def info_intrinsics(msg) -> Intrinsics | str:
     """Pinhole intrinsics (pixels) from a ``sensor_msgs/CameraInfo`` (ROS 1 ``K``, ROS 2
-    ``k``), or None when it holds no calibration (all zero)."""
+    ``k``), or why it holds none, in words (an all-zero K: an uncalibrated camera)."""
     K = np.asarray(msg.K if hasattr(msg, "K") else msg.k, np.float64)
-    if K.size != 9 or K[0] <= 0 or K[4] <= 0:
-        return None
+    if K.size != 9:
+        return f"its K has {K.size} values, not 9"
+    if not np.any(K[[0, 2, 4, 5]]):
+        return "its K is all zero (the camera driver had no calibration)"
+    if not (np.all(np.isfinite(K)) and K[0] > 0 and K[4] > 0):
+        return f"its K has fx {K[0]:g}, fy {K[4]:g} (no calibration)"
     return Intrinsics(float(K[0]), float(K[4]), float(K[2]), float(K[5]),
                       ROS_DEPTH_UNITS_PER_METRE)
 
@@ -127,18 +149,21 @@ class BagSequence:
       max_diff: largest colour-depth time difference when pairing them, seconds.
       rgb_topic: the colour topic (default TUM's ``/camera/rgb/image_color``).
       depth_topic: the depth topic (default TUM's ``/camera/depth/image``).
+      depth_scale: raw units per metre of 16-bit depth (default 1000, ROS REP 118's
+        millimetres); refused for ``32FC1`` depth, which is metres.
 
     Attributes:
       warnings: one-line warnings (frames left out, camera info against the name's preset).
       frames_listed: colour images in the bag, paired or not.
       camera_source: where the intrinsics came from, in words.
+      float_depth: the depth topic holds float metres (``32FC1``), not raw units.
     """
 
     groundtruth = None  # bags carry the motion capture as tf frames, not read here
 
     def __init__(self, path: str | Path, *, camera: str | Intrinsics | None = None,
                  max_diff: float = 0.02, rgb_topic: str | None = None,
-                 depth_topic: str | None = None) -> None:
+                 depth_topic: str | None = None, depth_scale: float | None = None) -> None:
         self.path = Path(path)
         if not max_diff >= 0:  # also NaN
             raise InputError(f"max time difference must be >= 0 s, got {max_diff}")
@@ -147,6 +172,8 @@ class BagSequence:
         rgb_topic = rgb_topic or TUM_TOPICS[0]
         depth_topic = depth_topic or TUM_TOPICS[1]
         self._lock = threading.Lock()  # frames are read from several threads (read_ahead)
+        self._cursor: dict[str, list] = {}  # topic -> [bag time, next place, messages]
+        self._recent: dict[tuple, bytes] = {}  # the last messages a cursor passed
         self._reader = _open_reader(self.path)
         self._conns = {t: self._connection(t, IMAGE_TYPE, option)
                        for t, option in ((rgb_topic, "--rgb-topic"),
@@ -163,10 +190,19 @@ class BagSequence:
                 self.warnings.append(f"{self.path} {topic}: {count - len(ia)} of {count} "
                                      f"images have no {other} image within {max_diff:g} s "
                                      "(--max-diff) and are left out")
-        first = colour_bgr(self._message(rgb_topic, at_rgb[ia[0]]))
+        first = self._decode(rgb_topic, at_rgb[ia[0]], colour_bgr)
         self.height, self.width = first.shape[:2]
+        self.float_depth = self._decode(depth_topic, at_depth[ib[0]], is_float_depth)
+        if self.float_depth and depth_scale is not None:
+            raise InputError(f"{self.path} {depth_topic}: depth is 32FC1 metres; --depth-scale "
+                             "is for 16-bit depth in raw units")
+        self._units = float(depth_scale or ROS_DEPTH_UNITS_PER_METRE)
         info_topic = rgb_topic.rsplit("/", 1)[0] + "/camera_info"
-        self.intrinsics, self.camera_source = self._intrinsics(camera, info_topic)
+        K, self.camera_source = self._intrinsics(camera, info_topic)
+        # the depth's own unit, whatever the camera's source says (a preset's is a folder's)
+        self.intrinsics = K._replace(depth_scale=self._units)
+        if depth_scale is not None:
+            self.camera_source += f", depth_scale {self._units:g} given"
         check_intrinsics(self.intrinsics, where=self.camera_source, width=self.width,
                          height=self.height)
 
@@ -181,12 +217,18 @@ class BagSequence:
         return conns[0]
 
     def _stamps(self, topic: str) -> tuple[np.ndarray, np.ndarray]:
-        """Header stamps (N,) seconds of a topic's images in time order, and the bag times
-        (N,) int nanoseconds to read each again; a repeated stamp keeps the first image."""
+        """Header stamps (N,) seconds of a topic's images in time order, and where to find
+        each again: (N, 2) int, its bag time in nanoseconds and its place among the topic's
+        messages at that time; a repeated stamp keeps the first image."""
         stamps, at = [], []
-        for conn, t_ns, raw in self._reader.messages(connections=[self._conns[topic]]):
-            stamps.append(_stamp(self._reader.deserialize(raw, conn.msgtype)))
-            at.append(t_ns)
+        try:
+            for conn, t_ns, raw in self._reader.messages(connections=[self._conns[topic]]):
+                stamps.append(_stamp(self._reader.deserialize(raw, conn.msgtype)))
+                same = at[-1][1] + 1 if at and at[-1][0] == t_ns else 0
+                at.append((t_ns, same))
+        except Exception as exc:  # noqa: BLE001 (a damaged bag raises what the parser trips on)
+            raise InputError(f"{self.path} {topic}: cannot read message {len(stamps) + 1} "
+                             f"({_why(exc)})") from None
         if not stamps:
             raise InputError(f"{self.path} {topic}: no images")
         t = np.asarray(stamps, np.float64)
@@ -195,16 +237,52 @@ class BagSequence:
         if len(keep) < len(t):
             self.warnings.append(f"{self.path} {topic}: {len(t) - len(keep)} images repeat an "
                                  "earlier image's stamp; left out")
-        return t[keep], np.asarray(at, np.int64)[keep]
+        return t[keep], np.asarray(at, np.int64).reshape(-1, 2)[keep]
 
-    def _message(self, topic: str, t_ns: int):
-        """The image of ``topic`` recorded at bag time ``t_ns`` nanoseconds, deserialised."""
+    def _decode(self, topic: str, at, decode):
+        """``decode`` of the image of ``topic`` at ``at``, its failure naming bag and topic."""
+        msg = self._message(topic, at)  # its own errors name the bag and topic
+        try:
+            return decode(msg)
+        except InputError as exc:
+            raise InputError(f"{self.path} {topic}: {exc}") from None
+
+    def _message(self, topic: str, at):
+        """The image of ``topic`` at ``at`` = (bag time ns, place among the topic's messages
+        at that time), deserialised."""
+        t_ns, place = (int(v) for v in at)  # a NumPy integer binds as no time in ROS 2's SQLite
         conn = self._conns[topic]
-        t_ns = int(t_ns)  # a NumPy integer binds as no time at all in ROS 2's SQLite query
         with self._lock:
-            for c, _, raw in self._reader.messages(connections=[conn], start=t_ns,
-                                                   stop=t_ns + 1):
-                return self._reader.deserialize(raw, c.msgtype)
+            raw = self._recent.get((topic, t_ns, place))
+            if raw is None:
+                raw = self._raw(conn, topic, t_ns, place)
+        try:
+            return self._reader.deserialize(raw, conn.msgtype)
+        except Exception as exc:  # noqa: BLE001 (a damaged message raises what the parser trips on)
+            raise InputError(f"{self.path} {topic}: cannot read the image at bag time {t_ns} "
+                             f"ns ({_why(exc)})") from None
+
+    def _raw(self, conn, topic: str, t_ns: int, place: int) -> bytes:
+        """The raw message: read on from the topic's cursor at this bag time (messages that
+        share a bag time are read in order once, not from the first again each time)."""
+        cursor = self._cursor.get(topic)
+        if cursor is None or cursor[0] != t_ns or cursor[1] > place:
+            cursor = [t_ns, 0, self._reader.messages(connections=[conn], start=t_ns,
+                                                     stop=t_ns + 1)]
+            self._cursor[topic] = cursor
+        try:
+            for _, _, raw in cursor[2]:
+                cursor[1] += 1
+                self._recent[(topic, t_ns, cursor[1] - 1)] = raw
+                while len(self._recent) > _RECENT:  # read ahead asks nearly in order
+                    del self._recent[next(iter(self._recent))]
+                if cursor[1] - 1 == place:
+                    return raw
+        except Exception as exc:  # noqa: BLE001 (a damaged bag raises what the parser trips on)
+            self._cursor.pop(topic, None)
+            raise InputError(f"{self.path} {topic}: cannot read the image at bag time {t_ns} "
+                             f"ns ({_why(exc)})") from None
+        self._cursor.pop(topic, None)
         raise InputError(f"{self.path} {topic}: no image at bag time {t_ns} ns")
 
     def _intrinsics(self, camera, info_topic: str) -> tuple[Intrinsics, str]:
@@ -215,13 +293,13 @@ class BagSequence:
         guess = preset_from_name(self.name)
         conns = [c for c in self._reader.connections
                  if c.topic == info_topic and c.msgtype == INFO_TYPE]
-        K = None
+        K = "there is none"
         if conns:
             with self._lock:
                 for c, _, raw in self._reader.messages(connections=conns[:1]):
                     K = info_intrinsics(self._reader.deserialize(raw, c.msgtype))
                     break
-        if K is not None:
+        if isinstance(K, Intrinsics):
             if guess is not None and preset(guess)[:4] != K[:4]:
                 self.warnings.append(
                     f"{self.path} {info_topic}: fx {K.fx:g} fy {K.fy:g} cx {K.cx:g} cy "
@@ -229,7 +307,9 @@ class BagSequence:
                     "takes the preset)")
             return K, f"{self.path} {info_topic}"
         if guess is None:
-            raise InputError(f"{self.path}: no camera info on {info_topic}; pass --camera")
+            what = (f"no camera info on {info_topic}" if K == "there is none"
+                    else f"the camera info on {info_topic} gives no camera: {K}")
+            raise InputError(f"{self.path}: {what}; pass --camera or --intrinsics")
         return preset(guess), f"preset {guess}, from the bag's name"
 
     def files(self, frames: int | None = None) -> list[Path]:
@@ -246,8 +326,8 @@ class BagSequence:
         """Decode frame ``index`` from the bag (negative indices count from the end)."""
         index = frame_index(index, len(self))
         rgb_topic, at_rgb, depth_topic, at_depth = self._at[index]
-        bgr = colour_bgr(self._message(rgb_topic, at_rgb))
-        depth = depth_m(self._message(depth_topic, at_depth))
+        bgr = self._decode(rgb_topic, at_rgb, colour_bgr)
+        depth = self._decode(depth_topic, at_depth, lambda m: depth_m(m, self._units))
         for topic, img in ((rgb_topic, bgr), (depth_topic, depth)):
             check_frame_size(f"{self.path} {topic} frame {index}", img, self.height, self.width)
         return Frame(index, float(self.timestamps[index]), bgr, depth, None)
