@@ -161,7 +161,7 @@ def report(rows: list[dict], cost: dict | None, frames: int, seeds: int) -> list
           "%)); ratio: the static map's over the map with nothing left out (target <= "
           "1/3); others kept: the share of the other points the static map keeps."), ""]
     table = []
-    for name, *_ in VARIANTS:
+    for name, *_ in VARIANTS if rows else ():
         rs = [r for r in rows if r["variant"] == name]
         ratio = [r["ratio"] for r in rs]
         table.append([name, f"{np.median(ratio):.3f}", f"{max(ratio):.3f}",
@@ -169,8 +169,10 @@ def report(rows: list[dict], cost: dict | None, frames: int, seeds: int) -> list
                       (f"{np.median([r['people_static'] for r in rs]):.0f} / "
                        f"{np.median([r['people_full'] for r in rs]):.0f}"),
                       f"{np.median([r['others_kept'] for r in rs]):.3f}"])
-    L += [markdown_table(["masks used", "ratio median", "worst", "best",
-                          "people points static / full (median)", "others kept"], table), ""]
+    if table:
+        L += [markdown_table(["masks used", "ratio median", "worst", "best",
+                              "people points static / full (median)", "others kept"], table),
+              ""]
     if cost:
         c, ip = cost["cli"], cost["in_process_ms"]
         L += [markdown_table(
@@ -189,7 +191,7 @@ def report(rows: list[dict], cost: dict | None, frames: int, seeds: int) -> list
 
 def main(argv=None) -> int:
     ap = argparse.ArgumentParser(description=__doc__.split("\n\n")[0])
-    ap.add_argument("--seeds", type=int, default=5, help="seeded runs (default 5)")
+    ap.add_argument("--seeds", type=int, default=5, help="seeded runs (default 5; 0: no map)")
     ap.add_argument("--reps", type=int, default=3, help="timed runs of each (default 3; 0: "
                     "no timing)")
     ap.add_argument("--picture", type=Path, default=None,

@@ -62,10 +62,14 @@ def test_recording_holds_every_entity_one_pose_per_frame_and_the_files_poses(
     chunks, static = read_back(rrd)
     for entity in ("/world/camera", "/world/camera/image/rgb", "/world/camera/image/depth",
                    "/world/camera/image/ids", "/world/points", "/world/trajectory",
-                   "/stats/points_used", "/stats/moving_share", "/stats/skipped_pairs",
-                   "/stats/ms"):
+                   "/stats"):
         assert entity in chunks, (entity, sorted(chunks))
-    assert {"/world/camera/image", "/world/groundtruth", "/world"} <= static
+    assert {"/world/camera/image", "/world/groundtruth", "/world", "/stats"} <= static
+    # one row of the four numbers per frame pair: points used and moving cells in % of the
+    # grid, ms per frame, skipped pairs so far
+    stats = np.array(column(chunks["/stats"], "Scalars:scalars"), np.float64)
+    assert stats.shape == (FRAMES - 1, 4)
+    assert np.all((stats[:, :2] >= 0) & (stats[:, :2] <= 100)) and np.all(stats[:, 2] > 0)
     cam = chunks["/world/camera"]
     frames = column(cam, "frame")
     assert sorted(frames) == list(range(FRAMES))

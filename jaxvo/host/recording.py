@@ -8,16 +8,16 @@ logs, on one timeline per frame timestamp (``time``, and ``frame``, the frame's 
 ==============================  ==========================================================
 ``world/camera``                the camera's pose (``Transform3D``, camera-to-world)
 ``world/camera/image``          its frustum (``Pinhole``, static)
-``world/camera/image/rgb``      the colour image
-``world/camera/image/depth``    the depth (metres)
+``world/camera/image/rgb``      the colour image (half size, JPEG)
+``world/camera/image/depth``    the depth (metres, half size)
 ``world/camera/image/ids``      the grid cells' identifiers (0 unknown, 1 static, >= 2 a
                                 moving object), on the image the frame pair starts at
 ``world/points``                that image's grid points in the world, by identifier
 ``world/trajectory``            the trajectory so far
 ``world/groundtruth``           the ground truth, where the sequence has it (static)
 ``world/map/static``, ``/full`` the fused maps (:mod:`jaxvo.host.mapping`; static)
-``stats/...``                   points used in the fit, moving share of the grid, skipped
-                                pairs so far, ms per frame
+``stats``                       points used in the fit and moving cells (% of the grid), ms
+                                per frame, skipped pairs so far (one series each)
 ``log``                         why a pair was skipped or a frame dropped
 ==============================  ==========================================================
 
@@ -37,13 +37,19 @@ import numpy as np
 
 from jaxvo.errors import InputError
 from jaxvo.host.camera import Intrinsics, grid_pixels
-from jaxvo.host.masks import _PALETTE, grid_to_pixels
+from jaxvo.host.masks import _PALETTE
 from jaxvo.host.prefetch import BackgroundWriter
 
 EXTRA = "pip install 'jaxvo[viz]'"
-# the colour image's JPEG quality: a raw 640x480 image is 0.9 MB a frame, a recording of a
-# 1000-frame run 2 GB; at 90 it is about a tenth of that and looks the same
+# The images (colour, depth, identifiers) are logged at SCALE times their size, the colour
+# image as JPEG: raw at full size, 49 TUM frames made a 50 MB recording and the logging
+# cost a 2-core run about a third of its time; at half size the grid's cells are still 8 px
 JPEG_QUALITY = 90
+SCALE = 0.5
+# the per-frame numbers, one series each of the entity ``stats`` (one log call a frame:
+# each call costs about 0.3 ms on 2 busy cores), on scales that share one plot
+STATS = ("points used in the fit (% of the grid)", "moving (% of the grid)",
+         "ms per frame", "skipped pairs so far")
 
 
 def import_rerun(what: str = "the Rerun recording"):
@@ -115,7 +121,8 @@ class RerunLogger:
         self.K: Intrinsics | None = None
         self.cell = 0
         self.positions: list[np.ndarray] = []
-        self.previous = None  # (index, timestamp, bgr, depth, T_w_c) of the last kept frame
+        # the last kept frame: (index, timestamp, (n,) depth at the grid's cells, T_w_c)
+        self.previous = None
         self.skipped = 0
         self.last_clock: float | None = None
         # encoding and logging run on one thread behind the run, in order
@@ -130,17 +137,23 @@ class RerunLogger:
         self.rec.set_time("frame", sequence=int(index))
 
     def _start(self, height: int, width: int) -> None:
-        """What does not change: the frustum and the identifiers' colours and names."""
+        """What does not change: the frustum (of the images as logged, SCALE times the
+        camera's) and the identifiers' colours and names."""
         rr, K = self.rr, self.K
+        self.size = (round(height * SCALE), round(width * SCALE))
+        self.uv = grid_pixels(height, width, self.cell)
+        self.rows, self.cols = height // self.cell, width // self.cell
         self.rec.log("world/camera/image", rr.Pinhole(
-            focal_length=[K.fx, K.fy], principal_point=[K.cx, K.cy], width=width,
-            height=height, camera_xyz=rr.ViewCoordinates.RDF, image_plane_distance=0.3),
-            static=True)
+            focal_length=[K.fx * SCALE, K.fy * SCALE],
+            principal_point=[(K.cx + 0.5) * SCALE - 0.5, (K.cy + 0.5) * SCALE - 0.5],
+            width=self.size[1], height=self.size[0], camera_xyz=rr.ViewCoordinates.RDF,
+            image_plane_distance=0.3), static=True)
         info = [(0, "unknown", (0, 0, 0)), (1, "static", tuple(_PALETTE[1][::-1]))]
         info += [(i, f"moving {i}", tuple(_PALETTE[(i - 1) % (len(_PALETTE) - 1) + 1][::-1]))
                  for i in range(2, 64)]
         self.rec.log("world", rr.AnnotationContext(
             [rr.AnnotationInfo(id=i, label=lab, color=c) for i, lab, c in info]), static=True)
+        self.rec.log("stats", rr.SeriesLines(names=list(STATS)), static=True)
 
     def log_frame(self, r, bgr: np.ndarray, depth: np.ndarray) -> None:
         """One frame's result (:class:`jaxvo.odometry.FrameResult`) with the images it came
@@ -163,45 +176,58 @@ class RerunLogger:
             self._start(*depth.shape)
         T = np.asarray(r.T_w_c, np.float64)
         rec.log("world/camera", rr.Transform3D(translation=T[:3, 3], mat3x3=T[:3, :3]))
-        jpeg = cv2.imencode(".jpg", bgr, [cv2.IMWRITE_JPEG_QUALITY, JPEG_QUALITY])[1]
-        rec.log("world/camera/image/rgb", rr.EncodedImage(contents=jpeg.tobytes(),
+        h2, w2 = self.size
+        small = cv2.resize(bgr, (w2, h2), interpolation=cv2.INTER_AREA)
+        jpeg = cv2.imencode(".jpg", small, [cv2.IMWRITE_JPEG_QUALITY, JPEG_QUALITY])[1]
+        # a uint8 array, not bytes: rerun takes bytes ~100x slower (25 ms against 0.2)
+        rec.log("world/camera/image/rgb", rr.EncodedImage(contents=jpeg.ravel(),
                                                           media_type="image/jpeg"))
-        mm = np.minimum(np.rint(depth * 1000.0), 65535).astype(np.uint16)  # half the bytes
-        rec.log("world/camera/image/depth", rr.DepthImage(mm, meter=1000.0))
+        rec.log("world/camera/image/depth", rr.DepthImage(
+            cv2.resize(depth, (w2, h2), interpolation=cv2.INTER_NEAREST), meter=1.0))
         self.positions.append(T[:3, 3])
         rec.log("world/trajectory", rr.LineStrips3D([np.asarray(self.positions)],
                                                     colors=[(255, 200, 0)]))
-        if ms is not None:
-            rec.log("stats/ms", rr.Scalars(ms))
         if r.output is not None and self.previous is not None:
-            self._log_pair(r)
-        self.previous = (r.index, r.timestamp, depth, T)
+            self._log_pair(r, ms)
+        h, w = depth.shape
+        z = depth[np.clip(np.rint(self.uv[:, 1]).astype(int), 0, h - 1),
+                  np.clip(np.rint(self.uv[:, 0]).astype(int), 0, w - 1)]
+        self.previous = (r.index, r.timestamp, z, T)
 
-    def _log_pair(self, r) -> None:
-        """A frame pair's numbers at this frame's time, its labels at the time of the image
-        they lie on (the previous one)."""
+    def _log_pair(self, r, ms: float | None) -> None:
+        """A frame pair's numbers (:data:`STATS`) at this frame's time, its labels at the
+        time of the image they lie on (the previous one)."""
         rr, rec = self.rr, self.rec
         ids = np.asarray(r.ids)
-        rec.log("stats/points_used", rr.Scalars(float(np.sum(r.static))))
-        rec.log("stats/moving_share", rr.Scalars(float(np.mean(r.output.moving))))
         if int(r.status) != 0:  # Status.OK
             self.skipped += 1
             rec.log("log", rr.TextLog(f"pair to frame {r.index} skipped: {r.status.reason}",
                                       level="WARN"))
-        rec.log("stats/skipped_pairs", rr.Scalars(float(self.skipped)))
-        index, t, depth, T = self.previous
-        h, w = depth.shape
+        rec.log("stats", rr.Scalars([100.0 * float(np.mean(r.static)),
+                                     100.0 * float(np.mean(r.output.moving)),
+                                     np.nan if ms is None else ms, float(self.skipped)]))
+        index, t, z, T = self.previous
         self._time(index, t)
-        rec.log("world/camera/image/ids",
-                rr.SegmentationImage(grid_to_pixels(ids.astype(np.uint8), h, w, self.cell)))
-        uv = grid_pixels(h, w, self.cell)
-        z = depth[np.clip(np.rint(uv[:, 1]).astype(int), 0, h - 1),
-                  np.clip(np.rint(uv[:, 0]).astype(int), 0, w - 1)]
+        rec.log("world/camera/image/ids", rr.SegmentationImage(self._cells_image(ids)))
+        uv = self.uv
         ok = z > 0
         cam = np.stack([(uv[:, 0] - self.K.cx) / self.K.fx * z,
                         (uv[:, 1] - self.K.cy) / self.K.fy * z, z], -1)[ok]
         rec.log("world/points", rr.Points3D(cam @ T[:3, :3].T + T[:3, 3], class_ids=ids[ok],
                                             radii=0.01))
+
+    def _cells_image(self, ids: np.ndarray) -> np.ndarray:
+        """(n,) per-cell identifiers as an image of the logged size, each cell a block (the
+        strip right and below the last full cell takes the nearest cell's)."""
+        import cv2
+
+        h2, w2 = self.size
+        grid = np.minimum(ids, 255).astype(np.uint8).reshape(self.rows, self.cols)
+        cell = self.cell * SCALE
+        block = cv2.resize(grid, (round(self.cols * cell), round(self.rows * cell)),
+                           interpolation=cv2.INTER_NEAREST)
+        return cv2.copyMakeBorder(block, 0, h2 - block.shape[0], 0, w2 - block.shape[1],
+                                  cv2.BORDER_REPLICATE)
 
     def log_groundtruth(self, gt) -> None:
         """The sequence's ground truth (a :class:`jaxvo.host.io.Trajectory`), static."""
