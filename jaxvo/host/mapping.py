@@ -4,10 +4,13 @@ dynamic pixels left out (host side, numpy).
 Each kept frame's depth is back-projected (every ``stride``-th pixel, up to ``max_depth``),
 moved into the world by the frame's pose, and the points of all frames are averaged per
 voxel (position and colour). The pixels a dynamic mask marks are left out of the static
-map, and, with ``grow``, the pixels within that many pixels of them; ``edge`` leaves out the
-pixels at a depth discontinuity (a neighbour nearer or farther by that fraction of the
-depth), where a reading is often half foreground, half background. The same frames fused
-with nothing left out give the map beside it, where the movers leave smeared ghosts.
+map, with the pixels within ``grow`` pixels of them, and so are the cubes (``vote_voxel``)
+where more than ``vote_share`` of the readings were so marked: jaxvo's masks are cell-sized
+and catch part of a person in each frame, so a place a person passed through is left out
+whole. ``edge`` leaves out the pixels at a depth discontinuity (a neighbour nearer or
+farther by that fraction of the depth; off by default: it did not pay on the TUM clip,
+``bench/bench_map.py``). The same frames fused with nothing left out give the map beside
+it, where the movers leave smeared ghosts.
 
 Why voxel averaging, not a TSDF: the map only has to show (and count) what is static, and
 a voxel average of back-projected points keeps every surface seen, thin ones included, with
