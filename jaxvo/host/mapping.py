@@ -25,12 +25,14 @@ from collections.abc import Callable
 from pathlib import Path
 from typing import NamedTuple
 
-import cv2
 import numpy as np
 
 from jaxvo.errors import InputError
 from jaxvo.host.camera import Intrinsics
 from jaxvo.host.io import Trajectory
+
+# OpenCV is imported in the functions that use it: `jaxvo --help` reads the defaults below
+# (jaxvo map's options) and must not wait for it
 
 # the picture's colour of the background where no map point falls (BGR)
 _BACKGROUND = (40, 40, 40)
@@ -75,6 +77,8 @@ def frame_points(bgr: np.ndarray, depth: np.ndarray, K: Intrinsics, T_w_c: np.nd
     Returns:
       ``(points (m, 3) float32 world, colours (m, 3) uint8 RGB, pixels (m, 2) int (x, y))``.
     """
+    import cv2
+
     z = depth[::stride, ::stride]
     ok = (z > 0) & (z <= max_depth) & np.isfinite(z)
     if edge > 0:
@@ -176,6 +180,8 @@ def fuse_maps(seq, poses: list[tuple[int, np.ndarray]],
     Returns:
       :class:`FusedMaps`.
     """
+    import cv2
+
     pts, col, marked = [], [], []
     no_mask = 0
     for index, T in poses:
@@ -211,6 +217,8 @@ def fuse_maps(seq, poses: list[tuple[int, np.ndarray]],
 def mask_reader(folder: str | Path) -> Callable[[int, float], np.ndarray | None]:
     """``dynamic(index, timestamp)`` reading ``folder/<timestamp>.png`` (as ``jaxvo run
     --dynamic-masks`` names them; nonzero = dynamic), None where there is no such file."""
+    import cv2
+
     folder = Path(folder)
 
     def dynamic(index: int, timestamp: float) -> np.ndarray | None:
@@ -290,6 +298,8 @@ def view_from_camera(pmap: PointMap, K: Intrinsics, T_w_c: np.ndarray, height: i
 
 def _titled(img: np.ndarray, title: str) -> np.ndarray:
     """``img`` under a strip with ``title`` written in it."""
+    import cv2
+
     strip = np.full((26, img.shape[1], 3), 255, np.uint8)
     cv2.putText(strip, title, (6, 18), cv2.FONT_HERSHEY_SIMPLEX, 0.5, (0, 0, 0), 1, cv2.LINE_AA)
     return np.vstack([strip, img])
@@ -299,6 +309,7 @@ def map_picture(maps: FusedMaps, K: Intrinsics, T_w_c0: np.ndarray, height: int,
                 width: int) -> np.ndarray:
     """The two maps side by side (static left, nothing left out right), each from above and
     from the first camera. uint8 BGR."""
+
     cols = []
     for name, pmap in (("dynamic pixels left out", maps.static),
                        ("nothing left out", maps.full)):
