@@ -184,8 +184,9 @@ def report(rows: list[dict], cost: dict | None, frames: int, seeds: int) -> list
               f"{c['on']['wall_s'] / c['off']['wall_s']:.3f}"],
              ["Odometry.submit ms/frame, close included", f"{ip['off']:.2f}", f"{ip['on']:.2f}",
               f"{ip['on'] / ip['off']:.3f}"]]), "",
-              (f"Recording: {c['on']['rrd_mib']:.1f} MiB for {frames} frames. Medians of the "
-               f"runs; load average at the end {load_average()}."), ""]
+              (f"Timed on `{cost['sequence']}`; the recording: {c['on']['rrd_mib']:.1f} MiB for "
+               f"{cost['frames']} frames. Medians of {len(cost['cli_runs']['on'])} runs; load "
+               f"average at the end {load_average()}."), ""]
     return L
 
 
@@ -194,6 +195,9 @@ def main(argv=None) -> int:
     ap.add_argument("--seeds", type=int, default=5, help="seeded runs (default 5; 0: no map)")
     ap.add_argument("--reps", type=int, default=3, help="timed runs of each (default 3; 0: "
                     "no timing)")
+    ap.add_argument("--timing-seq", default=TUM_WALKING, metavar="NAME",
+                    help="the data root's sequence the logging is timed on (default the TUM "
+                    "clip)")
     ap.add_argument("--picture", type=Path, default=None,
                     help="write seed 0's map picture (the defaults) here")
     ap.add_argument("--out", default="results", help="folder for map.md / map.json")
@@ -202,14 +206,20 @@ def main(argv=None) -> int:
     if not folder.is_dir():
         print(f"bench_map: skipped, the TUM clip is not at {folder}")
         return 0
-    seq = InMemorySequence(open_sequence(folder))
+    seq = open_sequence(folder)
     people = people_masks(folder)
+    seq = InMemorySequence(seq) if args.seeds else seq
     rows = []
     for s in range(args.seeds):
         rows += seed_maps(seq, people, s, args.picture if s == 0 else None)
         log(f"seed {s}: " + "; ".join(f"{r['variant']} {r['ratio']:.3f}"
                                       for r in rows[-len(VARIANTS):]))
-    cost = logging_cost(folder, seq, args.reps) if args.reps else None
+    cost = None
+    if args.reps:
+        timed = data_root() / args.timing_seq
+        tseq = InMemorySequence(open_sequence(timed))
+        cost = logging_cost(timed, tseq, args.reps)
+        cost.update(sequence=args.timing_seq, frames=len(tseq))
     out = Path(args.out)
     out.mkdir(parents=True, exist_ok=True)
     (out / "map.json").write_text(json.dumps({"maps": rows, "logging": cost}, indent=1))
