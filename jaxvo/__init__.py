@@ -44,6 +44,8 @@ _EXPORTS: dict[str, tuple[str, ...]] = {
                        "jit_step", "run_scan", "run_study", "step"),
     "jaxvo.odometry": ("FrameResult", "Odometry", "SequenceResult", "run_sequence"),
     "jaxvo.host.plugin": ("dynamic_masks", "iter_dynamic_masks"),
+    "jaxvo.host.mapping": ("FusedMaps", "PointMap", "fuse_maps", "matched_poses", "write_ply"),
+    "jaxvo.host.recording": ("RerunLogger",),
     "jaxvo.evaluation.metrics": ("SegmentationScores", "align_umeyama", "ate", "rpe"),
     "jaxvo.evaluation.scores": ("segmentation_scores", "trajectory_scores"),
     "jaxvo.study.runner": ("StudyResult", "StudySpec", "load_spec", "parse_spec", "run_spec"),

@@ -100,6 +100,8 @@ class Odometry:
         trajectory then starts at the origin of its own frame).
       device: where the per-frame step runs (see ``__init__``).
       max_dropped: most frames dropped in a row (:class:`jaxvo.host.flow.FrameChain`).
+      logger: gets every frame's result with its images (:meth:`attach`), e.g. a
+        :class:`jaxvo.host.recording.RerunLogger`; None: nothing is logged.
     Raises:
       ValueError: intrinsics of another type or that no camera has, settings no run can
         use, or a ``T_w_c0`` that is not a finite rigid transform.
@@ -115,6 +117,7 @@ class Odometry:
         T_w_c0: np.ndarray | None = None,
         device: jax.Device | str | None = None,
         max_dropped: int = MAX_DROPPED,
+        logger=None,
     ):
         intrinsics = as_intrinsics(intrinsics)
         check_intrinsics(intrinsics, where="intrinsics")
@@ -144,6 +147,17 @@ class Odometry:
         self.poses: list[np.ndarray] = []
         self._final: list[np.ndarray] = []  # final poses of the frames that left the window
         self._window: tuple[np.ndarray, np.ndarray] | None = None  # last (frame_id, T_w_c)
+        self.logger = None
+        if logger is not None:
+            self.attach(logger)
+
+    def attach(self, logger) -> None:
+        """Give every frame's result from now on to ``logger``: an object with
+        ``setup(intrinsics, cell)`` (called here) and ``log_frame(result, bgr, depth)``
+        (called as each result comes out, with the frame's colour image and its depth in
+        float32 metres), such as :class:`jaxvo.host.recording.RerunLogger`."""
+        logger.setup(self.intrinsics, self.cfg.cell)
+        self.logger = logger
 
     @property
     def trajectory(self) -> Trajectory:
@@ -242,17 +256,25 @@ class Odometry:
         flow, dropped = self._chain.push(bgr, depth)
         index = self._index
         self._index += 1
+        images = (bgr, depth) if self.logger is not None else None
         if flow is None:  # the chain's first frame, or a dropped one: the pose stays
-            return index, t, self._state.T_w_c, None, dropped
+            return index, t, self._state.T_w_c, None, dropped, images
         self._state, out = jit_step(
             self._state, flow, self.key, self.params, cfg=self.cfg, grid=self._grid,
             keyframe=self._chain.keyframe_flow,
         )
-        return index, t, out.T_w_c, out, None
+        return index, t, out.T_w_c, out, None, images
 
     def _finish(self, pending) -> FrameResult:
-        """Wait for a dispatched frame, record its pose and return its result."""
-        index, t, T, out, dropped = pending
+        """Wait for a dispatched frame, record its pose, log it (:meth:`attach`) and return
+        its result."""
+        r = self._result(*pending[:5])
+        if pending[5] is not None and self.logger is not None:
+            self.logger.log_frame(r, *pending[5])
+        return r
+
+    def _result(self, index, t, T, out, dropped) -> FrameResult:
+        """A dispatched frame's result, its pose recorded (waits for the device)."""
         T = np.asarray(T, np.float64)
         if dropped is None:
             self.timestamps.append(t)

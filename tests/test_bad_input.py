@@ -1269,3 +1269,41 @@ def test_one_line_answers_about_options_and_files_come_before_jax_loads(base, tm
     assert codes == [2] * len(cases) and loaded == [], (codes, loaded, done.stderr)
     lines = done.stderr.splitlines()
     assert len(lines) == len(cases) and all(ln.startswith("jaxvo: error: ") for ln in lines)
+
+
+# --- recordings and maps (issue 35) ----------------------------------------------------------
+
+
+def test_rerun_save_onto_an_input_or_into_an_unwritable_folder(base, tmp_path, unwritable,
+                                                              capsys):
+    seq = copy_seq(base, tmp_path / "seq")
+    assert_one_line_error(cli(capsys, "run", seq, "--out", tmp_path / "t.txt", "--rerun-save",
+                              seq / "rgb.txt"), "--rerun-save", "would overwrite the input")
+    assert_one_line_error(cli(capsys, "run", seq, "--out", tmp_path / "t.txt", "--rerun-save",
+                              unwritable / "run.rrd"), "--rerun-save", "cannot write")
+    assert_one_line_error(cli(capsys, "run", seq, "--out", tmp_path / "t.txt", "--map",
+                              seq / "rgb.txt"), "--map", "would overwrite the input")
+    assert not (tmp_path / "t.txt").exists()  # refused before any work
+
+
+def test_map_with_a_trajectory_of_another_sequence(base, tmp_path, capsys):
+    lines = [f"{1000.0 + i / 30:.6f} 0 0 0 0 0 0 1" for i in range(FRAMES)]
+    (tmp_path / "other.txt").write_text("\n".join(lines) + "\n")
+    res = cli(capsys, "map", base, "--traj", tmp_path / "other.txt", "--out", tmp_path / "m.ply")
+    assert_one_line_error(res, "--traj", "another sequence")
+    assert not (tmp_path / "m.ply").exists()
+
+
+def test_map_options_and_outputs_are_checked_first(base, tmp_path, unwritable, capsys):
+    traj = tmp_path / "t.txt"
+    traj.write_text("0.0 0 0 0 0 0 0 1\n")
+    for args, needles in ((("--voxel", "0"), ("--voxel",)), (("--vote-share", "2"),
+                                                             ("--vote-share",)),
+                          (("--grow", "-1"), ("--grow",)),
+                          (("--dynamic-masks", tmp_path / "none"), ("--dynamic-masks",))):
+        assert_one_line_error(cli(capsys, "map", base, "--traj", traj, "--out",
+                                  tmp_path / "m.ply", *args), *needles)
+    assert_one_line_error(cli(capsys, "map", base, "--traj", traj, "--out",
+                              unwritable / "m.ply"), "--out", "cannot write")
+    assert_one_line_error(cli(capsys, "map", base, "--traj", traj, "--out", traj),
+                          "--out", "would overwrite the input")

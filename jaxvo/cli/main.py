@@ -42,6 +42,7 @@ exit status:
 COMMANDS: dict[str, tuple[str, str]] = {
     "demo": ("jaxvo.cli.demo", "synthesise a dynamic scene, run jaxvo and peers, score them"),
     "run": ("jaxvo.cli.run", "odometry over a recorded TUM-layout RGB-D sequence"),
+    "map": ("jaxvo.cli.map", "fuse a run's depth into a static map, the movers left out"),
     "eval": ("jaxvo.cli.eval", "score a trajectory against ground truth (ATE, RPE)"),
     "synth": ("jaxvo.cli.synth", "render a synthetic dynamic RGB-D sequence with ground truth"),
     "study": ("jaxvo.cli.study", "run and score a study over sequences, settings and seeds"),

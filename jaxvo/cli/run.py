@@ -121,6 +121,17 @@ def add_arguments(p: argparse.ArgumentParser) -> None:
                    "motions measured there)")
     p.add_argument("--overlays", metavar="DIR",
                    help="write per-frame overlay panels of the labels (PNG, see below)")
+    p.add_argument("--rerun", action="store_true",
+                   help="open the Rerun viewer and show the run as it goes: images, labels, "
+                   "depth, 3D points, the camera and its path, the per-frame numbers (needs a "
+                   "display, and pip install 'jaxvo[viz]')")
+    p.add_argument("--rerun-save", metavar="FILE.rrd",
+                   help="write the same as a Rerun recording (headless; open it with `rerun "
+                   "FILE.rrd` anywhere; pip install 'jaxvo[viz]')")
+    p.add_argument("--map", metavar="FILE.ply",
+                   help="after the run, fuse the depth into a static map with the dynamic "
+                   "pixels left out, as jaxvo map does (FILE_all.ply: nothing left out; "
+                   "FILE.png: both pictured); the map's options are jaxvo map's defaults")
     p.add_argument("--json", action="store_true", help="print the summary as JSON")
     p.add_argument("--quiet", "-q", action="store_true",
                    help="no progress line, and no line saying that the step compiles")
@@ -197,9 +208,25 @@ def _open(args: argparse.Namespace, cfg, camera):
         ("--masks", args.masks), ("--dynamic-masks", args.dynamic_masks),
         ("--overlays", args.overlays)) if folder}
     to_stdout = args.out == STDOUT
-    check_outputs(seq.files(n), files={} if to_stdout else {"--out": Path(args.out)},
-                  folders={k: Path(v) for k, v in given.items()})
+    files = {} if to_stdout else {"--out": Path(args.out)}
+    if args.rerun_save:
+        files["--rerun-save"] = Path(args.rerun_save)
+    if args.map:
+        from jaxvo.cli.map import map_outputs
+
+        files.update({("--map" if k == "map" else f"--map's {k}"): v
+                      for k, v in map_outputs(args.map).items()})
+    check_outputs(seq.files(n), files=files, folders={k: Path(v) for k, v in given.items()})
     out = args.out if to_stdout else output_file(args.out, what="--out")
+    for what, path in files.items():
+        if what != "--out":
+            output_file(path, what=what)
+    if args.rerun or args.rerun_save:
+        from jaxvo.host.recording import check_display, import_rerun
+
+        import_rerun("--rerun" if args.rerun else "--rerun-save")
+        if args.rerun:
+            check_display("--rerun")
     folders = {option: output_folder(folder, what=option) for option, folder in given.items()}
     return seq, n, out, folders
 
@@ -248,6 +275,13 @@ def run(args: argparse.Namespace, prepared=None) -> int:
     T_w_c0, start = choose_start_pose(args.start_pose or "gt", gt, first.timestamp,
                                       max_diff=args.max_diff, required=bool(args.start_pose))
     odo = Odometry(seq.intrinsics, cfg=cfg, seed=args.seed, T_w_c0=T_w_c0)
+    logger = None
+    if args.rerun or args.rerun_save:
+        from jaxvo.host.recording import RerunLogger
+
+        logger = RerunLogger(save=args.rerun_save, spawn=args.rerun)
+        odo.attach(logger)
+        logger.log_groundtruth(gt)
     progress = Progress("jaxvo run", n - 1, enabled=not args.quiet)
     # leaving this block, also by Ctrl-C, closes the reader, then writes every image queued
     with (TrajectoryWriter(out, comment=f"jaxvo run {args.sequence}") as writer,
@@ -258,11 +292,17 @@ def run(args: argparse.Namespace, prepared=None) -> int:
           as compiling,
           py_warnings.catch_warnings()):
         py_warnings.simplefilter("ignore", DepthScaleWarning)  # said above, with the frame
-        rec = _Recorder(cfg, writer, images, folders)
+        rec = _Recorder(cfg, writer, images, folders, keep_dynamic=bool(args.map))
         rec.process(odo, itertools.chain(early, ((i, fut.result) for i, fut in reads)), stop,
                     progress)
     progress.close()
     summary = _summary(args, seq, n, start, rec, compiling, warnings, out)
+    try:
+        if args.map and rec.written and not rec.interrupted:
+            summary.update(_map(args, seq, n, rec, out, writer, logger))
+    finally:
+        if logger is not None:
+            logger.close()
     if gt is not None and rec.written >= 3:
         summary.update(_scores(gt, out, writer, args.max_diff))
     # the trajectory on standard output (--out -): the summary goes beside the warnings
@@ -287,7 +327,7 @@ class _Recorder:
     """What a run does with each frame's result: the pose to the trajectory file, the
     pair's images to the writer thread, and the counts the summary gives."""
 
-    def __init__(self, cfg, writer, images, folders: dict):
+    def __init__(self, cfg, writer, images, folders: dict, *, keep_dynamic: bool = False):
         from collections import Counter
 
         self.cfg, self.writer, self.images, self.folders = cfg, writer, images, folders
@@ -303,6 +343,8 @@ class _Recorder:
         self.keyframes = 1 if cfg.keyframes else 0  # keyframes taken (the first frame is one)
         self.first_unreadable = ""  # the first unreadable frame's error, for the summary
         self.interrupted = False
+        # frame index -> its dynamic cells (n,) bool, for --map; None: not kept
+        self.dynamic: dict[int, object] | None = {} if keep_dynamic else None
 
     def process(self, odo, frames, stop, progress) -> None:
         """Every frame of ``frames`` ((index, read) pairs) through ``odo``, pipelined;
@@ -347,6 +389,9 @@ class _Recorder:
             for t, T in zip(final.timestamps[self.written:], final.poses[self.written:]):
                 self.writer.write(t, T)
                 self.written += 1
+        if (self.dynamic is not None and self.last_moving is not None
+                and self.anchor is not None):
+            self.dynamic[self.anchor.index] = self.last_moving
         if ("--dynamic-masks" in self.folders and self.last_moving is not None
                 and self.anchor is not None):
             # the last kept frame has no pair of its own: it takes the last label map
@@ -378,6 +423,8 @@ class _Recorder:
         if r.output.keyframes is not None:
             self.keyframes = int(r.output.keyframes)
         self.last_moving = r.output.dynamic
+        if self.dynamic is not None:
+            self.dynamic[prev_frame.index] = self.last_moving
         if self.folders:
             self.images.submit(self.write_images, prev_frame, r, self.last_moving)
 
@@ -403,6 +450,28 @@ class _Recorder:
         if "--overlays" in self.folders and r is not None:
             write_image(self.folders["--overlays"] / name,
                         overlay_panel(frame.bgr, r.output, cell))
+
+
+def _map(args, seq, n: int, rec: _Recorder, out, writer, logger) -> dict:
+    """``--map``: the maps from the trajectory written and the run's dynamic cells, as
+    ``jaxvo map`` makes them with its default options; the summary's part."""
+    from types import SimpleNamespace
+
+    from jaxvo.cli.map import make_maps, map_outputs
+    from jaxvo.host.io import STDOUT, read_trajectory
+    from jaxvo.host.mapping import GROW, VOTE_SHARE, VOTE_VOXEL
+    from jaxvo.host.masks import dynamic_pixels
+
+    def dynamic(index: int, timestamp: float):
+        cells = rec.dynamic.get(index)
+        return None if cells is None else dynamic_pixels(cells, seq.height, seq.width,
+                                                         rec.cfg.cell)
+
+    options = SimpleNamespace(max_diff=args.max_diff, voxel=0.02, max_depth=4.0, grow=GROW,
+                              vote_voxel=VOTE_VOXEL, vote_share=VOTE_SHARE)
+    est = writer.trajectory if str(out) == STDOUT else read_trajectory(out)
+    return make_maps(seq, est, dynamic, options, map_outputs(args.map),
+                     where=f"--out {out}", frames=n, logger=logger)
 
 
 def _summary(args, seq, n: int, start: str, rec: _Recorder, compiling, warnings, out) -> dict:
@@ -489,6 +558,10 @@ def _print_summary(summary: dict, n: int, interrupted: bool) -> None:
         print(f"  warning    {w}")
     if "scores_not_computed" in summary:
         print(f"  ATE / RPE  not computed: {summary['scores_not_computed']}")
+    if "map" in summary:
+        print(f"  map        {summary['map_points']} points -> {summary['map']} (dynamic pixels "
+              f"left out), {summary['map_all_points']} -> {summary['map_all']} (nothing left "
+              f"out), picture {summary['map_picture']}")
     if "ate_rmse_m" in summary:
         print(f"  ATE        {summary['ate_rmse_m']:.4f} m rmse (aligned, ground truth in folder)")
         print(f"  RPE        {summary['rpe_trans_rmse_m_per_frame']:.4f} m, "
