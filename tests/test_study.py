@@ -187,7 +187,9 @@ def test_settings_are_checked_against_params_as_they_are_now(tmp_path, monkeypat
         noise_sigma: float = 0.002
         max_age: float = 15.0
 
-    monkeypatch.setattr(study, "Params", Renamed)
+    from jaxvo.study import spec as study_spec  # where the spec reads Params
+
+    monkeypatch.setattr(study_spec, "Params", Renamed)
     spec = study.load_spec(spec_of("[[sequences]]\nscene = 'static'\n[sweep]\n"
                                    "noise_sigma = [0.001, 0.004]\n", tmp_path))
     assert spec.swept == ("noise_sigma",) and spec.base["noise_sigma"] == 0.002
