@@ -20,8 +20,8 @@ Only public APIs are used (``jaxvo run``, ``Odometry``, ``run_scan``, ``run_peer
 bench measures whatever the per-frame step is. This process runs without the persistent
 compile cache (its compiles are timed as compiles); the machine, JAX's version and device
 and the load average before and after are recorded. Writes ``pipeline.json`` and
-``pipeline.md`` under ``--out``; ``bench/readme_speed.py`` turns the JSON into the README's
-speed paragraph.
+``pipeline.md`` under ``--out``; ``bench/readme_speed.py`` turns the JSON into the speed
+paragraph of ``docs/speed.md``.
 
 Usage: ``python bench/bench_pipeline.py [--warm-runs 3] [--out results/]``
 """
