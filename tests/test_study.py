@@ -354,12 +354,18 @@ def test_a_study_sets_no_xla_flag():
     """Newer XLA aborts the process on a flag it does not know (issue 30: the study died
     at start on JAX 0.11 over ``--xla_cpu_use_fusion_emitters``); the same bits on any
     device count come from compiling one program per device instead."""
+    import importlib
     import inspect
+    import pkgutil
 
     import jaxvo.cli.study
+    import jaxvo.study
 
-    for module in (study, jaxvo.cli.study):
-        assert "XLA_FLAGS" not in inspect.getsource(module)
+    modules = [importlib.import_module(m.name)
+               for m in pkgutil.iter_modules(jaxvo.study.__path__, "jaxvo.study.")]
+    assert study in modules and len(modules) >= 5  # spec, data, devices, runner, report
+    for module in (*modules, jaxvo.cli.study):
+        assert "XLA_FLAGS" not in inspect.getsource(module), module.__name__
 
 
 def _free_port() -> int:
