@@ -23,6 +23,16 @@ def real_present(names=REAL_SEQUENCES) -> list[str]:
     return [n for n in names if (data_root() / n / "associations.txt").is_file()]
 
 
+def data_name(path: str | Path) -> str:
+    """How a report names a data path: relative to the data root when under it (a
+    sequence's folder name), else its own name; never the machine's absolute path."""
+    path = Path(path)
+    try:
+        return path.resolve().relative_to(data_root().resolve()).as_posix()
+    except ValueError:
+        return path.name
+
+
 def cpu_model() -> str:
     """The CPU's model name from /proc/cpuinfo (the platform's processor string elsewhere)."""
     try:

@@ -10,7 +10,7 @@ many pairs, and the load average is printed next to them.
         [--baseline OLD_FLOW_PY]
 
 ``--baseline`` times another version of jaxvo/host/flow.py in the same run, e.g.
-``git show HEAD~1:jaxvo/host/flow.py > /tmp/flow_old.py``: each version streams in its own
+``git show HEAD~1:jaxvo/host/flow.py > flow_old.py``: each version streams in its own
 process (its own heap: page faults cost ~2.7 us each here, and one version's allocations
 must not cost the other faults), the two taking turns every 10 pairs.
 """

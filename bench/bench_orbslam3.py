@@ -300,7 +300,7 @@ def main(argv=None) -> int:
         "command": "python bench/bench_orbslam3.py " + " ".join(
             argv if argv is not None else sys.argv[1:]),
         "machine": machine(), "pyorbslam3": importlib.metadata.version("pyorbslam3"),
-        "vocabulary": str(orb.vocabulary()), "vocabulary_note": orb.vocabulary_note(),
+        "vocabulary": orb.vocabulary().name, "vocabulary_note": orb.vocabulary_note(),
         "repeats": args.repeats, "chosen": orb.CHOSEN.name}}
     if args.split in ("dev", "all"):
         res["dev"] = {}

@@ -20,8 +20,8 @@ Only public APIs are used (``jaxvo run``, ``Odometry``, ``run_scan``, ``run_peer
 bench measures whatever the per-frame step is. This process runs without the persistent
 compile cache (its compiles are timed as compiles); the machine, JAX's version and device
 and the load average before and after are recorded. Writes ``pipeline.json`` and
-``pipeline.md`` under ``--out``; ``bench/readme_speed.py`` turns the JSON into the README's
-speed paragraph.
+``pipeline.md`` under ``--out``; ``bench/readme_speed.py`` turns the JSON into the speed
+paragraph of ``docs/speed.md``.
 
 Usage: ``python bench/bench_pipeline.py [--warm-runs 3] [--out results/]``
 """
@@ -43,7 +43,7 @@ import jax.numpy as jnp
 import numpy as np
 
 sys.path.insert(0, str(Path(__file__).resolve().parent))
-from _common import SEVEN_SCENES, load_average, log, machine
+from _common import SEVEN_SCENES, data_name, load_average, log, machine
 
 from jaxvo.config import Config, Params, grid_shape, params_as_arrays
 from jaxvo.core.pipeline import run_scan
@@ -304,7 +304,7 @@ def main() -> None:
     log(f"machine: {res['machine']}")
     with tempfile.TemporaryDirectory() as tmp:
         seq_dir = sequence_folder(tmp)
-        res["sequence"] = str(seq_dir)
+        res["sequence"] = data_name(seq_dir)  # under the data root, else synthetic_300
         res["jaxvo_run"] = bench_cli(seq_dir, tmp, warm_runs=args.warm_runs)
         res["peer"] = bench_peer_process(seq_dir, runs=args.peer_runs)
         log(f"{PEER} as a process: {res['peer']}")

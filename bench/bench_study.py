@@ -9,13 +9,13 @@ times are medians of ``--repeats`` runs. Throughput = configurations x frame pai
 second. To show where the time goes, the vmapped call is also timed at B = 1, 2, 4, ...
 
 Then the same B configurations as one call of ``jaxvo study``'s sharded runner
-(``jaxvo.study.runner.run_call``: B / D configurations vmapped on each of D devices) for each D of
+(``jaxvo.study.devices.run_call``: B / D configurations vmapped on each of D devices) for each D of
 ``--devices``, each in a fresh process whose CPU is split into D JAX devices
 (``jax_num_cpu_devices``; on an accelerator, its devices as they are), the first call
 (compile included) apart from the steady state, against the loop of scans above as a ratio.
 
 Last, the batch ``jaxvo study`` chooses for a study of ``--sized`` configurations of the
-sequence (``jaxvo.study.runner.call_batch``: 4 on the CPU; on an accelerator the widest call the
+sequence (``jaxvo.study.devices.call_batch``: 4 on the CPU; on an accelerator the widest call the
 study fills and half the free memory holds) against each hand-picked batch of
 ``--curve``: configuration-frames/s of the whole study at each, and the chosen batch's
 ratio to the best.
@@ -294,7 +294,7 @@ def main(argv=None) -> int:
         L += [""]
     if devices:
         L += [(f"The same B = {B} configurations as one call of `jaxvo study`'s sharded runner "
-               "(`jaxvo.study.runner.run_call`, B / D configurations vmapped on each of D devices; "
+               "(`jaxvo.study.devices.run_call`, B / D configurations vmapped on each of D devices; "
                f"{'the CPU split into D JAX devices' if info['jax_backend'] == 'cpu' else ''}"
                "), each device count in a fresh process; steady state is the median of "
                f"{args.repeats} calls, the first call includes the compile:"), "",

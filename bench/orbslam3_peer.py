@@ -64,11 +64,11 @@ def vocabulary_note(path: Path | None = None) -> str:
     path = vocabulary() if path is None else Path(path)
     readme = path.parent / "README.md"
     if readme.is_file() and "stand-in" in readme.read_text():
-        return (f"ORB-SLAM3 ran with the stand-in ORB vocabulary `{path}` (trained on the "
-                "shared frames, see the README beside it), not the official ORBvoc.txt: "
+        return (f"ORB-SLAM3 ran with the stand-in ORB vocabulary `{path.name}` (trained on "
+                "the shared frames, see the README beside it), not the official ORBvoc.txt: "
                 "frame-to-frame tracking barely depends on it, relocalisation and loop "
                 "closing may differ.")
-    return f"ORB-SLAM3 ran with the ORB vocabulary `{path}`."
+    return f"ORB-SLAM3 ran with the ORB vocabulary `{path.name}`."
 
 
 @functools.cache

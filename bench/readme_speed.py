@@ -1,10 +1,10 @@
-"""Write the README's speed paragraph from a ``bench/bench_pipeline.py`` report, so that no
-figure in it is typed in by hand.
+"""Write the speed paragraph of ``docs/speed.md`` (linked from the README) from a
+``bench/bench_pipeline.py`` report, so that no figure in it is typed in by hand.
 
 The paragraph sits between the markers ``<!-- speed: ... -->`` and ``<!-- /speed -->`` in
-README.md; everything outside them is left as it is.
+the page; everything outside them is left as it is.
 
-Usage: ``python bench/readme_speed.py [results/pipeline.json] [--readme README.md]``
+Usage: ``python bench/readme_speed.py [results/pipeline.json] [--page docs/speed.md]``
 """
 
 from __future__ import annotations
@@ -17,6 +17,7 @@ from pathlib import Path
 
 BEGIN = "<!-- speed: written by bench/readme_speed.py from bench/bench_pipeline.py's report -->"
 END = "<!-- /speed -->"
+PAGE = Path(__file__).resolve().parent.parent / "docs" / "speed.md"
 
 
 def speed_paragraph(report: dict) -> str:
@@ -62,27 +63,27 @@ def _wrap(text: str, width: int) -> str:
     return "\n".join([*lines, line])
 
 
-def update_readme(readme: str, paragraph: str) -> str:
-    """``readme`` with the text between the speed markers replaced by ``paragraph``.
+def update_page(page: str, paragraph: str) -> str:
+    """``page`` with the text between the speed markers replaced by ``paragraph``.
 
     Raises:
       ValueError: the markers are missing, or there is more than one pair.
     """
     pattern = re.compile(re.escape(BEGIN) + r"\n.*?" + re.escape(END), re.DOTALL)
-    if len(pattern.findall(readme)) != 1:
-        raise ValueError(f"README: expected one {BEGIN!r} ... {END!r} block")
-    return pattern.sub(lambda _: f"{BEGIN}\n{paragraph}\n{END}", readme)
+    if len(pattern.findall(page)) != 1:
+        raise ValueError(f"speed page: expected one {BEGIN!r} ... {END!r} block")
+    return pattern.sub(lambda _: f"{BEGIN}\n{paragraph}\n{END}", page)
 
 
 def main() -> int:
     ap = argparse.ArgumentParser(description=__doc__.splitlines()[0])
     ap.add_argument("report", nargs="?", default="results/pipeline.json")
-    ap.add_argument("--readme", default=str(Path(__file__).resolve().parent.parent / "README.md"))
+    ap.add_argument("--page", default=str(PAGE))
     args = ap.parse_args()
     report = json.loads(Path(args.report).read_text())
-    readme = Path(args.readme)
-    readme.write_text(update_readme(readme.read_text(), speed_paragraph(report)))
-    print(f"{readme}: speed paragraph written from {args.report}")
+    page = Path(args.page)
+    page.write_text(update_page(page.read_text(), speed_paragraph(report)))
+    print(f"{page}: speed paragraph written from {args.report}")
     return 0
 
 

@@ -48,7 +48,8 @@ _EXPORTS: dict[str, tuple[str, ...]] = {
     "jaxvo.host.recording": ("RerunLogger",),
     "jaxvo.evaluation.metrics": ("SegmentationScores", "align_umeyama", "ate", "rpe"),
     "jaxvo.evaluation.scores": ("segmentation_scores", "trajectory_scores"),
-    "jaxvo.study.runner": ("StudyResult", "StudySpec", "load_spec", "parse_spec", "run_spec"),
+    "jaxvo.study.spec": ("StudySpec", "load_spec", "parse_spec"),
+    "jaxvo.study.runner": ("StudyResult", "run_spec"),
     "jaxvo.study.report": ("write_report",),
     "jaxvo.host.compile_cache": ("setup_compile_cache",),
 }

@@ -2,23 +2,72 @@
 
 Use ``data_root`` for the folder itself, or ``require_data("name", ...)`` for a path under
 it; either skips the test, naming the missing path, when the data is not there (set
-``JAXVO_DATA`` to point elsewhere). The persistent compile cache is off in the tests.
+``JAXVO_DATA`` to point elsewhere). Compiled programs are shared through one persistent
+compile cache of the test session (:func:`pytest_configure`).
 """
 
 from __future__ import annotations
 
 import os
+import shutil
+import tempfile
 from pathlib import Path
 
 import pytest
 
+from jaxvo.host.compile_cache import ENV, OFF, setup_compile_cache, use_compile_cache
 from jaxvo.host.io import data_root as _data_root
 
-# The jaxvo commands keep compiled programs in the user's cache folder by default. The tests
-# (and the `jaxvo run` children they start, which inherit this) must neither write there nor
-# find a warm cache that hides a compile a test waits for; tests of the cache pass their own
-# folder with --compile-cache, which wins over this.
-os.environ["JAXVO_COMPILE_CACHE"] = "off"
+# Folder (under pytest's cache, .pytest_cache/d/) of the compiled programs the tests share
+XLA_CACHE = "jaxvo-xla"
+
+
+def pytest_configure(config):
+    """Many tests compile the same program (the per-frame step at one grid, a scan, a
+    study) in their own jit or their own `jaxvo` child process; each compiled it afresh.
+    One persistent compile cache for the session (this process, from before its first
+    compile, and every child, which inherits ``JAXVO_COMPILE_CACHE``) compiles each once.
+    It lives in pytest's cache folder, so a later session loads what an earlier one
+    compiled (``pytest --cache-clear`` starts cold); without pytest's cache
+    (``-p no:cacheprovider``) in a temporary folder of the session. Never the user's own
+    cache folder. ``JAXVO_COMPILE_CACHE=off pytest`` compiles everything afresh.
+
+    Tests that need a compile to happen (the compile cache's own, a Ctrl-C during a
+    compile) give their child its own folder or ``off``, which win over this.
+    """
+    if os.environ.get(ENV, "").strip().lower() == OFF:
+        config._jaxvo_xla = None
+        return
+    cache = getattr(config, "cache", None)
+    if cache is not None:
+        root, temporary = cache.mkdir(XLA_CACHE), None
+    else:
+        root = temporary = Path(tempfile.mkdtemp(prefix="jaxvo-xla-"))
+    os.environ[ENV] = str(root)
+    config._jaxvo_xla = setup_compile_cache(None).folder  # the versioned subfolder
+    config._jaxvo_xla_temporary = temporary
+
+
+def pytest_unconfigure(config):
+    temporary = getattr(config, "_jaxvo_xla_temporary", None)
+    if temporary is not None:
+        shutil.rmtree(temporary, ignore_errors=True)
+
+
+@pytest.fixture(autouse=True)
+def _session_compile_cache(request):
+    """Put the session's compile cache back after a test that pointed JAX elsewhere or
+    turned it off in this process (the compile cache's tests, a `jaxvo` command called
+    in-process with ``--compile-cache``)."""
+    yield
+    folder = request.config._jaxvo_xla
+    if folder is None:
+        return
+    import jax
+
+    if not (jax.config.jax_enable_compilation_cache
+            and jax.config.jax_compilation_cache_dir == str(folder)):
+        use_compile_cache(folder)
 
 
 def _require(*parts: str) -> Path:

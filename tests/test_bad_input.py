@@ -563,7 +563,8 @@ def _run_until_compiling(seq: Path, out: Path, env: dict) -> subprocess.Popen:
 def test_ctrl_c_during_the_first_compile_exits_130_keeping_the_first_pose(base, tmp_path):
     """It segfaulted (exit -11) in 12 of 15 tries: KeyboardInterrupt abandoned XLA's compile
     and the interpreter crashed on exit. Now the run stops after the compile and frame."""
-    env = dict(os.environ, JAX_PLATFORMS="cpu", JAX_LOG_COMPILES="1")
+    # the compile cache off: the session's may hold the step, and this needs a compile
+    env = dict(os.environ, JAX_PLATFORMS="cpu", JAX_LOG_COMPILES="1", JAXVO_COMPILE_CACHE="off")
     proc = _run_until_compiling(base, tmp_path / "t.txt", env)
     proc.send_signal(signal.SIGINT)
     out, err = proc.communicate(timeout=120)

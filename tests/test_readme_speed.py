@@ -1,5 +1,6 @@
-"""The README's speed paragraph is written from the committed benchmark report
-(bench/readme_speed.py from docs/report/pipeline.json), never typed in by hand."""
+"""The speed paragraph (docs/speed.md, linked from the README) is written from the
+committed benchmark report (bench/readme_speed.py from docs/report/pipeline.json), never
+typed in by hand."""
 
 from __future__ import annotations
 
@@ -17,12 +18,12 @@ _spec.loader.exec_module(readme_speed)
 REPORT = ROOT / "docs" / "report" / "pipeline.json"
 
 
-def test_the_readme_paragraph_is_the_committed_reports():
+def test_the_speed_paragraph_is_the_committed_reports():
     """Regenerate it after a new report: ``python bench/readme_speed.py
     docs/report/pipeline.json``."""
     report = json.loads(REPORT.read_text())
-    readme = (ROOT / "README.md").read_text()
-    assert readme_speed.update_readme(readme, readme_speed.speed_paragraph(report)) == readme
+    page = readme_speed.PAGE.read_text()
+    assert readme_speed.update_page(page, readme_speed.speed_paragraph(report)) == page
 
 
 def test_the_paragraph_carries_the_reports_figures_and_replaces_only_its_block():
@@ -35,7 +36,7 @@ def test_the_paragraph_carries_the_reports_figures_and_replaces_only_its_block()
     assert max(len(line) for line in text.splitlines()) <= 100
 
     before = f"# title\n\n{readme_speed.BEGIN}\nold figures\n{readme_speed.END}\n\nrest\n"
-    after = readme_speed.update_readme(before, text)
+    after = readme_speed.update_page(before, text)
     assert after == f"# title\n\n{readme_speed.BEGIN}\n{text}\n{readme_speed.END}\n\nrest\n"
     with pytest.raises(ValueError, match="expected one"):
-        readme_speed.update_readme("# no markers\n", text)
+        readme_speed.update_page("# no markers\n", text)

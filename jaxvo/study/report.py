@@ -3,7 +3,7 @@
 Files written under the study's folder by :func:`write_report`:
 
 * ``results.csv`` / ``results.json``: one row per run (sequence, every setting the spec
-  names and every ``Params`` field, seed, every metric of :data:`jaxvo.study.runner.METRICS`,
+  names and every ``Params`` field, seed, every metric of :data:`jaxvo.study.spec.METRICS`,
   whether the ATE was aligned, and a digest of the run's raw outputs: equal digests,
   equal bits); an empty cell (``null``) where a sequence has nothing to
   score a metric against (no ground truth, no masks, under 1 s for the per-second RPE);
@@ -24,7 +24,7 @@ from pathlib import Path
 import numpy as np
 
 from jaxvo.config import Params
-from jaxvo.study.runner import METRICS, StudySpec
+from jaxvo.study.spec import METRICS, StudySpec
 
 
 def table_columns(spec: StudySpec) -> list[str]:

@@ -1,0 +1,201 @@
+"""A study's sequences (host side): their frames, their flow and its cache.
+
+Every sequence's grid flow is computed once (:func:`sequence_data`) and cached on disk as
+a ``.npz`` keyed by the sequence's identity, the ``Config`` fields the flow reads and the
+code that renders and tracks (:func:`sequence_key`), beside what its runs are scored
+against: the kept frames' timestamps, the start pose, the ground truth and the moving
+masks at the grid.
+"""
+
+from __future__ import annotations
+
+import functools
+import hashlib
+import inspect
+import json
+import os
+import re
+from collections.abc import Callable
+from pathlib import Path
+from typing import Any, NamedTuple
+
+import numpy as np
+
+from jaxvo.config import Config, grid_shape
+from jaxvo.errors import InputError
+from jaxvo.host.io import Trajectory, groundtruth_of_frames
+from jaxvo.study.spec import SequenceSpec, config_fields
+
+
+class SequenceData(NamedTuple):
+    """What a study needs of one sequence: its flow and what its runs are scored against."""
+
+    label: str
+    flows: Any  # GridFlow of numpy arrays, stacked over T pairs
+    T_w_c0: np.ndarray  # (4, 4) float64 first camera pose (ground truth's, else identity)
+    timestamps: np.ndarray  # (T + 1,) float64 seconds
+    groundtruth: Trajectory | None  # camera-to-world ground truth, None without
+    truth: np.ndarray | None  # (T, n) bool moving ground truth at the grid, None without masks
+    height: int
+    width: int
+
+
+def open_study_sequence(s: SequenceSpec):
+    """The sequence ``s`` names (frames are read or rendered lazily, when flow asks)."""
+    from jaxvo.host.io import open_sequence
+    from jaxvo.synth.scenes import DEFAULT_FRAMES, composite_sequence, make_sequence
+
+    if s.path is None:
+        frames = DEFAULT_FRAMES if s.frames is None else s.frames
+        seq = make_sequence(s.scene, frames=(frames - 1) * s.step + 1, seed=s.seed)
+    elif s.scene is not None:
+        seq = composite_sequence(open_sequence(s.path, camera=s.camera), s.scene, seed=s.seed,
+                                 frames=None if s.frames is None else (s.frames - 1) * s.step + 1)
+    else:
+        seq = open_sequence(s.path, camera=s.camera)
+    return _Subset(seq, s.label, frames=s.frames, step=s.step)
+
+
+class _Subset:
+    """Every ``step``-th of the first frames of a sequence, lazily; it keeps each frame's
+    moving ground truth at the grid as the flow reads the frames (rendering a synthetic
+    frame costs 0.1 s, so it is read once)."""
+
+    def __init__(self, seq, label: str, *, frames: int | None, step: int):
+        idx = np.arange(0, len(seq), step)
+        self._seq, self._idx = seq, idx if frames is None else idx[:frames]
+        self.name, self.intrinsics = label, seq.intrinsics
+        self.height, self.width = seq.height, seq.width
+        self.timestamps = np.asarray(seq.timestamps, np.float64)[self._idx]
+        self.groundtruth = groundtruth_of_frames(seq, self._idx)
+        self.cell: int | None = None
+        self.truth: dict[int, np.ndarray | None] = {}
+
+    def __len__(self) -> int:
+        return len(self._idx)
+
+    def __getitem__(self, i: int):
+        from jaxvo.host.masks import moving_at_grid
+
+        frame = self._seq[int(self._idx[i])]
+        if self.cell is not None:
+            self.truth[i] = None if frame.mask is None else moving_at_grid(frame.mask, self.cell)
+        return frame
+
+
+@functools.cache
+def flow_fields() -> tuple[str, ...]:
+    """The ``Config`` fields the grid flow reads (those its cache is keyed by).
+
+    Read off the source of :mod:`jaxvo.host.flow` (every ``cfg.<field>``), so a field that the
+    flow starts to read keys the cache without anyone listing it here; the tests check
+    the list against the fields a real flow computation reads.
+    """
+    import jaxvo.host.flow
+
+    used = set(re.findall(r"\bcfg\.(\w+)", inspect.getsource(jaxvo.host.flow)))
+    return tuple(f for f in config_fields() if f in used)
+
+
+@functools.cache
+def code_hash() -> str:
+    """A hash of the code that makes frames and flow: a cache written by other code is
+    not reused."""
+    import jaxvo.host.flow
+    import jaxvo.host.io
+    import jaxvo.synth.render
+    import jaxvo.synth.scenes
+
+    h = hashlib.sha256()
+    for mod in (jaxvo.host.flow, jaxvo.host.io, jaxvo.synth.render, jaxvo.synth.scenes):
+        h.update(inspect.getsource(mod).encode())
+    h.update(inspect.getsource(sequence_data).encode())  # what it stores beside the flow
+    return h.hexdigest()[:16]
+
+
+@functools.cache
+def sequence_key(s: SequenceSpec, cfg: Config) -> str:
+    """The flow cache's key of a sequence under ``cfg``: the sequence's identity (its spec,
+    the contents of a folder's frame lists, or a bag's file sizes and modification times),
+    the flow's Config fields and the code."""
+    ident = {**s._asdict(), "flow": {f: getattr(cfg, f) for f in flow_fields()},
+             "code": code_hash()}
+    ident.pop("label")
+    from jaxvo.host.rosbag import is_bag
+
+    if s.path is not None and is_bag(s.path):  # too large to hash: its files' sizes and times
+        files = [Path(s.path)] if Path(s.path).is_file() else sorted(Path(s.path).iterdir())
+        ident["bag"] = [(f.name, f.stat().st_size, f.stat().st_mtime_ns) for f in files]
+    elif s.path is not None:
+        lists = sorted(p for p in Path(s.path).glob("*.txt"))
+        ident["lists"] = hashlib.sha256(b"".join(p.read_bytes() for p in lists)).hexdigest()
+    blob = json.dumps(ident, sort_keys=True).encode()
+    return hashlib.sha256(blob).hexdigest()[:16]
+
+
+def sequence_data(s: SequenceSpec, cfg: Config, cache_dir: str | Path | None, *,
+                  progress: Callable[[int, int], None] | None = None) -> tuple[SequenceData, bool]:
+    """The flow and scoring data of ``s`` under ``cfg``, from the cache when it is there.
+
+    Returns:
+      ``(data, cached)``: ``cached`` says whether it came from ``cache_dir``.
+    """
+    from jaxvo.host.flow import GridFlow, sequence_flows
+    from jaxvo.odometry import choose_start_pose
+
+    path = None
+    if cache_dir is not None:
+        path = Path(cache_dir) / f"{_safe(s.label)}-{sequence_key(s, cfg)}.npz"
+        if path.is_file():
+            z = np.load(path)
+            gt = Trajectory(z["gt_t"], z["gt_poses"]) if "gt_t" in z else None
+            return SequenceData(s.label, GridFlow(*(z[f] for f in GridFlow._fields)),
+                                z["T_w_c0"], z["timestamps"], gt,
+                                z.get("truth"), int(z["height"]),
+                                int(z["width"])), True
+    seq = open_study_sequence(s)
+    if len(seq) < 2:
+        raise InputError(f"sequence {s.label!r} has {len(seq)} frame(s); odometry needs 2")
+    seq.cell = cfg.cell
+    grid_shape(seq.height, seq.width, cfg.cell)  # an impossible cell fails here, in one line
+    # frames that cannot be used are dropped and the next pairs with the last good one, as
+    # in run_sequence: the kept frames' timestamps, start pose and masks go with the pairs
+    chain = sequence_flows(seq, cfg, progress=progress)
+    if len(chain.frames) < 2:
+        reasons = "; ".join(sorted(set(chain.dropped.values())))
+        raise InputError(f"sequence {s.label!r}: fewer than 2 frames can be used "
+                         f"({len(chain.dropped)} dropped: {reasons})")
+    kept = np.asarray(chain.frames)
+    stamps = np.asarray(seq.timestamps, np.float64)[kept]
+    gt = seq.groundtruth
+    masks = [seq.truth.get(int(k)) for k in kept[:-1]]  # pair k is anchored on its first image
+    truth = None if any(m is None for m in masks) else np.stack(masks)
+    T_w_c0, _ = choose_start_pose("gt", gt, stamps[0])
+    data = SequenceData(s.label, chain.flows, T_w_c0, stamps, gt, truth, seq.height,
+                        seq.width)
+    if path is not None:
+        arrays = {**chain.flows._asdict(), "T_w_c0": data.T_w_c0, "timestamps": data.timestamps,
+                  "height": data.height, "width": data.width}
+        if gt is not None:
+            arrays.update(gt_t=gt.timestamps, gt_poses=gt.poses)
+        if truth is not None:
+            arrays["truth"] = truth
+        path.parent.mkdir(parents=True, exist_ok=True)
+        tmp = path.with_name(f".{path.name}.{os.getpid()}.tmp.npz")
+        np.savez(tmp, **arrays)
+        os.replace(tmp, path)  # whole or absent, also with several writers
+    return data, False
+
+
+def _safe(label: str) -> str:
+    return re.sub(r"[^A-Za-z0-9_.-]+", "_", label)
+
+
+def sequence_pairs(s: SequenceSpec) -> int:
+    """Frame pairs of a sequence (for the progress total), without reading its frames."""
+    if s.path is None:
+        from jaxvo.synth.scenes import DEFAULT_FRAMES
+
+        return (DEFAULT_FRAMES if s.frames is None else s.frames) - 1
+    seq = open_study_sequence(s)
+    return len(seq) - 1

@@ -1,0 +1,288 @@
+"""A study on its devices (host side): the processes, the batch, the compiled programs
+and the calls.
+
+Numbers do not depend on how many devices or processes share the work: each device runs
+one program, traced once and compiled for it alone (:func:`compiled_programs`: the same
+machine code whatever the device count, with no partitioning pass and no XLA flag), on
+the same ``batch`` consecutive configurations (padded to a whole number of calls; padding
+is dropped); the same configuration vmapped in a batch of another size may differ in the
+"""
+
+from __future__ import annotations
+
+import functools
+from concurrent.futures import ThreadPoolExecutor
+from typing import Any
+
+import numpy as np
+
+from jaxvo.config import Config, Params, grid_shape
+from jaxvo.errors import InputError
+from jaxvo.study.data import SequenceData
+
+
+def batched_params(configs: list[dict]):
+    """``Params`` of numpy float32 (B,) arrays, one entry per configuration."""
+    from jaxvo.core.pipeline import batch_params
+
+    sweeps = {f: [c.get(f, getattr(Params(), f)) for c in configs] for f in Params._fields}
+    return Params(*(np.asarray(a) for a in batch_params(Params(), **sweeps)))
+
+
+# Configurations per device and call on the CPU: a vmapped call is no faster per
+# configuration than one scan there (docs/report/study.md: a 32-configuration study at 4
+# ran 0.89x the best batch), so small calls keep the padding and the resume granularity
+# small. Accelerators size theirs from the device and the study (accelerator_batch).
+CPU_BATCH = 4
+
+
+# The largest share of a device's free memory one call may take, and the widest call. On an
+# H200 a 60-frame scene ran 3.3k configuration-frames/s at 64 configurations a call, 9.8k
+# at 256, 38k at 1024 and 83k at 4096 (issue 30): an accelerator wants the widest call the
+# study and the memory allow.
+MEMORY_SHARE = 0.5
+MAX_ACCELERATOR_BATCH = 16384
+
+
+def accelerator_batch(configs_per_device: int, bytes_per_config: float | None,
+                      free_bytes: float | None) -> int:
+    """Configurations per device and call on an accelerator: every configuration of the
+    study in one call (a power of two at or above it, so that studies of nearby sizes share
+    a compiled program), no wider than :data:`MEMORY_SHARE` of the free memory at
+    ``bytes_per_config`` allows.
+
+    Args:
+      configs_per_device: the study's runs of one program, divided over the devices.
+      bytes_per_config: device memory one configuration of the call needs (the compiled
+        program's arguments, outputs and temporaries over its batch), None when unknown.
+      free_bytes: the device's free memory, None when it does not say.
+    """
+    batch = 1 << max(0, int(configs_per_device) - 1).bit_length()
+    batch = min(batch, MAX_ACCELERATOR_BATCH)
+    if bytes_per_config and free_bytes:
+        fits = int(MEMORY_SHARE * free_bytes // bytes_per_config)
+        while batch > 1 and batch > fits:
+            batch //= 2
+    return batch
+
+
+def free_memory(device) -> float | None:
+    """Bytes free on ``device`` (None where its backend keeps no statistics, as the CPU)."""
+    try:
+        stats = device.memory_stats()
+    except Exception:  # noqa: BLE001 - backends without statistics raise or return None
+        return None
+    if not stats or "bytes_limit" not in stats:
+        return None
+    return float(stats["bytes_limit"] - stats.get("bytes_in_use", 0))
+
+
+def init_distributed(coordinator: str | None, num_processes: int | None,
+                     process_id: int | None) -> None:
+    """Join a multi-process study (``jax.distributed``) when more than one process is
+    asked for; call before JAX touches a device.
+
+    On the CPU the processes exchange data over Gloo (JAX's default CPU collectives).
+    """
+    if not num_processes or num_processes == 1:
+        return
+    if coordinator is None or process_id is None:
+        raise InputError("a study over several processes needs the coordinator (HOST:PORT) "
+                         "and this process's id (0 .. num_processes - 1)")
+    if not 0 <= process_id < num_processes:
+        raise InputError(f"process id {process_id} is not in 0 .. {num_processes - 1}")
+    import jax
+
+    if jax.config.jax_cpu_collectives_implementation is None:  # JAX before 0.5 had none
+        jax.config.update("jax_cpu_collectives_implementation", "gloo")
+    jax.distributed.initialize(coordinator_address=coordinator, num_processes=num_processes,
+                               process_id=process_id)
+
+
+def study_devices() -> list:
+    """Every device of every process, in the order the configurations are dealt out:
+    process by process, each process's own devices in JAX's order."""
+    import jax
+
+    return sorted(jax.devices(), key=lambda d: (d.process_index, d.id))
+
+
+@functools.cache
+def _study_program(cfg: Config, grid: tuple[int, int]):
+    """``run_study`` of a batch of configurations on one device, jitted; returns
+    ``(T_w_c, moving, status)`` stacked over the configurations."""
+    import jax
+
+    from jaxvo.core.pipeline import run_study
+    from jaxvo.core.window import window_trajectory
+
+    def one_device(flows, T_w_c0, seeds, params):
+        keys = jax.vmap(jax.random.key)(seeds)
+        out = run_study(flows, keys, params, T_w_c0, cfg=cfg, grid=grid)
+        T_w_c = out.T_w_c
+        if cfg.window:  # each frame's final pose, from when it left the window
+            T_w_c = jax.vmap(window_trajectory)(out.window)[:, 1:]
+        return T_w_c, out.moving, out.status
+
+    return jax.jit(one_device)
+
+
+def _call_args(data: SequenceData, configs: list[dict], seeds: np.ndarray):
+    """The host arguments of one device's call: the flow, the start pose, its seeds and its
+    configurations' ``Params``."""
+    return (data.flows, data.T_w_c0.astype(np.float32), seeds, batched_params(configs))
+
+
+_compiled: dict[tuple, Any] = {}
+
+
+def compiled_programs(cfg: Config, grid: tuple[int, int], args, devices) -> list:
+    """The study program compiled for each of ``devices`` from one traced program (the
+    same HLO and options but for the device: the same machine code, so the same bits on
+    every device and device count), compiled concurrently, loaded from the persistent
+    compile cache where it is there. ``args`` are one device's host arguments."""
+    import jax
+    from jax.sharding import SingleDeviceSharding
+
+    fn = _study_program(cfg, grid)
+    shapes = jax.tree.map(lambda a: (np.shape(a), np.asarray(a).dtype), args)
+    keys = [(cfg, grid, str(shapes), d) for d in devices]
+    missing = [(k, d) for k, d in zip(keys, devices, strict=True) if k not in _compiled]
+    lowered = [fn.lower(*jax.tree.map(
+        lambda a, d=d: jax.ShapeDtypeStruct(np.shape(a), np.asarray(a).dtype,
+                                            sharding=SingleDeviceSharding(d)), args))
+        for _, d in missing]
+    with ThreadPoolExecutor(max(1, len(lowered))) as pool:  # XLA compiles without the GIL
+        for (k, _), exe in zip(missing, pool.map(lambda low: low.compile(), lowered),
+                               strict=True):
+            _compiled[k] = exe
+    return [_compiled[k] for k in keys]
+
+
+def bytes_per_config(executable, batch: int) -> float | None:
+    """Device memory one configuration of a compiled call needs (its arguments, outputs and
+    temporaries over the batch); None where the backend does not say."""
+    try:
+        m = executable.memory_analysis()
+    except Exception:  # noqa: BLE001 - not every backend analyses memory
+        return None
+    if m is None:
+        return None
+    total = (m.argument_size_in_bytes + m.output_size_in_bytes + m.temp_size_in_bytes
+             - m.alias_size_in_bytes)
+    return total / batch
+
+
+def call_batch(data: SequenceData, cfg: Config, configs: list[dict], *, requested: int | None,
+               devices: list) -> int:
+    """Configurations per device and call for ``configs`` of one program: ``requested``
+    (``--batch`` or the spec's) where given, 4 on the CPU, else the accelerator's widest
+    call that the study fills and half its free memory holds (compiled at that width to
+    read its memory need, then halved until it fits)."""
+    if requested:
+        return requested
+    if devices[0].platform == "cpu":
+        return CPU_BATCH
+    import jax
+
+    own = next(d for d in devices if d.process_index == jax.process_index())
+    per_device = -(-len(configs) // len(devices))
+    free = free_memory(own)
+    batch = accelerator_batch(per_device, None, free)
+    grid = grid_shape(data.height, data.width, cfg.cell)
+    while True:
+        args = _call_args(data, [configs[0]] * batch, np.zeros(batch, np.uint32))
+        need = bytes_per_config(compiled_programs(cfg, grid, args, [own])[0], batch)
+        fits = accelerator_batch(per_device, need, free)
+        if fits >= batch:
+            break
+        batch = fits
+    return int(from_first(np.asarray([batch]))[0])  # every process calls alike
+
+
+def _gather(local: np.ndarray) -> np.ndarray:
+    """Every process's block of results, in process order, on every process."""
+    import jax
+
+    if jax.process_count() == 1:
+        return local
+    from jax.experimental import multihost_utils
+
+    return np.asarray(multihost_utils.process_allgather(local, tiled=True))
+
+
+def run_call(data: SequenceData, cfg: Config, configs: list[dict], seeds: list[int], *,
+             devices: list, batch: int):
+    """One call: configuration ``i`` with seed ``seeds[i]`` on ``data``'s flow.
+
+    The list is padded with copies of its last entry to ``batch`` times the device count
+    (the padding's results are dropped) and dealt out in order, ``batch`` consecutive
+    configurations to each device of :func:`study_devices`; every device runs the same
+    program (:func:`compiled_programs`), dispatched without waiting, so the devices work
+    at once.
+
+    Returns:
+      ``(T_w_c (B, T, 4, 4) float32, moving (B, T, n) bool, status (B, T) int32)`` numpy.
+    """
+    import jax
+
+    size = batch * len(devices)
+    b = len(configs)
+    if not 0 < b <= size or len(seeds) != b:
+        raise ValueError(f"a call takes 1 to {size} configurations with one seed each, got "
+                         f"{b} and {len(seeds)} seeds")
+    configs = list(configs) + [configs[-1]] * (size - b)
+    seeds = np.asarray(list(seeds) + [seeds[-1]] * (size - b), np.uint32)
+    mine = [(k, d) for k, d in enumerate(devices) if d.process_index == jax.process_index()]
+    args = [_call_args(data, configs[k * batch:(k + 1) * batch], seeds[k * batch:(k + 1) * batch])
+            for k, _ in mine]
+    grid = grid_shape(data.height, data.width, cfg.cell)
+    programs = compiled_programs(cfg, grid, args[0], [d for _, d in mine])
+    pending = [exe(*jax.device_put(a, d)) for exe, a, (_, d) in zip(programs, args, mine,
+                                                                     strict=True)]
+    outs = [np.concatenate([np.asarray(p[i]) for p in pending]) for i in range(3)]
+    return tuple(_gather(o)[:b] for o in outs)
+
+
+def from_first(x: np.ndarray) -> np.ndarray:
+    """The first process's value of ``x`` on every process (the same shape everywhere)."""
+    import jax
+
+    if jax.process_count() == 1:
+        return x
+    from jax.experimental import multihost_utils
+
+    return np.asarray(multihost_utils.broadcast_one_to_all(x))
+
+
+def agree(problem: InputError | None) -> None:
+    """Raise the first process's ``problem`` on every process (the others would otherwise
+    wait for it in the next exchange until JAX's timeout)."""
+    if from_first(np.asarray([problem is not None]))[0]:
+        raise problem or InputError("the first process stopped the study; see its message")
+
+
+def share_data(data: SequenceData | None) -> SequenceData:
+    """The first process's flow on every process: the others need neither the frames nor
+    the cache, and every device computes on the same flow."""
+    import jax
+
+    if jax.process_count() == 1:
+        return data
+    from jaxvo.host.flow import GridFlow
+
+    head = np.zeros(4, np.int64)
+    if data is not None:
+        T, n = data.flows.valid.shape
+        head[:] = (T, n, data.height, data.width)
+    T, n, h, w = (int(v) for v in from_first(head))
+    if data is None:
+        flows = GridFlow(np.zeros((T, n, 3), np.float32), np.zeros((T, n, 3), np.float32),
+                         np.zeros((T, n, 2), np.float32), np.zeros((T, n, 2), np.float32),
+                         np.zeros((T, n), bool), np.zeros((T,), np.int32),
+                         np.zeros((T,), np.float32), np.zeros((T, n), bool),
+                         np.zeros((T, n), np.float32), np.zeros((T, n), np.float32))
+        data = SequenceData("", flows, np.eye(4), np.zeros(T + 1), None, None, h, w)
+    flows = GridFlow(*(from_first(np.asarray(a)) for a in data.flows))
+    T0 = from_first(np.asarray(data.T_w_c0, np.float64))
+    return data._replace(flows=flows, T_w_c0=T0)
