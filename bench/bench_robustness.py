@@ -66,12 +66,13 @@ def frames_hash() -> str:
     runs and the grid truth depend on, so that a change to the tracker re-runs neither."""
     import inspect
 
+    import jaxvo.host.frames
     import jaxvo.host.io
     import jaxvo.synth.render
     import jaxvo.synth.scenes
 
     h = hashlib.sha1()
-    for mod in (jaxvo.host.io, jaxvo.synth.render, jaxvo.synth.scenes):
+    for mod in (jaxvo.host.frames, jaxvo.host.io, jaxvo.synth.render, jaxvo.synth.scenes):
         h.update(inspect.getsource(mod).encode())
     return h.hexdigest()[:16]
 

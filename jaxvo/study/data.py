@@ -87,13 +87,16 @@ class _Subset:
 def flow_fields() -> tuple[str, ...]:
     """The ``Config`` fields the grid flow reads (those its cache is keyed by).
 
-    Read off the source of :mod:`jaxvo.host.flow` (every ``cfg.<field>``), so a field that the
-    flow starts to read keys the cache without anyone listing it here; the tests check
-    the list against the fields a real flow computation reads.
+    Read off the source of :mod:`jaxvo.host.flow` and :mod:`jaxvo.host.depth` (every
+    ``cfg.<field>``), so a field that the flow starts to read keys the cache without anyone
+    listing it here; the tests check the list against the fields a real flow computation
+    reads.
     """
+    import jaxvo.host.depth
     import jaxvo.host.flow
 
-    used = set(re.findall(r"\bcfg\.(\w+)", inspect.getsource(jaxvo.host.flow)))
+    used = {f for mod in (jaxvo.host.flow, jaxvo.host.depth)
+            for f in re.findall(r"\bcfg\.(\w+)", inspect.getsource(mod))}
     return tuple(f for f in config_fields() if f in used)
 
 
@@ -101,13 +104,16 @@ def flow_fields() -> tuple[str, ...]:
 def code_hash() -> str:
     """A hash of the code that makes frames and flow: a cache written by other code is
     not reused."""
+    import jaxvo.host.depth
     import jaxvo.host.flow
+    import jaxvo.host.frames
     import jaxvo.host.io
     import jaxvo.synth.render
     import jaxvo.synth.scenes
 
     h = hashlib.sha256()
-    for mod in (jaxvo.host.flow, jaxvo.host.io, jaxvo.synth.render, jaxvo.synth.scenes):
+    for mod in (jaxvo.host.flow, jaxvo.host.depth, jaxvo.host.frames, jaxvo.host.io,
+                jaxvo.synth.render, jaxvo.synth.scenes):
         h.update(inspect.getsource(mod).encode())
     h.update(inspect.getsource(sequence_data).encode())  # what it stores beside the flow
     return h.hexdigest()[:16]
