@@ -73,10 +73,9 @@ class Config:
     match_window: int = 5  # tMinSize: previous frames the label matching looks back over
 
     # --- ego-motion ---
-    # robust re-weighting iterations: 5 and 10 score the same (ATE within 0.1 mm on four
-    # synthetic scenes and 7-Scenes; fixed_camera_2 37 vs 41 mm, within its seed-to-seed
-    # spread) since measured-moving points are left out beforehand
-    ego_iters: int = 5
+    # robust re-weighting iterations of the ego-motion, its support growing with the fit
+    # (egomotion.fit_egomotion; as many fits as the 1 + 5 before the support grew)
+    ego_iters: int = 6
     # Gauss-Newton steps on the image-plane and depth errors after the 3D fit
     # (egomotion.refine_reprojection; 0 turns it off)
     ego_reprojection_iters: int = 3

@@ -152,24 +152,17 @@ def fit_egomotion(pts: Points, weights, params: Params, *, cfg: Config, T_init=N
     and every segment's; and the plain weighted fit), so that the random hypotheses
     choose where the deterministic re-weighting starts, not where it ends. With ``belief``
     (n,) (:func:`jaxvo.core.temporal.belief_weights`: 1 where earlier frames established
-    the point as background) the support then grows: every established point that the
-    fitted motion explains within the inlier test joins it, whatever segment it fell in
-    this frame, and the fit is re-weighted on the grown support, twice. A piece of the
-    background that the spatial stage split off (and so left out of ``weights``) supports
-    the pose again, while an established point that moves now stays out by the test.
+    the point as background) the support grows with the fit: every established point that
+    the current motion explains within the inlier test joins it, whatever segment it fell
+    in this frame. A piece of the background that the spatial stage split off (and so
+    left out of ``weights``) supports the pose again, while an established point that
+    moves now stays out by the test.
     """
-    src, dst, noise = pts.src, pts.dst, pts.noise
+    src, dst = pts.src, pts.dst
     established = (jnp.zeros(weights.shape, bool) if belief is None
                    else (belief >= 1.0) & pts.valid)
-    T, ok0 = _robust_fit(pts, weights, params, cfg=cfg, T_init=T_init, candidates=candidates)
-
-    def grown(T):
-        explained = residuals(T, src, dst, noise)[0] <= pts.thr
-        return jnp.where(weights > 0, weights, jnp.where(established & explained, 1.0, 0.0))
-
-    for _ in range(2):
-        later = grown(T)
-        T, ok, inliers = _reweight(pts, later, T, params, cfg=cfg)
+    T, ok0 = _best_start(pts, weights, T_init=T_init, candidates=candidates)
+    T, ok, inliers, later = _reweight(pts, weights, T, cfg.ego_iters, established)
     if cfg.ego_reprojection_iters > 0:
         T = refine_reprojection(T, src, dst, inliers, cfg.ego_reprojection_iters)
     status = jnp.where(
@@ -190,35 +183,40 @@ def _prior_weights(pts: Points, weights):
                      0.0).astype(jnp.float32)
 
 
-def _scaled_residuals(pts: Points, T, usable):
-    """Residual lengths in noise units (n,) under ``T`` and the Huber corner of the frame:
-    the inlier test at the frame's robust scale (the lower quartile of the usable points'
-    lengths, within ``_SCALE_RANGE`` of the noise model)."""
-    r = jnp.sqrt(residuals(T, pts.src, pts.dst, pts.noise)[0] + 1e-12)
-    q = quantile_scale(r, usable, _QUARTILE, CHI_3_Q25)
-    return r, jnp.sqrt(pts.thr) * jnp.clip(q, *_SCALE_RANGE)
+def _reweight(pts: Points, weights, T, iters: int, established):
+    """``iters`` Huber re-weightings of the fit from ``T``, each on a support that grows
+    with the fit: the points of ``weights`` (n,) and every ``established`` (n,) point the
+    current motion explains within the inlier test. Each iteration's Huber corner is the
+    inlier test at the frame's robust scale (the lower quartile of the supporting points'
+    residual lengths, within ``_SCALE_RANGE`` of the noise model).
 
+    Returns ``(T, ok, inliers (n,) bool, support (n,) float32)``.
+    """
 
-def _reweight(pts: Points, weights, T, params: Params, *, cfg: Config):
-    """``cfg.ego_iters`` Huber re-weightings of the fit on ``weights`` (n,) from ``T``:
-    ``(T, ok, inliers (n,) bool)``."""
-    w0, usable = _prior_weights(pts, weights), weights > 0
+    def scaled(T):
+        d2 = residuals(T, pts.src, pts.dst, pts.noise)[0]
+        support = jnp.where(weights > 0, weights,
+                            jnp.where(established & (d2 <= pts.thr), 1.0, 0.0))
+        r = jnp.sqrt(d2 + 1e-12)
+        q = quantile_scale(r, support > 0, _QUARTILE, CHI_3_Q25)
+        return r, jnp.sqrt(pts.thr) * jnp.clip(q, *_SCALE_RANGE), support
 
     def step(_, carry):
         T, _ok = carry
-        r, c = _scaled_residuals(pts, T, usable)
-        return fit_rigid_cols(pts.src, pts.dst, huber_weights(r, c, w0))
+        r, c, support = scaled(T)
+        return fit_rigid_cols(pts.src, pts.dst, huber_weights(r, c, _prior_weights(pts, support)))
 
-    T, ok = jax.lax.fori_loop(0, cfg.ego_iters, step, (T, jnp.bool_(True)))
-    r, c = _scaled_residuals(pts, T, usable)
-    return T, ok, usable & (r <= c)
+    T, ok = jax.lax.fori_loop(0, iters, step, (T, jnp.bool_(True)))
+    r, c, support = scaled(T)
+    return T, ok, (support > 0) & (r <= c), support
 
 
-def _robust_fit(pts: Points, weights, params: Params, *, cfg: Config, T_init, candidates):
-    """The re-weighted fit on ``weights`` (n,) from the best start: ``(T, ok)``.
+def _best_start(pts: Points, weights, *, T_init, candidates):
+    """The motion to start the re-weighting from: ``(T (4, 4), ok)``.
 
-    The starts are ``T_init``, ``candidates`` and the plain weighted fit; the best has the
-    least truncated cost (each point's normalised residual, capped at the inlier test)."""
+    The starts are ``T_init``, ``candidates`` and the plain weighted fit on ``weights``;
+    the best has the least truncated cost (each point's normalised residual, capped at the
+    inlier test, weighted as the fit weighs it)."""
     w0 = _prior_weights(pts, weights)
     T_fit, ok_fit = fit_rigid_cols(pts.src, pts.dst, w0)
     starts = [T_fit[None]]
@@ -230,8 +228,7 @@ def _robust_fit(pts: Points, weights, params: Params, *, cfg: Config, T_init, ca
     d2 = residuals_many(starts, pts.src, pts.dst, pts.noise)[0]
     cost = jnp.sum(w0[None] * jnp.minimum(d2, pts.thr), axis=1)
     best = jnp.argmin(jnp.where(jnp.all(jnp.isfinite(starts), axis=(1, 2)), cost, jnp.inf))
-    T, ok, _ = _reweight(pts, weights, starts[best], params, cfg=cfg)
-    return T, ok & ((best > 0) | ok_fit)
+    return starts[best], (best > 0) | ok_fit
 
 
 class EgoState(NamedTuple):
