@@ -37,6 +37,18 @@ def test_run_writes_every_pose_masks_and_a_summary(seq_dir, tmp_path, capsys):
     assert pngs and set(np.unique(cv2.imread(str(pngs[0]), cv2.IMREAD_UNCHANGED))) <= {0, 255}
 
 
+def test_a_fixed_camera_is_scored_without_alignment(tmp_path, capsys):
+    """A camera that never moves defines no alignment: the summary scores the poses as they
+    are (from the true first pose) instead of advising an option jaxvo run does not have."""
+    folder = tmp_path / "fixed"
+    write_sequence(make_sequence("fixed_camera_1", frames=6, seed=1), folder)
+    rc = main(["run", str(folder), "--out", str(tmp_path / "t.txt"), "-q", "--json"])
+    summary = json.loads(capsys.readouterr().out)
+    assert rc == 0 and "scores_not_computed" not in summary
+    assert summary["ate_aligned"] is False
+    assert 0.0 <= summary["ate_rmse_m"] < 0.001  # metres: the camera stays put
+
+
 def test_run_bad_input_is_one_line_and_exit_2(tmp_path, capsys):
     assert main(["run", str(tmp_path / "missing"), "--out", str(tmp_path / "t.txt")]) == 2
     err = capsys.readouterr().err.strip().splitlines()

@@ -509,17 +509,22 @@ def _scores(gt, out, writer, max_diff: float) -> dict:
     """ATE and RPE of the written trajectory against the folder's ground truth, or why
     they could not be computed: the file as ``jaxvo eval`` reads it, or the poses the
     writer wrote where they went to standard output."""
+    import numpy as np
+
     from jaxvo.errors import InputError
     from jaxvo.evaluation.metrics import ate, rpe
     from jaxvo.host.io import STDOUT, read_trajectory
 
     est = writer.trajectory if str(out) == STDOUT else read_trajectory(out)
+    # a camera that never moves (a fixed camera) defines no alignment: compared as it is,
+    # from the true first pose (as jaxvo.evaluation.scores.trajectory_scores does)
+    aligned = bool(np.ptp(np.asarray(gt.poses)[:, :3, 3], axis=0).max() > 1e-6)
     try:
-        a = ate(gt, est, max_diff=max_diff)
+        a = ate(gt, est, align=aligned, max_diff=max_diff)
         r1 = rpe(gt, est, delta=1, delta_unit="frames", max_diff=max_diff)
     except InputError as exc:  # e.g. every pose carried: nothing to align
         return {"scores_not_computed": str(exc)}
-    return {"ate_rmse_m": round(a.stats.rmse, 5),
+    return {"ate_rmse_m": round(a.stats.rmse, 5), "ate_aligned": aligned,
             "rpe_trans_rmse_m_per_frame": round(r1.trans.rmse, 5),
             "rpe_rot_rmse_deg_per_frame": round(r1.rot.rmse, 4)}
 
@@ -563,6 +568,7 @@ def _print_summary(summary: dict, n: int, interrupted: bool) -> None:
               f"left out), {summary['map_all_points']} -> {summary['map_all']} (nothing left "
               f"out), picture {summary['map_picture']}")
     if "ate_rmse_m" in summary:
-        print(f"  ATE        {summary['ate_rmse_m']:.4f} m rmse (aligned, ground truth in folder)")
+        how = "aligned" if summary["ate_aligned"] else "not aligned: the camera does not move"
+        print(f"  ATE        {summary['ate_rmse_m']:.4f} m rmse ({how}, ground truth in folder)")
         print(f"  RPE        {summary['rpe_trans_rmse_m_per_frame']:.4f} m, "
               f"{summary['rpe_rot_rmse_deg_per_frame']:.3f} deg rmse per frame")
