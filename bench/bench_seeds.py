@@ -33,15 +33,16 @@ import numpy as np
 
 sys.path.insert(0, str(Path(__file__).resolve().parent))
 from _common import log, machine_line, markdown_table
-from bench_robustness import CFG, _flow_key, peers_alone, prepare
+from bench_people import distance_mm, without_people
+from bench_robustness import CFG, peers_alone, prepare
 from people_masks import people_masks
 from splits import Case, available, cases
 
 from jaxvo.config import Config, Params, grid_shape, params_as_arrays
 from jaxvo.core.pipeline import frame_key, init_pipeline, step
-from jaxvo.evaluation.metrics import SegmentationScores, ate
+from jaxvo.evaluation.metrics import SegmentationScores
 from jaxvo.evaluation.scores import trajectory_scores
-from jaxvo.host.flow import GridFlow, flows_for_sequence
+from jaxvo.host.flow import GridFlow
 from jaxvo.host.io import InMemorySequence, Trajectory, data_root, open_sequence
 from jaxvo.host.peers import OPENCV_PEERS
 
@@ -80,28 +81,11 @@ def run_seeds(flows: dict, T0, params: Params, cfg: Config, seeds: int):
     return trajs, outs
 
 
-def _without_people_flows(folder: Path, cache: Path, cfg: Config) -> dict:
-    """The TUM clip's flows with the depth under the people masks set to 0 (cached)."""
-    path = cache / f"tum_walking_nopeople__{_flow_key(cfg)}.npz"
-    if path.is_file():
-        z = np.load(path, allow_pickle=False)
-        return {k: z[k] for k in z.files}
-    log("tum_walking: the flows without the people's depth (cached)")
-    seq = InMemorySequence(open_sequence(folder))
-    people = people_masks(folder)
-    seq._frames = [f._replace(depth=np.where(people[i], 0.0, f.depth).astype(np.float32))
-                   for i, f in enumerate(seq._frames)]
-    flows = flows_for_sequence(seq, cfg)
-    data = {f"flow_{k}": np.asarray(v) for k, v in flows._asdict().items()}
-    data["timestamps"] = np.asarray(seq.timestamps, np.float64)
-    data["size"] = np.array([seq.height, seq.width])
-    path.parent.mkdir(parents=True, exist_ok=True)
-    np.savez_compressed(path, **data)
-    return data
-
-
-def _mm(a: Trajectory, b: Trajectory) -> float:
-    return 1e3 * float(ate(a, b).stats.rmse)
+def reference_case(case: Case) -> Case:
+    """The people case with the depth under the hand-drawn people masks set to 0."""
+    folder = data_root() / case.source
+    return case._replace(name=f"{case.name}_nopeople", build=lambda: without_people(
+        InMemorySequence(open_sequence(folder)), people_masks(folder)))
 
 
 def spread(values) -> dict:
@@ -138,14 +122,13 @@ def score_case(case: Case, data: dict, params: Params, seeds: int, cache: Path) 
         row["moving_f"] = {"median": float(np.median(fs)), "worst": float(np.min(fs)),
                            "best": float(np.max(fs)), "values": [float(x) for x in fs]}
     if case.kind == "people":
-        ref_flows = _without_people_flows(data_root() / case.source, cache, CFG)
-        refs, _ = run_seeds(ref_flows, T0, params, CFG, seeds)
-        d = np.array([[_mm(a, b) if i != j else 0.0 for j, b in enumerate(refs)]
+        refs, _ = run_seeds(prepare(reference_case(case), cache, CFG), T0, params, CFG, seeds)
+        d = np.array([[distance_mm(a, b) if i != j else 0.0 for j, b in enumerate(refs)]
                       for i, a in enumerate(refs)])
         medoid = int(np.argmin(np.median(d, axis=1)))
         row["reference_seed"] = medoid
         row["reference_spread_mm"] = [float(x) for j, x in enumerate(d[medoid]) if j != medoid]
-        row["distance_mm"] = spread([_mm(refs[medoid], tr) for tr in trajs])
+        row["distance_mm"] = spread([distance_mm(refs[medoid], tr) for tr in trajs])
     return row
 
 
