@@ -161,7 +161,7 @@ def chain_from_the_seeds(poses, planes):
     P = rays(start) * cast(poses[0], start, planes)[:, None]  # true points, camera 0
     uv = jnp.asarray(start, jnp.float32)
     alive = np.ones(len(start), bool)
-    chain = jax.jit(functools.partial(chain_tracks, grid=GRID))
+    chain = jax.jit(functools.partial(chain_tracks, grid=GRID, cell=CELL))
     for k in range(len(poses) - 1):
         flow, _ = pair_flow(poses[k], poses[k + 1], planes)
         uv, Q, ok = chain(uv, jax.tree.map(jnp.asarray, flow), jnp.asarray(flow.valid))
