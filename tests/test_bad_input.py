@@ -788,6 +788,16 @@ def _rewrite_depth(seq: Path, write) -> None:
     assoc.write_text(re.sub(r"\S+", lambda m: names.get(m[0], m[0]), assoc.read_text()))
 
 
+def _save_depth(png: Path, metres: np.ndarray, suffix: str) -> Path:
+    """``metres`` written beside ``png`` as float depth: ``.npy`` or a float TIFF."""
+    new = png.with_suffix(suffix)
+    if suffix == ".npy":
+        np.save(new, metres)
+    else:
+        assert cv2.imwrite(str(new), metres)
+    return new
+
+
 def _write(path: Path, image: np.ndarray) -> Path:
     assert cv2.imwrite(str(path), image)
     return path
@@ -815,15 +825,7 @@ def test_float_depth_in_tiff_and_npy_is_read_as_metres(base, tmp_path, capsys, s
     """The same depths as float32 metres give the same trajectory, bit for bit."""
     seq = copy_seq(base, tmp_path / "seq", images=("depth",))
 
-    def write(png: Path, metres: np.ndarray) -> Path:
-        new = png.with_suffix(suffix)
-        if suffix == ".npy":
-            np.save(new, metres)
-        else:
-            assert cv2.imwrite(str(new), metres)
-        return new
-
-    _rewrite_depth(seq, write)
+    _rewrite_depth(seq, lambda png, metres: _save_depth(png, metres, suffix))
     res = run_json(capsys, seq, tmp_path / "t.txt")
     assert res.rc == 0 and res.summary["warnings"] == [] and res.summary["dropped"] == {}
     run_json(capsys, base, tmp_path / "png.txt")
@@ -1122,12 +1124,7 @@ def test_infinite_float_depth_is_no_reading(base, tmp_path, capsys, suffix):
     def write(png: Path, metres: np.ndarray) -> Path:
         metres = metres.copy()
         metres[rng.random(metres.shape) < 0.05] = np.inf
-        new = png.with_suffix(suffix)
-        if suffix == ".npy":
-            np.save(new, metres)
-        else:
-            assert cv2.imwrite(str(new), metres)
-        return new
+        return _save_depth(png, metres, suffix)
 
     _rewrite_depth(seq, write)
     frame = open_sequence(seq)[0]
