@@ -162,11 +162,11 @@ def fit_egomotion(pts: Points, weights, params: Params, *, cfg: Config, T_init=N
     established = (jnp.zeros(weights.shape, bool) if belief is None
                    else (belief >= 1.0) & pts.valid)
     T, ok0 = _best_start(pts, weights, T_init=T_init, candidates=candidates)
-    T, ok, inliers, later = _reweight(pts, weights, T, cfg.ego_iters, established)
+    T, ok, inliers, support = _reweight(pts, weights, T, cfg.ego_iters, established)
     if cfg.ego_reprojection_iters > 0:
         T = refine_reprojection(T, src, dst, inliers, cfg.ego_reprojection_iters)
     status = jnp.where(
-        jnp.sum(later > 0) < params.min_static_points,
+        jnp.sum(support > 0) < params.min_static_points,
         jnp.int32(Status.NO_STATIC),
         jnp.where(ok & ok0, jnp.int32(Status.OK), jnp.int32(Status.EGO_DEGENERATE)),
     )
@@ -174,13 +174,19 @@ def fit_egomotion(pts: Points, weights, params: Params, *, cfg: Config, T_init=N
     return T, status, inliers
 
 
-def _prior_weights(pts: Points, weights):
-    """(n,) float32 the weights a point enters the fit with: its ``weights`` times its depth
-    precision (1/sigma rather than the statistically optimal 1/sigma^2, which let near,
-    mislabelled object points pull the fit; docs/report/robustness.md)."""
+def _precision(pts: Points):
+    """``(w_ray (n,), scale ())`` a point's depth precision and the frame's largest: a point
+    enters the fit with ``weights * w_ray / scale`` (1/sigma rather than the statistically
+    optimal 1/sigma^2, which let near, mislabelled object points pull the fit;
+    docs/report/robustness.md)."""
     w_ray = jnp.sqrt(pts.noise.w_ray)
-    return jnp.where(weights > 0, weights * w_ray / jnp.maximum(jnp.max(w_ray), 1e-12),
-                     0.0).astype(jnp.float32)
+    return w_ray, jnp.maximum(jnp.max(w_ray), 1e-12)
+
+
+def _prior_weights(weights, precision):
+    """(n,) float32 the weights the points enter the fit with (:func:`_precision`)."""
+    w_ray, scale = precision
+    return jnp.where(weights > 0, weights * w_ray / scale, 0.0).astype(jnp.float32)
 
 
 def _reweight(pts: Points, weights, T, iters: int, established):
@@ -193,6 +199,8 @@ def _reweight(pts: Points, weights, T, iters: int, established):
     Returns ``(T, ok, inliers (n,) bool, support (n,) float32)``.
     """
 
+    precision = _precision(pts)
+
     def scaled(T):
         d2 = residuals(T, pts.src, pts.dst, pts.noise)[0]
         support = jnp.where(weights > 0, weights,
@@ -204,7 +212,7 @@ def _reweight(pts: Points, weights, T, iters: int, established):
     def step(_, carry):
         T, _ok = carry
         r, c, support = scaled(T)
-        return fit_rigid_cols(pts.src, pts.dst, huber_weights(r, c, _prior_weights(pts, support)))
+        return fit_rigid_cols(pts.src, pts.dst, huber_weights(r, c, _prior_weights(support, precision)))
 
     T, ok = jax.lax.fori_loop(0, iters, step, (T, jnp.bool_(True)))
     r, c, support = scaled(T)
@@ -217,7 +225,7 @@ def _best_start(pts: Points, weights, *, T_init, candidates):
     The starts are ``T_init``, ``candidates`` and the plain weighted fit on ``weights``;
     the best has the least truncated cost (each point's normalised residual, capped at the
     inlier test, weighted as the fit weighs it)."""
-    w0 = _prior_weights(pts, weights)
+    w0 = _prior_weights(weights, _precision(pts))
     T_fit, ok_fit = fit_rigid_cols(pts.src, pts.dst, w0)
     starts = [T_fit[None]]
     if T_init is not None:
