@@ -33,7 +33,7 @@ import numpy as np
 sys.path.insert(0, str(Path(__file__).resolve().parent))
 import orbslam3_peer
 from _common import log, machine, markdown_table
-from splits import Case, available, cases
+from splits import Case, cases, runnable
 
 from jaxvo.config import Config, Params, grid_shape, params_as_arrays
 from jaxvo.core.pipeline import final_moving, init_pipeline, jit_step
@@ -318,13 +318,11 @@ def main(argv=None) -> int:
 
     todo = [c for c in cases() if (args.split == "all" or c.split == args.split)
             and (not args.only or c.name in args.only)]
-    rows, skipped = [], {}
+    rows = []
+    todo, skipped = runnable(todo)
+    for name, why in skipped.items():
+        log(f"{name}: skipped ({why})")
     for case in todo:
-        why = available(case)
-        if why:
-            skipped[case.name] = why
-            log(f"{case.name}: skipped ({why})")
-            continue
         data = prepare(case, args.cache, CFG)
         params = Params()._replace(**{k: float(v) for k, v in
                                       (a.split("=", 1) for a in args.set)})

@@ -36,7 +36,7 @@ import numpy as np
 sys.path.insert(0, str(Path(__file__).resolve().parent))
 from _common import SEVEN_SCENES, load_average, log, machine, markdown_table
 from bench_robustness import _fmt, peers_alone, prepare
-from splits import Case, available, cases
+from splits import Case, available, cases, runnable
 
 from jaxvo.config import Config, Params, grid_shape, params_as_arrays
 from jaxvo.core.pipeline import init_pipeline, jit_step
@@ -182,12 +182,9 @@ def main(argv=None) -> int:
     args = ap.parse_args(argv)
 
     todo = [c for c in cases() + full_cases() if not args.only or c.name in args.only]
-    rows, skipped = [], {}
+    rows = []
+    todo, skipped = runnable(todo)
     for case in todo:
-        why = available(case)
-        if why:
-            skipped[case.name] = why
-            continue
         data = prepare(case, args.cache, Config())
         rows.append(accuracy(case, data, args.cache, args.window))
         r = rows[-1]

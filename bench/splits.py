@@ -87,3 +87,9 @@ def available(case: Case) -> str | None:
     if not (path / "associations.txt").is_file() and not (path / "rgb.txt").is_file():
         return f"{case.source} not found at {path} (set JAXVO_DATA to the shared data folder)"
     return None
+
+
+def runnable(todo: list[Case]) -> tuple[list[Case], dict[str, str]]:
+    """The cases of ``todo`` that can run here, and why each of the others cannot."""
+    skipped = {c.name: why for c in todo if (why := available(c))}
+    return [c for c in todo if c.name not in skipped], skipped
