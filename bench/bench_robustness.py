@@ -39,7 +39,7 @@ from jaxvo.config import Config, Params, grid_shape, params_as_arrays
 from jaxvo.core.pipeline import final_moving, init_pipeline, jit_step
 from jaxvo.evaluation.metrics import SegmentationScores
 from jaxvo.evaluation.scores import trajectory_scores
-from jaxvo.host.flow import GridFlow, flows_for_sequence
+from jaxvo.host.flow import GridFlow, sequence_flows
 from jaxvo.host.io import Trajectory
 from jaxvo.host.masks import moving_at_grid
 from jaxvo.host.peers import OPENCV_PEERS
@@ -80,7 +80,7 @@ def frames_hash() -> str:
 def prepare(case: Case, cache: Path, cfg: Config) -> dict:
     """Flows, timestamps, ground truth and grid truth of a case, from the cache or computed
     (the flows in one file, keyed by the flow settings; the moving truth in another)."""
-    path = cache / f"{case.name}__{_flow_key(cfg)}.npz"
+    path = flow_path(case, cache, cfg)
     truth = cache / f"{case.name}__truth{cfg.cell}_{frames_hash()}.npz"
     seq = None
     if path.is_file():
@@ -100,13 +100,22 @@ def prepare(case: Case, cache: Path, cfg: Config) -> dict:
     return data
 
 
+def flow_path(case: Case, cache: Path, cfg: Config) -> Path:
+    """Where the case's flow is cached: keyed by the flow's settings and code, and apart
+    when it holds the keyframe flow too (``cfg.keyframes``)."""
+    return cache / f"{case.name}__{_flow_key(cfg)}{'_kf' if cfg.keyframes else ''}.npz"
+
+
 def build_flow(case: Case, path: Path, cfg: Config):
-    """The case's flows, timestamps, image size and ground truth, computed and saved at
-    ``path``: ``(data, sequence)``."""
+    """The case's flows (with ``cfg.keyframes`` its keyframe flows too, ``kf_<field>``),
+    timestamps, image size and ground truth, computed and saved at ``path``:
+    ``(data, sequence)``."""
     log(f"{case.name}: building the sequence and its flow (cached in {path})")
     seq = case.build()
-    flows = flows_for_sequence(seq, cfg)
-    data = {f"flow_{k}": np.asarray(v) for k, v in flows._asdict().items()}
+    sf = sequence_flows(seq, cfg)
+    data = {f"flow_{k}": np.asarray(v) for k, v in sf.flows._asdict().items()}
+    if sf.keyframes is not None:
+        data.update({f"kf_{k}": np.asarray(v) for k, v in sf.keyframes._asdict().items()})
     data["timestamps"] = np.asarray(seq.timestamps, np.float64)
     data["size"] = np.array([seq.height, seq.width])
     gt = seq.groundtruth

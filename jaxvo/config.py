@@ -88,7 +88,7 @@ class Config:
 
     # --- frame-to-keyframe tracking (jaxvo.core.keyframe, our addition) ---
     # the ego-motion also fits the keyframe's static grid points tracked into the current
-    # image (jaxvo.host.flow.KeyframeTracker), so that drift accrues per keyframe
+    # image (jaxvo.host.keyframes.KeyframeTracker), so that drift accrues per keyframe
     keyframes: bool = False
     # a new keyframe is taken when fewer than this fraction of the keyframe's points that
     # its first pair tracked are still tracked
@@ -97,6 +97,10 @@ class Config:
     # is most of the cost; on the dev split 2 scored as well as 1 or better: ATE 15.06,
     # 17.18, 19.91 mm against 15.82-16.86, 18.41-19.21, 19.91-20.41 mm at every 1st, 2nd, 4th frame)
     keyframe_stride: int = 2
+    # the local window: the latest keyframes whose poses and points are refined together
+    # each time a keyframe is taken (jaxvo.core.keyframe); 1: the latest keyframe alone
+    keyframe_window: int = 4
+    keyframe_iters: int = 5  # Levenberg-Marquardt iterations of the window's refinement
 
 
 class Params(NamedTuple):

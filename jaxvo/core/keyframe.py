@@ -1,16 +1,35 @@
-"""Frame-to-keyframe tracking: the keyframe's static points in the ego-motion (device side).
+"""Keyframes and their local window: the static points of the recent keyframes in the
+ego-motion, and their poses and points refined together (device side; our addition).
 
 Frame to frame, every pair adds its error to the pose chain, also while the camera hovers
 over the same view. The host tracks the latest keyframe's grid points into each new image
-(:class:`jaxvo.host.flow.KeyframeTracker`); here those tracks join the pair's points in one
-ego-motion fit. A keyframe point ``p_kf`` enters as the pair ``(T_prev_kf p_kf, p_cur)``
+(:class:`jaxvo.host.keyframes.KeyframeTracker`); here those tracks join the pair's points
+in one ego-motion fit. A keyframe point ``P`` enters as the pair ``(T_prev_kf P, p_cur)``
 with ``T_prev_kf = inv(T_w_prev) T_w_kf``: the same rigid motion ``T_cur_prev`` explains
 it, so the fit, its robust weights and its noise model are those of the pair
-(:func:`jaxvo.core.egomotion.fit_egomotion`), and the keyframe's points anchor the pose to
-the keyframe's instead of to the previous frame's only. Only the points the temporal
-model held static on the keyframe's image (no moving evidence) are used; with too few the
-fit is the pair's alone. The per-frame pair flow stays what the segmentation and the
-temporal model read.
+(:func:`jaxvo.core.egomotion.update_egomotion`), and the keyframe's points anchor the pose
+to the keyframe's instead of to the previous frame's only. Only the points the temporal
+model held static on the keyframe's image (no moving evidence) are used.
+
+The window. The last ``K = cfg.keyframe_window`` keyframes are kept with their points
+(each keyframe's grid points, every ``cfg.keyframe_stride``-th row and column, in its own
+camera). When a new keyframe is taken the host has found the window's points in it, so
+each point holds readings from up to ``K`` keyframes: the one that took it and the later
+ones that saw it. Then the window's poses (the oldest held fixed: the gauge) and each
+point's depth along its keyframe's ray are refined together, as bundle adjustment does,
+by Levenberg-Marquardt (:func:`jaxvo.core.lm.levenberg_marquardt`): every reading of a
+point in a later keyframe is a residual whose lateral part (across the reading's ray,
+the tracker's noise) and part along the ray (the depth noise) are each in units of the
+sensor noise model (:mod:`jaxvo.core.noise`), under Cauchy's robust loss; the point's own
+reading is one more, along its ray. RGB-D depth noise is independent from frame to frame,
+so a point seen from several keyframes pins its depth, and the poses, better than any
+single reading; a keyframe seen again from a later one ties the two directly instead of
+through the chain of frames between them. The latest keyframe's refined points are what
+the following frames are then tracked against, and its refined pose what they chain from.
+
+Conventions (:mod:`jaxvo.core.geometry`): poses are camera-to-world ``T_w_c``, slots are
+ordered oldest first, slot ``K - 1`` the latest keyframe; ``obs[j, i]`` is keyframe
+``i``'s point read in keyframe ``j``'s camera (``j > i``).
 """
 
 from __future__ import annotations
@@ -19,40 +38,85 @@ from typing import NamedTuple
 
 import jax
 import jax.numpy as jnp
+import numpy as np
+import optax
 
-from jaxvo.config import Params
+from jaxvo.config import Config, Params
 from jaxvo.core.geometry import invert_pose
+from jaxvo.core.lm import ArrowCurvature, levenberg_marquardt, orthonormal, perturb, skew
 from jaxvo.core.noise import NoiseScale, Points, frame_points
+from jaxvo.core.robust import cauchy, chi2_quantile
+
+_TINY = 1e-12
+
+
+def keyframe_index(grid: tuple[int, int], stride: int) -> np.ndarray:
+    """The grid points (row-major indices) a keyframe offers: every ``stride``-th row and
+    column of the ``(rows, cols)`` grid (the host's :class:`KeyframeTracker` tracks these)."""
+    rows, cols = grid
+    r, c = np.meshgrid(np.arange(0, rows, stride), np.arange(0, cols, stride), indexing="ij")
+    return (r * cols + c).ravel().astype(np.int32)
 
 
 class KeyframeState(NamedTuple):
-    """The latest keyframe (carried by the pipeline)."""
+    """The window's keyframes (carried by the pipeline); ``m`` points a keyframe."""
 
-    T_w_kf: jax.Array  # (4, 4) float32, the keyframe's pose (camera-to-world)
-    static: jax.Array  # (n,) bool, grid points of the keyframe's image held static then
+    T_w_kf: jax.Array  # (K, 4, 4) float32 camera-to-world pose of each slot's keyframe
+    taken: jax.Array  # (K,) bool the slot holds a keyframe
+    point: jax.Array  # (K, m, 3) float32 metres, each keyframe's points in its camera
+    static: jax.Array  # (K, m) bool the point has depth and was held static when taken
+    obs: jax.Array  # (K, K, m, 3) float32 metres, obs[j, i]: keyframe i's point in camera j
+    seen: jax.Array  # (K, K, m) bool obs holds a reading
     count: jax.Array  # () int32, keyframes taken so far (the first frame is one)
+    # () bool the latest keyframe's points are not known yet: the first frame's come with
+    # the first pair's keyframe flow (a new keyframe's with the pair that takes it)
+    fresh: jax.Array
 
 
-def init_keyframe(T_w_c0, n: int) -> KeyframeState:
-    """The first frame is the first keyframe; nothing is known to move yet."""
-    return KeyframeState(jnp.asarray(T_w_c0, jnp.float32), jnp.ones((n,), bool), jnp.int32(1))
+class KeyframeOut(NamedTuple):
+    """What one keyframe update gives back."""
+
+    T_w_c: jax.Array  # (4, 4) float32 the current camera's pose after the window's refinement
+    count: jax.Array  # () int32 keyframes taken so far
+    readings: jax.Array  # () int32 readings of points in later keyframes the window holds
+
+
+def init_keyframe(T_w_c0, *, cfg: Config, grid: tuple[int, int]) -> KeyframeState:
+    """The first frame is the first keyframe (its points come with the first pair's
+    keyframe flow); nothing is known to move yet."""
+    K, m = max(cfg.keyframe_window, 1), len(keyframe_index(grid, cfg.keyframe_stride))
+    T0 = jnp.asarray(T_w_c0, jnp.float32)
+    return KeyframeState(
+        T_w_kf=jnp.broadcast_to(T0, (K, 4, 4)),
+        taken=jnp.zeros((K,), bool).at[K - 1].set(True),
+        point=jnp.zeros((K, m, 3), jnp.float32),
+        static=jnp.zeros((K, m), bool),
+        obs=jnp.zeros((K, K, m, 3), jnp.float32),
+        seen=jnp.zeros((K, K, m), bool),
+        count=jnp.int32(1),
+        fresh=jnp.bool_(True),
+    )
 
 
 def keyframe_points(state: KeyframeState, kf, T_w_prev, params: Params, *, focal,
-                    scale: NoiseScale) -> Points:
-    """The keyframe's static tracked points as pairs ``(previous frame, current frame)``.
+                    scale: NoiseScale, index) -> Points:
+    """The latest keyframe's static points tracked into this image, as pairs ``(previous
+    frame, current frame)``.
 
     Args:
-      state: the keyframe; kf: the pair's ``KeyframeFlow`` (``pts_kf``, ``pts_cur`` (n, 3)
+      state: the window; kf: the pair's ``KeyframeFlow`` (``pts_kf``, ``pts_cur`` (n, 3)
         metres, ``valid`` (n,)); T_w_prev: (4, 4) pose of the pair's previous camera.
       params, focal, scale: as :func:`jaxvo.core.noise.frame_points`.
+      index: (m,) the grid points a keyframe offers (:func:`keyframe_index`).
     Returns:
-      :class:`Points` with ``src`` in the previous camera's frame.
+      :class:`Points` (m of them) with ``src`` in the previous camera's frame: the
+      keyframe's points as the window refined them (its own reading until then).
     """
-    T_prev_kf = invert_pose(T_w_prev) @ state.T_w_kf
-    src = kf.pts_kf @ T_prev_kf[:3, :3].T + T_prev_kf[:3, 3]
-    return frame_points(src, kf.pts_cur, kf.valid & state.static, params, focal=focal,
-                        scale=scale)
+    P = jnp.where(state.fresh, kf.pts_kf[index], state.point[-1])
+    use = kf.valid[index] & (state.fresh | state.static[-1]) & (P[:, 2] > 0)
+    T_prev_kf = invert_pose(T_w_prev) @ state.T_w_kf[-1]
+    src = P @ T_prev_kf[:3, :3].T + T_prev_kf[:3, 3]
+    return frame_points(src, kf.pts_cur[index], use, params, focal=focal, scale=scale)
 
 
 def join_points(a: Points, b: Points) -> Points:
@@ -62,10 +126,228 @@ def join_points(a: Points, b: Points) -> Points:
                   cat(a.valid, b.valid), a.thr, a.tie)
 
 
-def update_keyframe(state: KeyframeState, renew, T_w_c, static) -> KeyframeState:
-    """After the pair: the current frame becomes the keyframe where ``renew`` () bool (the
-    host's decision), at its pose ``T_w_c`` (4, 4), with ``static`` (n,) bool its grid
-    points held static (on the current image's grid)."""
-    return KeyframeState(jnp.where(renew, T_w_c, state.T_w_kf),
-                         jnp.where(renew, static, state.static),
-                         state.count + renew.astype(jnp.int32))
+# ------------------------------------------------------------------ the window's problem
+
+
+class _Problem(NamedTuple):
+    """The refinement's data, fixed during its iterations (window coordinates)."""
+
+    point: jax.Array  # (K, m, 3) each keyframe's points in its camera (the readings)
+    obs: jax.Array  # (K, K, m, 3) obs[j, i]: keyframe i's point read in camera j
+    ray: jax.Array  # (K, K, m, 3) unit ray of each reading
+    w_lat: jax.Array  # (K, K, m) 1/m^2 information across the ray (0: no reading)
+    w_ray: jax.Array  # (K, K, m) 1/m^2 information along it
+    w_own: jax.Array  # (K, m) 1/m^2 information of the point's own depth reading
+    free: jax.Array  # (K,) bool slots whose pose is refined
+    c2: jax.Array  # () Cauchy scale, squared normalised residual (3 degrees of freedom)
+
+
+class WindowParams(NamedTuple):
+    """What the refinement solves for (the pair :func:`levenberg_marquardt` expects)."""
+
+    xi: jax.Array  # (K, 6) left perturbation (rotation, translation) of each keyframe's pose
+    s: jax.Array  # (K, m) relative change of each point's depth
+
+
+def _residuals(T, s, pb: _Problem):
+    """Each reading's residual in its camera (K, K, m, 3), the points in window coordinates
+    (K, m, 3) and the cameras' rotations: ``R_j^T (R_i P (1 + s) + t_i - t_j) - obs``."""
+    R, t = T[:, :3, :3], T[:, :3, 3]
+    X = jnp.einsum("iab,imb->ima", R, pb.point * (1.0 + s)[..., None]) + t[:, None]
+    d = X[None] - t[:, None, None]  # (K_j, K_i, m, 3) from camera j to the point
+    r = jnp.einsum("jba,jimb->jima", R, d) - pb.obs
+    return r, X
+
+
+def _d2(r, pb: _Problem):
+    """Squared normalised residuals (K, K, m) of the readings."""
+    along = jnp.sum(r * pb.ray, axis=-1)
+    lat2 = jnp.sum(r * r, axis=-1) - along * along
+    return pb.w_lat * lat2 + pb.w_ray * along * along
+
+
+def window_cost(T, s, pb: _Problem):
+    """The window's robust cost at poses ``T`` (K, 4, 4) and depth changes ``s`` (K, m)."""
+    r, _ = _residuals(T, s, pb)
+    own = pb.w_own * jnp.sum(pb.point * pb.point, axis=-1) * s * s
+    return cauchy(_d2(r, pb), pb.c2)[0] + cauchy(own, pb.c2)[0]
+
+
+def normal_equations(T, s, pb: _Problem):
+    """Gradient, Gauss-Newton matrix and cost of :func:`window_cost` by iteratively
+    re-weighted least squares.
+
+    Left perturbations ``xi = (omega, nu)`` of the camera-to-world poses move a point
+    ``X`` of keyframe ``i`` as ``X + omega_i x X + nu_i`` and camera ``j`` the other way,
+    so a reading's residual, in world axes, moves by ``A (xi_i - xi_j)``, ``A = [-[X]x | I]``,
+    and with the point's depth change by ``e = R_i P``. Its metric there is ``M = R_j (w_lat
+    (I - u u^T) + w_ray u u^T) R_j^T``. Each reading adds ``A^T M A`` to the blocks ``(i, i)``
+    and ``(j, j)`` and subtracts it from ``(i, j)``, and couples both poses with its point
+    (the arrow's cross block); the points' own readings add to the diagonal only.
+    """
+    K, m = s.shape
+    R = T[:, :3, :3]
+    r, X = _residuals(T, s, pb)
+    value, w = cauchy(_d2(r, pb), pb.c2)
+    rw = jnp.einsum("jab,jimb->jima", R, r)  # residuals in world axes
+    u = jnp.einsum("jab,jimb->jima", R, pb.ray)  # rays in world axes
+    wl, wr = w * pb.w_lat, w * pb.w_ray
+
+    def metric(v):  # M v for (K, K, m, 3) vectors
+        along = jnp.sum(v * u, axis=-1, keepdims=True)
+        return wl[..., None] * (v - along * u) + wr[..., None] * along * u
+
+    e = jnp.einsum("iab,imb->ima", R, pb.point)[None]  # (1, K_i, m, 3)
+    Xb = jnp.broadcast_to(X[None], r.shape)
+    # A^T v = (X x v, v) for the 6 rows (omega, nu)
+    def At(v):
+        return jnp.concatenate([jnp.cross(Xb, v), v], axis=-1)
+
+    Mr, Me = metric(rw), metric(jnp.broadcast_to(e, r.shape))
+    g_obs = At(Mr)  # (K_j, K_i, m, 6)
+    c_obs = At(Me)  # d/dxi_i of the coupling with the point
+    # A^T M A, per reading, summed over the points of each (j, i)
+    cols = [metric(jnp.broadcast_to(jnp.eye(3)[k], r.shape)) for k in range(3)]
+    # M A: column for omega_k is M (e_k x X)... written as A^T M A = [[-[X]x M [X]x ...]]
+    MA_nu = jnp.stack(cols, axis=-1)  # (.., 3, 3) = M
+    skX = skew(Xb)  # [X]x
+    MA_om = -MA_nu @ skX  # M (-[X]x)
+    MA = jnp.concatenate([MA_om, MA_nu], axis=-1)  # (.., 3, 6)
+    AtMA = jnp.concatenate([skX @ MA, MA], axis=-2)  # A^T = [[ [X]x ], [I]] (6, 3)
+    B = jnp.sum(AtMA, axis=2)  # (K_j, K_i, 6, 6)
+    eye = jnp.eye(K, dtype=T.dtype)
+    diag = jnp.sum(B, axis=0) + jnp.sum(B, axis=1)  # (K, 6, 6): as i, and as j
+    blocks = eye[:, :, None, None] * diag[:, None] - jnp.swapaxes(B, 0, 1) - B
+    H = jnp.transpose(blocks, (0, 2, 1, 3)).reshape(6 * K, 6 * K)
+    g = jnp.sum(g_obs, axis=(0, 2)) - jnp.sum(g_obs, axis=(1, 2))  # (K, 6)
+    # the cross block: pose a with point (i, p): delta(a, i) sum_j c[j, i, p] - c[a, i, p]
+    cross = eye[:, :, None, None] * jnp.sum(c_obs, axis=0)[None] - c_obs  # (K_a, K_i, m, 6)
+    own2 = pb.w_own * jnp.sum(pb.point * pb.point, axis=-1)  # (K, m)
+    own_value, w_own = cauchy(own2 * s * s, pb.c2)
+    d_s = jnp.sum(jnp.sum(e * Me, axis=-1), axis=0) + w_own * own2
+    g_s = jnp.sum(jnp.sum(e * Mr, axis=-1), axis=0) + w_own * own2 * s
+    free = jnp.repeat(pb.free, 6)
+    H = jnp.where(free[:, None] & free[None, :], H, jnp.diag(jnp.where(free, 0.0, 1.0)))
+    g = jnp.where(pb.free[:, None], g, 0.0)
+    cross = jnp.where(pb.free[:, None, None, None], cross, 0.0)
+    C = ArrowCurvature(H, jnp.transpose(cross, (0, 3, 1, 2)).reshape(6 * K, K * m),
+                       d_s.reshape(-1))
+    return WindowParams(g, g_s), C, value + own_value
+
+
+def refine(T, pb: _Problem, iters: int):
+    """``iters`` Levenberg-Marquardt iterations on the poses ``T`` (K, 4, 4) and the points'
+    depths, a last step undone if it raised the cost: the refined poses and each point's
+    relative depth change (K, m)."""
+    opt = levenberg_marquardt()
+    x0 = WindowParams(jnp.zeros((T.shape[0], 6), jnp.float32),
+                      jnp.zeros(pb.point.shape[:2], jnp.float32))
+
+    def body(_, carry):
+        x, opt_state = carry
+        grad, C, value = normal_equations(perturb(T, x.xi), x.s, pb)
+        step, opt_state = opt.update(grad, opt_state, x, curvature=C, value=value)
+        return optax.apply_updates(x, step), opt_state
+
+    x, opt_state = jax.lax.fori_loop(0, iters, body, (x0, opt.init(x0)))
+    worse = ~(window_cost(perturb(T, x.xi), x.s, pb) <= opt_state.value)
+    last = WindowParams(opt_state.step[0].reshape(x.xi.shape),
+                        opt_state.step[1].reshape(x.s.shape))
+    x = jax.tree.map(lambda v, d: jnp.where(worse, v - d, v), x, last)
+    return perturb(T, x.xi), x.s
+
+
+def _problem(st: KeyframeState, focal, scale: NoiseScale, params: Params) -> _Problem:
+    """The refinement's data from the window ``st``: each reading's noise from the sensor
+    noise model (a depth reading and a tracked pixel each)."""
+    K = st.T_w_kf.shape[0]
+    seen = st.seen & st.taken[:, None, None] & st.taken[None, :, None] & st.static[None]
+    z = st.obs[..., 2]
+    norm = jnp.linalg.norm(st.obs, axis=-1)
+    zp = st.point[..., 2]
+    fixed = jnp.argmax(st.taken)
+    return _Problem(
+        point=st.point,
+        obs=st.obs,
+        ray=st.obs / jnp.maximum(norm, _TINY)[..., None],
+        w_lat=jnp.where(seen, focal * focal / jnp.maximum((scale.pixel_sigma * z) ** 2, _TINY),
+                        0.0),
+        w_ray=jnp.where(seen, 1.0 / jnp.maximum((scale.depth_coeff * z * z) ** 2, _TINY), 0.0),
+        w_own=jnp.where(st.static, 1.0 / jnp.maximum((scale.depth_coeff * zp * zp) ** 2, _TINY)
+                        / jnp.maximum(jnp.sum(st.point * st.point, axis=-1) / (zp * zp + _TINY),
+                                      _TINY), 0.0),
+        free=st.taken & (jnp.arange(K) != fixed),
+        c2=chi2_quantile(3, params.confidence),
+    )
+
+
+# ------------------------------------------------------------------------ the update
+
+
+def _shift(x, new):
+    """Drop slot 0 of ``x`` (K, ...) and append ``new`` (...) as slot K - 1."""
+    return jnp.concatenate([x[1:], new[None]], axis=0)
+
+
+def _take(state: KeyframeState, kf, T_w_c, static, index) -> KeyframeState:
+    """The window with the current frame as its latest keyframe: the oldest leaves, the
+    new one brings its points and its readings of the window's points."""
+    K = state.T_w_kf.shape[0]
+    W = K - 1
+    point = _shift(state.point, kf.new_kf[index])
+    stat = _shift(state.static, static[index] & (kf.new_kf[index, 2] > 0))
+    obs = jnp.zeros_like(state.obs).at[:W, :W].set(state.obs[1:, 1:])
+    seen = jnp.zeros_like(state.seen).at[:W, :W].set(state.seen[1:, 1:])
+    if W:
+        obs = obs.at[W, :W].set(kf.win_cur[:, index])
+        seen = seen.at[W, :W].set(kf.win_valid[:, index])
+    return KeyframeState(_shift(state.T_w_kf, T_w_c), _shift(state.taken, jnp.bool_(True)),
+                         point, stat, obs, seen, state.count + 1, jnp.bool_(False))
+
+
+def _learn_first(state: KeyframeState, kf, index) -> KeyframeState:
+    """The first keyframe's points from the first pair's keyframe flow (the points it
+    tracked; nothing is known to move yet)."""
+    ok = kf.valid[index] & (kf.pts_kf[index, 2] > 0)
+    return state._replace(
+        point=state.point.at[-1].set(jnp.where(ok[:, None], kf.pts_kf[index], 0.0)),
+        static=state.static.at[-1].set(ok), fresh=jnp.bool_(False))
+
+
+def update_keyframe(state: KeyframeState, kf, T_w_c, static, noise: NoiseScale,
+                    params: Params, *, cfg: Config, grid, focal):
+    """After the pair: where the host renews the keyframe (``kf.renew``), the current frame
+    joins the window as its latest keyframe and the window is refined.
+
+    Args:
+      state: the window; kf: the pair's ``KeyframeFlow``.
+      T_w_c: (4, 4) the current camera's pose from the ego-motion.
+      static: (n,) bool grid points of the current image the temporal model holds static.
+      noise: the sensor noise model; params: numeric settings (``confidence``).
+      cfg: static settings (``keyframe_window``, ``keyframe_iters``, ``keyframe_stride``);
+      grid: static ``(rows, cols)``; focal: () pixels.
+
+    Returns:
+      ``(KeyframeState, KeyframeOut)``; the output's pose is the refined latest keyframe's
+      where a keyframe was taken, else ``T_w_c``.
+    """
+    index = keyframe_index(grid, cfg.keyframe_stride)
+
+    def take(st):
+        st = _take(st, kf, T_w_c, static, index)
+        if cfg.keyframe_window < 2 or not cfg.keyframe_iters:
+            return st
+        fixed = jnp.argmax(st.taken)
+        T_ref = st.T_w_kf[fixed]
+        T_local, s = refine(invert_pose(T_ref)[None] @ st.T_w_kf,
+                            _problem(st, focal, noise, params), cfg.keyframe_iters)
+        T_new = jnp.where(st.taken[:, None, None], orthonormal(T_ref[None] @ T_local),
+                          st.T_w_kf)
+        return st._replace(T_w_kf=T_new, point=st.point * (1.0 + s)[..., None])
+
+    state = jax.lax.cond(state.fresh, lambda st: _learn_first(st, kf, index), lambda st: st,
+                         state)
+    new = jax.lax.cond(kf.renew, take, lambda st: st, state)
+    T_out = jnp.where(kf.renew, new.T_w_kf[-1], T_w_c)
+    readings = jnp.sum(new.seen & new.taken[:, None, None] & new.static[None])
+    return new, KeyframeOut(T_out, new.count, readings.astype(jnp.int32))

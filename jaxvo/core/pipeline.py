@@ -33,6 +33,7 @@ from jaxvo.core.keyframe import (
     KeyframeState,
     init_keyframe,
     join_points,
+    keyframe_index,
     keyframe_points,
     update_keyframe,
 )
@@ -102,7 +103,7 @@ def init_pipeline(*, cfg: Config, grid: tuple[int, int], T_w_c0=None,
     starting sensor noise of ``params`` (default :class:`Params`)."""
     T0 = jnp.eye(4, dtype=jnp.float32) if T_w_c0 is None else jnp.asarray(T_w_c0, jnp.float32)
     window = init_window(cfg=cfg, grid=grid, T_w_c0=T0) if cfg.window else None
-    keyframe = init_keyframe(T0, grid[0] * grid[1]) if cfg.keyframes else None
+    keyframe = init_keyframe(T0, cfg=cfg, grid=grid) if cfg.keyframes else None
     return PipelineState(init_temporal(cfg=cfg, grid=grid), init_ego(T0), jnp.int32(0),
                          init_noise(Params() if params is None else params), window, keyframe)
 
@@ -142,7 +143,8 @@ def step(state: PipelineState, flow, key, params: Params, *, cfg: Config, grid,
     use_kf = cfg.keyframes and keyframe is not None
     if use_kf:
         kpts = keyframe_points(state.keyframe, keyframe, state.ego.T_w_c, params,
-                               focal=flow.focal, scale=state.noise)
+                               focal=flow.focal, scale=state.noise,
+                               index=keyframe_index(grid, cfg.keyframe_stride))
         ego_pts = join_points(pts, kpts)
         ego_weights = jnp.concatenate([bg.use, kpts.valid.astype(bg.use.dtype)])
         belief = jnp.concatenate([belief, kpts.valid.astype(belief.dtype)])
@@ -171,13 +173,15 @@ def step(state: PipelineState, flow, key, params: Params, *, cfg: Config, grid,
         ego = ego._replace(T_w_c=wout.T_w_c[-1])
     # 8. a new keyframe where the host says so, with the cells the temporal model holds
     # static on this image (its evidence is already carried onto this image's grid)
-    kf_state = state.keyframe
+    kf_state, kout = state.keyframe, None
     if use_kf:
-        kf_state = update_keyframe(kf_state, keyframe.renew, ego.T_w_c,
-                                   temporal.evidence <= moving_logodds(params))
+        kf_state, kout = update_keyframe(kf_state, keyframe, ego.T_w_c,
+                                         temporal.evidence <= moving_logodds(params), noise,
+                                         params, cfg=cfg, grid=grid, focal=flow.focal)
+        ego = ego._replace(T_w_c=kout.T_w_c)
     out = _output(ego, eo, seg, bg, tout, noise, wout, pts.valid, params, cfg=cfg, grid=grid)
-    if kf_state is not None:
-        out = out._replace(keyframes=kf_state.count)
+    if kout is not None:
+        out = out._replace(keyframes=kout.count)
     return PipelineState(temporal, ego, state.frame + 1, noise, window, kf_state), out
 
 

@@ -64,16 +64,14 @@ import numpy as np
 import optax
 
 from jaxvo.config import Config, Params
-from jaxvo.core.geometry import invert_pose, make_pose, so3_exp
+from jaxvo.core.geometry import invert_pose
+from jaxvo.core.lm import ArrowCurvature, levenberg_marquardt, orthonormal, perturb, skew
 from jaxvo.core.noise import NoiseScale, Points, mahalanobis
 from jaxvo.core.robust import cauchy, chi2_quantile
 
 # A track continues where its four neighbours' depths agree within this fraction: across a
 # depth edge the interpolated flow mixes two motions (parallax).
 _DEPTH_AGREE = 0.05
-# Levenberg-Marquardt damping (relative to the Gauss-Newton matrix's diagonal): start, the
-# factors after a rejected and an accepted step, and its range.
-_DAMPING = (1e-3, 10.0, 0.1, 1e-6, 1e6)
 _TINY = 1e-12
 # Tracks are seeded at every second grid row and column: a quarter of the grid points
 # gave the same accuracy as all of them (synthetic room, 40 frames: position error 1.55
@@ -224,18 +222,6 @@ def chain_tracks(uv, flow, usable, grid, cell):
     return uv_new, jnp.where(ok[:, None], Q, 0.0), ok
 
 
-def _orthonormal(T):
-    """Poses ``T`` (..., 4, 4) with rotations pulled back onto SO(3) by one Newton-Schulz
-    step of the polar decomposition, ``R (3 I - R^T R) / 2``. The window maps its poses into
-    the oldest frame's coordinates and back every step (``T_ref (T_ref^-1 T)`` with the
-    transpose as the inverse); without this a rotation's float32 rounding compounded from
-    step to step (orthogonality errors from 3e-5 to 3e-3 in ten frames of 7-Scenes)."""
-    R = T[..., :3, :3]
-    RtR = jnp.swapaxes(R, -1, -2) @ R
-    R = R @ (1.5 * jnp.eye(3, dtype=R.dtype) - 0.5 * RtR)
-    return make_pose(R, T[..., :3, 3])
-
-
 def _shift(x, new):
     """Drop slot 0 of ``x`` (K, ...) and append ``new`` (...) as slot K - 1."""
     return jnp.concatenate([x[1:], new[None]], axis=0)
@@ -244,104 +230,11 @@ def _shift(x, new):
 # ------------------------------------------------------------------------ the solver
 
 
-class ArrowCurvature(NamedTuple):
-    """A Gauss-Newton matrix with an arrow structure: dense over a few parameters (the
-    poses), diagonal over many (the tracks' depths), and their coupling."""
-
-    dense: jax.Array  # (p, p) float32
-    cross: jax.Array  # (p, m) float32
-    diagonal: jax.Array  # (m,) float32
-
-
-class LevenbergMarquardtState(NamedTuple):
-    """State of :func:`levenberg_marquardt`, at the last accepted parameters."""
-
-    damping: jax.Array  # () float32, relative to the Gauss-Newton matrix's diagonal
-    value: jax.Array  # () float32, cost there (inf before any)
-    grad: tuple  # (dense (p,), diagonal (m,)) float32 gradient there
-    curvature: ArrowCurvature  # the Gauss-Newton matrix there
-    step: tuple  # (dense (p,), diagonal (m,)) the last step taken from there
-
-
-def _arrow_solve(C: ArrowCurvature, g_dense, g_diag, lam):
-    """The damped Gauss-Newton step ``-(H + lam (diag H + eps))^-1 g`` of an arrow matrix,
-    by the Schur complement of its diagonal part (one Cholesky of the dense part)."""
-    d = jnp.diagonal(C.dense)
-    A = C.dense + jnp.diag(lam * (d + 1e-6 * jnp.mean(d) + _TINY))
-    a = C.diagonal * (1.0 + lam) + lam * (1e-6 * jnp.mean(C.diagonal) + _TINY)
-    W = C.cross / a
-    S = A - W @ C.cross.T
-    x = -jax.scipy.linalg.cho_solve(jax.scipy.linalg.cho_factor(S), g_dense - W @ g_diag)
-    y = -(g_diag + C.cross.T @ x) / a
-    ok = jnp.all(jnp.isfinite(x)) & jnp.all(jnp.isfinite(y))
-    return jnp.where(ok, x, 0.0), jnp.where(ok, y, 0.0)
-
-
-def levenberg_marquardt(
-    damping: float = _DAMPING[0],
-    *,
-    up: float = _DAMPING[1],
-    down: float = _DAMPING[2],
-    lowest: float = _DAMPING[3],
-    highest: float = _DAMPING[4],
-) -> optax.GradientTransformationExtraArgs:
-    """Levenberg-Marquardt as an optax gradient transformation, for parameters made of a
-    dense part and a part with a diagonal Gauss-Newton block (bundle adjustment's structure).
-
-    The parameters are a pair ``(dense, diagonal)`` of arrays (any shapes; flattened to p
-    and m entries). ``update(grad, state, params, *, curvature, value)`` takes the cost's
-    gradient at ``params`` (the same pair), its Gauss-Newton matrix as an
-    :class:`ArrowCurvature` and the cost ``value`` there, and returns the step
-    ``-(H + lambda (diag H + eps))^-1 g`` (Marquardt's scaling), solved by the Schur
-    complement of the diagonal block. When ``value`` is higher than at the last accepted
-    parameters (or not finite), the last step is undone and one with ``up`` times the
-    damping is taken from there, with the gradient and matrix kept from there; after an
-    accepted step the damping falls by ``down``.
-
-    Rows that must not move (a gauge held fixed) are the caller's: give them a unit
-    diagonal, no coupling and a zero gradient.
-    """
-
-    def init(params):
-        p, m = (jnp.size(x) for x in params)
-        zeros = (jnp.zeros((p,), jnp.float32), jnp.zeros((m,), jnp.float32))
-        eye = ArrowCurvature(jnp.eye(p, dtype=jnp.float32), jnp.zeros((p, m), jnp.float32),
-                             jnp.ones((m,), jnp.float32))
-        return LevenbergMarquardtState(jnp.float32(damping), jnp.float32(jnp.inf), zeros, eye,
-                                       zeros)
-
-    def update(updates, state, params=None, *, curvature, value, **extra_args):
-        del params, extra_args
-        shapes = [jnp.shape(x) for x in jax.tree.leaves(updates)]
-        g = tuple(jnp.ravel(x).astype(jnp.float32) for x in jax.tree.leaves(updates))
-        worse = ~(value <= state.value)  # NaN counts as worse
-        lam = jnp.clip(jnp.where(worse, state.damping * up, state.damping * down),
-                       lowest, highest).astype(jnp.float32)
-        g = jax.tree.map(lambda old, new: jnp.where(worse, old, new), state.grad, g)
-        C = jax.tree.map(lambda old, new: jnp.where(worse, old, new), state.curvature,
-                         curvature)
-        step = _arrow_solve(C, *g, lam)
-        out = jax.tree.map(lambda s, last: jnp.where(worse, s - last, s), step, state.step)
-        new = LevenbergMarquardtState(
-            lam, jnp.where(worse, state.value, value).astype(jnp.float32), g, C, step)
-        leaves = [x.reshape(sh) for x, sh in zip(out, shapes)]
-        return jax.tree.unflatten(jax.tree.structure(updates), leaves), new
-
-    return optax.GradientTransformationExtraArgs(init, update)
-
-
 class WindowParams(NamedTuple):
     """What the refinement solves for (the pair :func:`levenberg_marquardt` expects)."""
 
     xi: jax.Array  # (K, 6) left perturbation (rotation, translation) of each frame's pose
     s: jax.Array  # (cap,) relative change of each track's depth
-
-
-def _perturb(T, xi):
-    """Left perturbation ``exp(xi) T`` of poses ``T`` (K, 4, 4) by ``xi`` (K, 6) = (omega,
-    nu): points move as ``X + omega x X + nu`` to first order."""
-    R = jax.vmap(so3_exp)(xi[:, :3])
-    return make_pose(R @ T[:, :3, :3], jnp.einsum("kij,kj->ki", R, T[:, :3, 3]) + xi[:, 3:])
 
 
 class _Problem(NamedTuple):
@@ -371,21 +264,13 @@ def _cross(a, b):
                       a[..., 0, :] * b[..., 1, :] - a[..., 1, :] * b[..., 0, :]], axis=-2)
 
 
-def _skew(v):
-    """(..., 3) -> (..., 3, 3) cross-product matrices ``[v]x``."""
-    z = jnp.zeros_like(v[..., 0])
-    return jnp.stack([jnp.stack([z, -v[..., 2], v[..., 1]], -1),
-                      jnp.stack([v[..., 2], z, -v[..., 0]], -1),
-                      jnp.stack([-v[..., 1], v[..., 0], z], -1)], axis=-2)
-
-
 def _adjoint(T):
     """Adjoint (..., 6, 6) of poses (..., 4, 4) for ``xi = (omega, nu)``: ``T exp(xi)
     T^-1 = exp(Ad_T xi)``, ``Ad_T = [[R, 0], [[t]x R, R]]``."""
     R, t = T[..., :3, :3], T[..., :3, 3]
     zero = jnp.zeros_like(R)
     return jnp.concatenate([jnp.concatenate([R, zero], -1),
-                            jnp.concatenate([_skew(t) @ R, R], -1)], axis=-2)
+                            jnp.concatenate([skew(t) @ R, R], -1)], axis=-2)
 
 
 def pair_factor(T, pts: Points, use, c2):
@@ -423,8 +308,8 @@ def pair_factor(T, pts: Points, use, c2):
     m0, m1 = jnp.sum(wl), X @ wl
     m2 = (X * wl) @ X.T
     eye3 = jnp.eye(3, dtype=T.dtype)
-    AtA = jnp.concatenate([jnp.concatenate([jnp.trace(m2) * eye3 - m2, _skew(m1)], -1),
-                           jnp.concatenate([-_skew(m1), m0 * eye3], -1)], axis=0)
+    AtA = jnp.concatenate([jnp.concatenate([jnp.trace(m2) * eye3 - m2, skew(m1)], -1),
+                           jnp.concatenate([-skew(m1), m0 * eye3], -1)], axis=0)
     q = jnp.concatenate([_cross(X, u), u], axis=0)  # (6, n)
     return AtA + (q * (w * (noise.w_ray - noise.w_lat))) @ q.T, g
 
@@ -539,15 +424,15 @@ def refine(T, pb: _Problem, iters: int):
 
     def body(_, carry):
         x, opt_state = carry
-        grad, C, value = normal_equations(_perturb(T, x.xi), x.s, pb)
+        grad, C, value = normal_equations(perturb(T, x.xi), x.s, pb)
         step, opt_state = opt.update(grad, opt_state, x, curvature=C, value=value)
         return optax.apply_updates(x, step), opt_state
 
     x, opt_state = jax.lax.fori_loop(0, iters, body, (x0, opt.init(x0)))
-    worse = ~(window_cost(_perturb(T, x.xi), x.s, pb) <= opt_state.value)
+    worse = ~(window_cost(perturb(T, x.xi), x.s, pb) <= opt_state.value)
     last = WindowParams(opt_state.step[0].reshape(x.xi.shape), opt_state.step[1])
     x = jax.tree.map(lambda v, d: jnp.where(worse, v - d, v), x, last)
-    return _perturb(T, x.xi), x.s
+    return perturb(T, x.xi), x.s
 
 
 # ----------------------------------------------------------------------- the update
@@ -592,7 +477,7 @@ def update_window(state: WindowState, flow, pts: Points, T_cur_prev, static,
     # 3. the refinement, in the coordinates of the oldest frame (held fixed)
     T_ref = advanced.T_w_c[fixed]
     T_local, s = refine(invert_pose(T_ref)[None] @ advanced.T_w_c, pb, cfg.window_iters)
-    T_w_c = jnp.where(frame_valid[:, None, None], _orthonormal(T_ref[None] @ T_local),
+    T_w_c = jnp.where(frame_valid[:, None, None], orthonormal(T_ref[None] @ T_local),
                       advanced.T_w_c)
     point = advanced.point * (1.0 + s)[:, None]
 

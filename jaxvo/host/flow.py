@@ -65,6 +65,13 @@ from jaxvo.host.depth import (  # noqa: F401  (bilinear_depth, refine_depth: the
     refine_depth,
     smooth_depth,
 )
+from jaxvo.host.keyframes import KeyframeFlow, KeyframeTracker, invalid_keyframe_flow
+from jaxvo.host.patches import (  # noqa: F401  (sample_patches, patch_correlation: its API)
+    lk_converged,
+    patch_correlation,
+    sample_patches,
+    similar,
+)
 from jaxvo.host.prefetch import READ_AHEAD, read_ahead
 from jaxvo.status import Status
 
@@ -142,42 +149,6 @@ def stack_flows(flows: list, empty=None):
     if not flows:
         return type(empty)(*(np.zeros((0, *np.shape(f)), np.asarray(f).dtype) for f in empty))
     return type(flows[0])(*(np.stack(field) for field in zip(*flows)))
-
-
-# ----------------------------------------------------------------------------- patches
-
-
-def _patch_offsets(side: int) -> tuple[np.ndarray, np.ndarray]:
-    r = (side - 1) / 2.0
-    o = np.arange(side, dtype=np.float32) - np.float32(r)
-    oy, ox = np.meshgrid(o, o, indexing="ij")
-    return ox.ravel(), oy.ravel()
-
-
-def sample_patches(grey: np.ndarray, uv: np.ndarray, side: int) -> np.ndarray:
-    """Bilinear ``side`` x ``side`` patches centred on ``uv`` (n, 2), one ``cv2.remap``.
-
-    Returns:
-        (n, side * side) float32 grey values (borders replicated).
-    """
-    if len(uv) == 0:
-        return np.zeros((0, side * side), np.float32)  # cv2.remap rejects empty maps
-    ox, oy = _patch_offsets(side)
-    map_x = np.add(uv[:, 0:1], ox, dtype=np.float32)
-    map_y = np.add(uv[:, 1:2], oy, dtype=np.float32)
-    src = grey if grey.dtype == np.float32 else grey.astype(np.float32)
-    return cv2.remap(src, map_x, map_y, cv2.INTER_LINEAR, borderMode=cv2.BORDER_REPLICATE)
-
-
-def patch_correlation(a: np.ndarray, b: np.ndarray) -> np.ndarray:
-    """Correlation coefficient of matching rows of (n, m) patches; 0 for a flat patch."""
-    a = a - a.mean(axis=1, keepdims=True)
-    b = b - b.mean(axis=1, keepdims=True)
-    num = np.einsum("ij,ij->i", a, b)
-    den2 = np.einsum("ij,ij->i", a, a) * np.einsum("ij,ij->i", b, b)
-    # A flat patch (std < ~0.1 grey level) carries no evidence: similarity 0, never NaN.
-    flat = den2 <= np.float32(1e-2) ** 2 * a.shape[1] ** 2
-    return np.where(flat, 0.0, num / np.sqrt(np.where(flat, 1.0, den2))).astype(np.float32)
 
 
 # ----------------------------------------------------------------------------- front end
@@ -288,6 +259,25 @@ class GridFlowTracker:
     def has_previous(self) -> bool:
         return self._prev is not None
 
+    @property
+    def last(self) -> _Frame | None:
+        """What the tracker keeps of the frame last pushed (None before the first)."""
+        return self._prev
+
+    def lk_seeded(self, src: np.ndarray, dst: np.ndarray, pts: np.ndarray, seed: np.ndarray,
+                  levels: int):
+        """LK positions in ``dst`` (H, W) uint8 of ``pts`` (m, 2) in ``src``, each search
+        started at ``seed`` (m, 2) on ``levels`` pyramid levels above the finest, and LK's
+        status (m, 1): the tracker's window and stopping rule."""
+        if len(pts) == 0:
+            return pts, np.zeros((0, 1), np.uint8)
+        found, st, _ = cv2.calcOpticalFlowPyrLK(
+            src, dst, pts, seed.copy(), winSize=self._win, maxLevel=levels,
+            criteria=self._criteria,
+            flags=cv2.OPTFLOW_USE_INITIAL_FLOW | cv2.OPTFLOW_LK_GET_MIN_EIGENVALS,
+        )  # fmt: skip
+        return found, st
+
     def reset(self) -> None:
         """Forget the previous frame (the next frame starts a new pair chain)."""
         self._prev = None
@@ -343,9 +333,9 @@ class GridFlowTracker:
         return (*_depth_at(depth, look, self.cfg), uv)
 
     def _lk(self, src: np.ndarray, dst: np.ndarray, pts: np.ndarray):
-        """LK positions in ``dst`` of ``pts`` (m, 2) in ``src``, and whether each converged."""
+        """LK positions in ``dst`` of ``pts`` (m, 2) in ``src``, and LK's status (m, 1)."""
         if len(pts) == 0:
-            return pts, np.zeros(0, bool)
+            return pts, np.zeros((0, 1), np.uint8)
         # The flag makes LK report the minimum eigenvalue it has already computed as the
         # error, instead of a last pass over each window for a residual nobody reads: ~7 %
         # less time, the same positions and status.
@@ -354,7 +344,7 @@ class GridFlowTracker:
             winSize=self._win, maxLevel=self._levels, criteria=self._criteria,
             flags=cv2.OPTFLOW_LK_GET_MIN_EIGENVALS,
         )  # fmt: skip
-        return found, st[:, 0] == 1
+        return found, st
 
     def _track(
         self, prev: _Frame, grey: np.ndarray, grey_f: np.ndarray, depth: np.ndarray
@@ -368,28 +358,21 @@ class GridFlowTracker:
         uv0 = prev.uv
         idx = np.flatnonzero(prev.z_grid_ok)  # no depth at the start: never a valid track
 
-        uv1, ok = self._lk(prev.grey, grey, uv0[idx])
-        ok &= np.isfinite(uv1).all(axis=1)
-        ok &= (
-            (uv1[:, 0] >= 0) & (uv1[:, 1] >= 0)
-            & (uv1[:, 0] <= self.width - 1) & (uv1[:, 1] <= self.height - 1)
-        )  # fmt: skip
+        uv1, st = self._lk(prev.grey, grey, uv0[idx])
+        ok = lk_converged(uv1, st, width=self.width, height=self.height)
         idx, uv1 = idx[ok], uv1[ok]
 
-        sim = patch_correlation(
-            sample_patches(prev.grey_f, uv0[idx], cfg.patch),
-            sample_patches(grey_f, uv1, cfg.patch),
-        )
-        ok = sim >= cfg.min_similarity  # rejects more than the depth check, for less
+        # the similarity rejects more than the depth check, for less
+        ok = similar(prev.grey_f, uv0[idx], grey_f, uv1, side=cfg.patch, least=cfg.min_similarity)
         idx, uv1 = idx[ok], uv1[ok]
 
         # depth at the tracked points beside backward LK (which then also tracks the few
         # points the depth check drops: the two take about as long)
         tracked_depth = _beside(_depth_slope_at, depth,
                                 _lookup(uv1, self.height, self.width, cfg), cfg)
-        uv_back, ok = self._lk(grey, prev.grey, uv1)
+        uv_back, st = self._lk(grey, prev.grey, uv1)
         fb = np.hypot(*(uv_back - uv0[idx]).T).astype(np.float32)
-        ok &= fb <= cfg.fb_max  # NaN fails
+        ok = (st[:, 0] == 1) & (fb <= cfg.fb_max)  # NaN fails
         z1, has_depth, slope1 = tracked_depth.result()
         ok &= has_depth
         idx, uv1, z1, fb, slope1 = idx[ok], uv1[ok], z1[ok], fb[ok], slope1[ok]
@@ -421,128 +404,6 @@ class GridFlowTracker:
             fb_error=fb_error,
             depth_slope=depth_slope,
         )
-
-
-class KeyframeFlow(NamedTuple):
-    """The keyframe's grid points tracked into the current image (host -> device)."""
-
-    pts_kf: np.ndarray  # (n, 3) float32 metres, keyframe camera frame (0 where invalid)
-    pts_cur: np.ndarray  # (n, 3) float32 metres, current camera frame (0 where invalid)
-    valid: np.ndarray  # (n,) bool, passed LK, similarity and depth checks
-    renew: np.ndarray  # () bool, the current frame becomes the keyframe after this pair
-
-
-class KeyframeTracker:
-    """The grid points of the latest keyframe tracked into each new image (our addition).
-
-    Each kept frame's pair flow (``GridFlowTracker``) is composed onto the keyframe
-    points' positions in the previous image: that predicts where they lie in the current
-    image, and one forward LK on the finest two levels from there finds them (a seeded
-    track needs no coarse level, and no backward pass: the patch similarity and the depth
-    checks reject the failures, and the ego-motion's robust fit the rest). The keyframe
-    is renewed when fewer than ``cfg.keyframe_overlap`` of the points its first pair
-    tracked are still tracked. The decision uses host data only, so a recorded sequence's
-    keyframes are known before the scan and a stream takes the same ones.
-
-    Args:
-        tracker: the stream's :class:`GridFlowTracker` (its grid, camera and the current
-            frame's grey image and grid depth).
-    """
-
-    def __init__(self, tracker: GridFlowTracker):
-        self.t = tracker
-        cfg = tracker.cfg
-        rows, cols = tracker.grid
-        sub = np.zeros((rows, cols), bool)
-        sub[::cfg.keyframe_stride, ::cfg.keyframe_stride] = True
-        self._sub = sub.reshape(-1)
-        self._kf: _Frame | None = None
-        self._idx = np.zeros(0, np.int64)  # keyframe points tracked (depth, subsample)
-        self._track = np.zeros((0, 2), np.float32)  # their positions in the latest image
-        self._ref = 0  # points the keyframe's first pair tracked
-        self._age = 0  # pairs since the keyframe
-
-    def start(self) -> None:
-        """The frame just pushed to the tracker becomes the keyframe."""
-        kf = self.t._prev
-        # the tracker's float grey buffers take turns: the keyframe keeps its own copy
-        kf = kf._replace(grey_f=kf.grey_f.copy())
-        self._kf = kf
-        self._idx = np.flatnonzero(kf.z_grid_ok & self._sub)
-        self._track = kf.uv[self._idx].copy()
-        self._ref, self._age = 0, 0
-
-    def _seed(self, flow: GridFlow) -> np.ndarray:
-        """The keyframe points' positions in the current image predicted by the pair's flow:
-        its displacement, bilinear on the grid (cells without a valid track take the
-        median), at each point's position in the previous image."""
-        rows, cols = self.t.grid
-        d = (flow.uv_cur - flow.uv_prev).reshape(rows, cols, 2).copy()
-        v = np.asarray(flow.valid).reshape(rows, cols)
-        d[~v] = np.median(d[v], axis=0) if v.any() else 0.0
-        uv0, cell = self.t.uv_grid[0], self.t.cfg.cell
-        gx = np.clip((self._track[:, 0] - uv0[0]) / cell, 0, max(cols - 1.001, 0))
-        gy = np.clip((self._track[:, 1] - uv0[1]) / cell, 0, max(rows - 1.001, 0))
-        x0, y0 = gx.astype(np.int64), gy.astype(np.int64)
-        x1, y1 = np.minimum(x0 + 1, cols - 1), np.minimum(y0 + 1, rows - 1)
-        fx, fy = (gx - x0)[:, None], (gy - y0)[:, None]
-        disp = (d[y0, x0] * (1 - fx) * (1 - fy) + d[y0, x1] * fx * (1 - fy)
-                + d[y1, x0] * (1 - fx) * fy + d[y1, x1] * fx * fy)
-        return (self._track + disp).astype(np.float32)
-
-    def push(self, flow: GridFlow, depth: np.ndarray) -> KeyframeFlow:
-        """The keyframe flow of the frame just pushed to the tracker, whose pair flow is
-        ``flow`` and depth ``depth`` (H, W) metres; renews the keyframe when it says so."""
-        t, cfg, kf = self.t, self.t.cfg, self._kf
-        cur = t._prev
-        seed = self._seed(flow)
-        p0 = kf.uv[self._idx]
-        ok = np.zeros(len(p0), bool)
-        p1 = seed.copy()
-        if len(p0):
-            p1, st, _ = cv2.calcOpticalFlowPyrLK(
-                kf.grey, cur.grey, p0, seed.copy(), winSize=t._win, maxLevel=1,
-                criteria=t._criteria,
-                flags=cv2.OPTFLOW_USE_INITIAL_FLOW | cv2.OPTFLOW_LK_GET_MIN_EIGENVALS,
-            )  # fmt: skip
-            ok = (st[:, 0] == 1) & np.isfinite(p1).all(axis=1)
-            ok &= ((p1[:, 0] >= 0) & (p1[:, 1] >= 0)
-                   & (p1[:, 0] <= t.width - 1) & (p1[:, 1] <= t.height - 1))
-            p1 = np.where(ok[:, None], p1, seed)
-            sel = np.flatnonzero(ok)
-            sim = patch_correlation(sample_patches(kf.grey_f, p0[sel], cfg.patch),
-                                    sample_patches(cur.grey_f, p1[sel], cfg.patch))
-            ok[sel] = sim >= cfg.min_similarity
-            sel = np.flatnonzero(ok)
-            z1, has_depth = depth_at(depth, p1[sel], cfg)
-            ok[sel] = has_depth
-            z1 = z1[has_depth]
-        idx = self._idx[ok]
-        n = t.n
-        valid = np.zeros(n, bool)
-        valid[idx] = True
-        pts_kf = np.zeros((n, 3), np.float32)
-        pts_cur = np.zeros((n, 3), np.float32)
-        pts_kf[idx] = backproject(kf.uv[idx], kf.z_grid[idx], t.K)
-        pts_cur[idx] = backproject(p1[ok], z1, t.K) if len(idx) else pts_cur[idx]
-        self._track = np.where(ok[:, None], p1, seed).astype(np.float32)
-        count = int(ok.sum())
-        self._age += 1
-        if self._age == 1:
-            self._ref = count
-        min_valid = max(cfg.sample_size, 3)
-        renew = count < cfg.keyframe_overlap * self._ref or count < min_valid
-        out = KeyframeFlow(pts_kf, pts_cur, valid, np.bool_(renew))
-        if renew:
-            self.start()
-        return out
-
-
-def invalid_keyframe_flow(n: int) -> KeyframeFlow:
-    """An all-invalid :class:`KeyframeFlow` of ``n`` points that renews the keyframe (the
-    shapes of an empty stack, :func:`stack_flows`)."""
-    z = np.zeros((n, 3), np.float32)
-    return KeyframeFlow(z, z.copy(), np.zeros(n, bool), np.bool_(True))
 
 
 def _frame_size(*arrays) -> tuple[int, int] | None:
@@ -771,7 +632,7 @@ def sequence_flows(
         if i and progress is not None:
             progress(i, n_frames - 1)
     stacked = stack_flows(flows, invalid_flow(tracker.uv_grid, focal=seq.intrinsics.focal))
-    keyframes = (stack_flows(kf_flows, invalid_keyframe_flow(tracker.n)) if cfg.keyframes
+    keyframes = (stack_flows(kf_flows, invalid_keyframe_flow(tracker.n, cfg.keyframe_window)) if cfg.keyframes
                  else None)
     return SequenceFlows(stacked, np.asarray(frames, np.int64), dropped, keyframes)
 
