@@ -20,6 +20,7 @@ Run: ``.venv/bin/python bench/bench_seeds.py [--split dev|val|all] [--only CASE 
 from __future__ import annotations
 
 import argparse
+import dataclasses
 import datetime
 import functools
 import json
@@ -40,21 +41,23 @@ from people_masks import people_masks
 from splits import Case, cases, runnable
 
 from jaxvo.config import Config, Params, grid_shape, params_as_arrays
+from jaxvo.core.keyframe import keyframe_trajectory
 from jaxvo.core.pipeline import frame_key, init_pipeline, step
 from jaxvo.evaluation.metrics import SegmentationScores
 from jaxvo.evaluation.scores import trajectory_scores
 from jaxvo.host.flow import GridFlow
+from jaxvo.host.keyframes import KeyframeFlow
 from jaxvo.host.io import InMemorySequence, Trajectory, data_root, open_sequence
 from jaxvo.host.peers import OPENCV_PEERS
 
 
 @functools.partial(jax.jit, static_argnames=("cfg", "grid"))
-def _seeds_step(states, flow, keys, params, *, cfg: Config, grid):
+def _seeds_step(states, flow, keys, params, kf=None, *, cfg: Config, grid):
     """One frame pair for every seed: the step vmapped over the seeds' states and keys."""
 
     def one(state, key):
         return step(state, flow, frame_key(key, state.frame), params, cfg=cfg, grid=grid,
-                    batch_axis="seeds")
+                    batch_axis="seeds", keyframe=kf)
 
     return jax.vmap(one, axis_name="seeds")(states, keys)
 
@@ -69,17 +72,39 @@ def run_seeds(flows: dict, T0, params: Params, cfg: Config, seeds: int):
     keys = jnp.stack([jax.random.key(s) for s in range(seeds)])
     p = params_as_arrays(params)
     flow_all = GridFlow(*(flows[f"flow_{k}"] for k in GridFlow._fields))
+    kf_all = (KeyframeFlow(*(flows[f"kf_{k}"] for k in KeyframeFlow._fields))
+              if cfg.keyframes else None)
     outs = []
     for k in range(len(flow_all.valid)):
         flow = GridFlow(*(jnp.asarray(a[k]) for a in flow_all))
-        states, out = _seeds_step(states, flow, keys, p, cfg=cfg, grid=grid)
+        kf = None if kf_all is None else KeyframeFlow(*(jnp.asarray(a[k]) for a in kf_all))
+        states, out = _seeds_step(states, flow, keys, p, kf, cfg=cfg, grid=grid)
         outs.append(out)
     outs = jax.tree.map(lambda *xs: np.stack([np.asarray(x) for x in xs], axis=1), *outs)
     t = np.asarray(flows["timestamps"], np.float64)
     T0 = np.asarray(T0, np.float64)
-    trajs = [Trajectory(t, np.concatenate([T0[None], outs.T_w_c[s].astype(np.float64)]))
+    trajs = [Trajectory(t, np.concatenate([T0[None], _poses(outs, s, cfg)]))
              for s in range(seeds)]
     return trajs, outs
+
+
+def _poses(outs, s: int, cfg: Config):
+    """Seed ``s``'s poses of every pair (T, 4, 4) float64: with keyframes each frame's pose
+    relative to its keyframe on the keyframe's final pose (jaxvo.core.keyframe)."""
+    if not cfg.keyframes:
+        return outs.T_w_c[s].astype(np.float64)
+    one = jax.tree.map(lambda x: x[s], outs)
+    return np.asarray(keyframe_trajectory(one.keyframe, one.T_w_c), np.float64)
+
+
+def config_from(pairs: list[str]) -> Config:
+    """``Config`` with ``NAME=VALUE`` pairs set, each value read as its field's type."""
+    cfg = Config()
+    for name, value in (a.split("=", 1) for a in pairs):
+        kind = type(getattr(cfg, name))
+        v = value.lower() in ("1", "true", "yes", "on") if kind is bool else kind(value)
+        cfg = dataclasses.replace(cfg, **{name: v})
+    return cfg
 
 
 def reference_case(case: Case) -> Case:
@@ -96,10 +121,11 @@ def spread(values) -> dict:
             "spread": float(v.max() / max(v.min(), 1e-12)), "values": [float(x) for x in v]}
 
 
-def score_case(case: Case, data: dict, params: Params, seeds: int, cache: Path) -> dict:
+def score_case(case: Case, data: dict, params: Params, seeds: int, cache: Path,
+               cfg: Config = CFG) -> dict:
     T0 = data.get("gt_poses", np.eye(4)[None])[0]
     t0 = time.perf_counter()
-    trajs, outs = run_seeds(data, T0, params, CFG, seeds)
+    trajs, outs = run_seeds(data, T0, params, cfg, seeds)
     row: dict = {"case": case.name, "split": case.split, "kind": case.kind,
                  "seconds": time.perf_counter() - t0,
                  "used_points": float(np.median(np.sum(outs.static, axis=-1))),
@@ -125,7 +151,7 @@ def score_case(case: Case, data: dict, params: Params, seeds: int, cache: Path) 
         row["moving_f"] = {"median": float(np.median(fs)), "worst": float(np.min(fs)),
                            "best": float(np.max(fs)), "values": [float(x) for x in fs]}
     if case.kind == "people":
-        refs, _ = run_seeds(prepare(reference_case(case), cache, CFG), T0, params, CFG, seeds)
+        refs, _ = run_seeds(prepare(reference_case(case), cache, cfg), T0, params, cfg, seeds)
         d = np.array([[distance_mm(a, b) if i != j else 0.0 for j, b in enumerate(refs)]
                       for i, a in enumerate(refs)])
         medoid = int(np.argmin(np.median(d, axis=1)))
@@ -167,25 +193,30 @@ def main(argv=None) -> int:
     ap.add_argument("--seeds", type=int, default=5)
     ap.add_argument("--set", nargs="*", default=[], metavar="NAME=VALUE",
                     help="Params values to run with")
+    ap.add_argument("--config", nargs="*", default=[], metavar="NAME=VALUE",
+                    help="Config values to run with (e.g. keyframes=true)")
     ap.add_argument("--cache", type=Path, default=Path("results/cache"))
     ap.add_argument("--out", type=Path, default=Path("results"))
     ap.add_argument("--title", default="", help="a line saying what this run is")
     args = ap.parse_args(argv)
     params = Params()._replace(**{k: float(v) for k, v in (a.split("=", 1) for a in args.set)})
+    cfg = config_from(args.config)
     todo = [c for c in cases() if c.split in (("dev", "val") if args.split == "all"
                                                  else (args.split,))
             and (not args.only or c.name in args.only)]
     rows = []
     todo, skipped = runnable(todo)
     for case in todo:
-        row = score_case(case, prepare(case, args.cache, CFG), params, args.seeds, args.cache)
+        row = score_case(case, prepare(case, args.cache, cfg), params, args.seeds, args.cache,
+                         cfg)
         rows.append(row)
         log(f"{case.name}: ATE {_fmt(row.get('ate_mm'))} distance {_fmt(row.get('distance_mm'))}"
             f" F {row.get('moving_f', {}).get('median', float('nan')):.3f}"
             f" cells {row['moving_cells_pct']['median']:.2f} % used {row['used_points']:.0f}")
     args.out.mkdir(parents=True, exist_ok=True)
     meta = {"date": datetime.datetime.now().isoformat(timespec="seconds"),
-            "seeds": args.seeds, "set": args.set, "title": args.title, "skipped": skipped}
+            "seeds": args.seeds, "set": args.set, "config": args.config, "title": args.title,
+            "skipped": skipped}
     (args.out / "seeds.json").write_text(json.dumps({"meta": meta, "rows": rows}, indent=1))
     md = [f"# jaxvo over {args.seeds} seeds\n", machine_line(), "",
           args.title, "", table(rows), ""]

@@ -43,7 +43,14 @@ import optax
 
 from jaxvo.config import Config, Params
 from jaxvo.core.geometry import invert_pose
-from jaxvo.core.lm import ArrowCurvature, levenberg_marquardt, orthonormal, perturb, skew
+from jaxvo.core.lm import (
+    ArrowCurvature,
+    adjoint,
+    levenberg_marquardt,
+    orthonormal,
+    perturb,
+    skew,
+)
 from jaxvo.core.noise import NoiseScale, Points, frame_points
 from jaxvo.core.robust import cauchy, chi2_quantile
 
@@ -71,14 +78,23 @@ class KeyframeState(NamedTuple):
     # () bool the latest keyframe's points are not known yet: the first frame's come with
     # the first pair's keyframe flow (a new keyframe's with the pair that takes it)
     fresh: jax.Array
+    # the chain between consecutive keyframes: slot k holds T_k_(k-1) as the frames between
+    # them measured it, and the information of the pair that took keyframe k on it (a
+    # quadratic factor, jaxvo.core.lm.pair_factor)
+    link_T: jax.Array  # (K, 4, 4) float32
+    link_H: jax.Array  # (K, 6, 6) float32
+    link_g: jax.Array  # (K, 6) float32
 
 
 class KeyframeOut(NamedTuple):
     """What one keyframe update gives back."""
 
     T_w_c: jax.Array  # (4, 4) float32 the current camera's pose after the window's refinement
-    count: jax.Array  # () int32 keyframes taken so far
+    count: jax.Array  # () int32 keyframes taken so far: the latest keyframe's number
     readings: jax.Array  # () int32 readings of points in later keyframes the window holds
+    # (K, 4, 4) float32 the window's keyframe poses after this step, oldest first: slot k
+    # holds keyframe number count - (K - 1 - k) (see keyframe_trajectory)
+    T_w_kf: jax.Array
 
 
 def init_keyframe(T_w_c0, *, cfg: Config, grid: tuple[int, int]) -> KeyframeState:
@@ -95,6 +111,9 @@ def init_keyframe(T_w_c0, *, cfg: Config, grid: tuple[int, int]) -> KeyframeStat
         seen=jnp.zeros((K, K, m), bool),
         count=jnp.int32(1),
         fresh=jnp.bool_(True),
+        link_T=jnp.broadcast_to(jnp.eye(4, dtype=jnp.float32), (K, 4, 4)),
+        link_H=jnp.zeros((K, 6, 6), jnp.float32),
+        link_g=jnp.zeros((K, 6), jnp.float32),
     )
 
 
@@ -140,6 +159,9 @@ class _Problem(NamedTuple):
     w_own: jax.Array  # (K, m) 1/m^2 information of the point's own depth reading
     free: jax.Array  # (K,) bool slots whose pose is refined
     c2: jax.Array  # () Cauchy scale, squared normalised residual (3 degrees of freedom)
+    link_T: jax.Array  # (K, 4, 4) the chain's T_k_(k-1)
+    link_H: jax.Array  # (K, 6, 6) its information (0 where slot k - 1 or k is empty)
+    link_g: jax.Array  # (K, 6) its gradient there
 
 
 class WindowParams(NamedTuple):
@@ -170,7 +192,10 @@ def window_cost(T, s, pb: _Problem):
     """The window's robust cost at poses ``T`` (K, 4, 4) and depth changes ``s`` (K, m)."""
     r, _ = _residuals(T, s, pb)
     own = pb.w_own * jnp.sum(pb.point * pb.point, axis=-1) * s * s
-    return cauchy(_d2(r, pb), pb.c2)[0] + cauchy(own, pb.c2)[0]
+    delta, _ = link_terms(T, pb.link_T)
+    link = jnp.sum(delta * pb.link_g[1:]) \
+        + 0.5 * jnp.einsum("ka,kab,kb->", delta, pb.link_H[1:], delta)
+    return cauchy(_d2(r, pb), pb.c2)[0] + cauchy(own, pb.c2)[0] + link
 
 
 def normal_equations(T, s, pb: _Problem):
@@ -226,6 +251,8 @@ def normal_equations(T, s, pb: _Problem):
     own_value, w_own = cauchy(own2 * s * s, pb.c2)
     d_s = jnp.sum(jnp.sum(e * Me, axis=-1), axis=0) + w_own * own2
     g_s = jnp.sum(jnp.sum(e * Mr, axis=-1), axis=0) + w_own * own2 * s
+    H_link, g_link, value_link = link_equations(T, pb.link_T, pb.link_H, pb.link_g)
+    H, g, value = H + H_link, g + g_link, value + value_link
     free = jnp.repeat(pb.free, 6)
     H = jnp.where(free[:, None] & free[None, :], H, jnp.diag(jnp.where(free, 0.0, 1.0)))
     g = jnp.where(pb.free[:, None], g, 0.0)
@@ -233,6 +260,38 @@ def normal_equations(T, s, pb: _Problem):
     C = ArrowCurvature(H, jnp.transpose(cross, (0, 3, 1, 2)).reshape(6 * K, K * m),
                        d_s.reshape(-1))
     return WindowParams(g, g_s), C, value + own_value
+
+
+def link_terms(T, link_T):
+    """Each consecutive pair of slots' deviation ``delta`` (K-1, 6) from the chain's
+    measured motion, ``T_k^-1 T_(k-1) = exp(delta) T_meas`` (first order), and the adjoints
+    ``Ad(T_k^-1)`` (K-1, 6, 6) that map the window's perturbations to it."""
+    T_rel = invert_pose(T[1:]) @ T[:-1]
+    E = T_rel @ invert_pose(link_T[1:])
+    S = 0.5 * (E[:, :3, :3] - jnp.swapaxes(E[:, :3, :3], 1, 2))
+    delta = jnp.stack([S[:, 2, 1], S[:, 0, 2], S[:, 1, 0], E[:, 0, 3], E[:, 1, 3], E[:, 2, 3]],
+                      axis=1)
+    return delta, adjoint(invert_pose(T[1:]))
+
+
+def link_equations(T, link_T, link_H, link_g):
+    """The chain's quadratic factors on consecutive slots as the window's Gauss-Newton
+    matrix (6K, 6K), gradient (K, 6) and cost: slot pair ``(k - 1, k)`` moves its deviation
+    by ``D (xi_(k-1) - xi_k)``, ``D = Ad(T_k^-1)``."""
+    K = T.shape[0]
+    delta, D = link_terms(T, link_T)
+    Hd = jnp.einsum("kab,kb->ka", link_H[1:], delta)
+    gp = link_g[1:] + Hd
+    value = jnp.sum(delta * link_g[1:]) + 0.5 * jnp.sum(delta * Hd)
+    SL = jnp.einsum("kba,kbc,kcd->kad", D, link_H[1:], D)
+    gl = jnp.einsum("kba,kb->ka", D, gp)
+    zero = jnp.zeros((1, 6, 6), T.dtype)
+    diag = jnp.concatenate([SL, zero]) + jnp.concatenate([zero, SL])
+    g = jnp.concatenate([gl, zero[:, 0]]) - jnp.concatenate([zero[:, 0], gl])
+    up = jnp.eye(K, k=1, dtype=T.dtype)[:, :, None, None] * jnp.concatenate([SL, zero])[:, None]
+    blocks = jnp.eye(K, dtype=T.dtype)[:, :, None, None] * diag[:, None] - up \
+        - jnp.swapaxes(up, 0, 1)
+    return jnp.transpose(blocks, (0, 2, 1, 3)).reshape(6 * K, 6 * K), g, value
 
 
 def refine(T, pb: _Problem, iters: int):
@@ -266,6 +325,7 @@ def _problem(st: KeyframeState, focal, scale: NoiseScale, params: Params) -> _Pr
     norm = jnp.linalg.norm(st.obs, axis=-1)
     zp = st.point[..., 2]
     fixed = jnp.argmax(st.taken)
+    both = st.taken & jnp.concatenate([jnp.zeros((1,), bool), st.taken[:-1]])
     return _Problem(
         point=st.point,
         obs=st.obs,
@@ -278,6 +338,9 @@ def _problem(st: KeyframeState, focal, scale: NoiseScale, params: Params) -> _Pr
                                       _TINY), 0.0),
         free=st.taken & (jnp.arange(K) != fixed),
         c2=chi2_quantile(3, params.confidence),
+        link_T=st.link_T,
+        link_H=jnp.where(both[:, None, None], st.link_H, 0.0),
+        link_g=jnp.where(both[:, None], st.link_g, 0.0),
     )
 
 
@@ -289,7 +352,7 @@ def _shift(x, new):
     return jnp.concatenate([x[1:], new[None]], axis=0)
 
 
-def _take(state: KeyframeState, kf, T_w_c, static, index) -> KeyframeState:
+def _take(state: KeyframeState, kf, T_w_c, static, index, link) -> KeyframeState:
     """The window with the current frame as its latest keyframe: the oldest leaves, the
     new one brings its points and its readings of the window's points."""
     K = state.T_w_kf.shape[0]
@@ -301,8 +364,11 @@ def _take(state: KeyframeState, kf, T_w_c, static, index) -> KeyframeState:
     if W:
         obs = obs.at[W, :W].set(kf.win_cur[:, index])
         seen = seen.at[W, :W].set(kf.win_valid[:, index])
+    T_meas, H, g = link
     return KeyframeState(_shift(state.T_w_kf, T_w_c), _shift(state.taken, jnp.bool_(True)),
-                         point, stat, obs, seen, state.count + 1, jnp.bool_(False))
+                         point, stat, obs, seen, state.count + 1, jnp.bool_(False),
+                         _shift(state.link_T, T_meas), _shift(state.link_H, H),
+                         _shift(state.link_g, g))
 
 
 def _learn_first(state: KeyframeState, kf, index) -> KeyframeState:
@@ -314,7 +380,7 @@ def _learn_first(state: KeyframeState, kf, index) -> KeyframeState:
         static=state.static.at[-1].set(ok), fresh=jnp.bool_(False))
 
 
-def update_keyframe(state: KeyframeState, kf, T_w_c, static, noise: NoiseScale,
+def update_keyframe(state: KeyframeState, kf, T_w_c, static, link, noise: NoiseScale,
                     params: Params, *, cfg: Config, grid, focal):
     """After the pair: where the host renews the keyframe (``kf.renew``), the current frame
     joins the window as its latest keyframe and the window is refined.
@@ -323,6 +389,8 @@ def update_keyframe(state: KeyframeState, kf, T_w_c, static, noise: NoiseScale,
       state: the window; kf: the pair's ``KeyframeFlow``.
       T_w_c: (4, 4) the current camera's pose from the ego-motion.
       static: (n,) bool grid points of the current image the temporal model holds static.
+      link: ``(T_cur_kf, H, g)``: the chain's motion from the latest keyframe to the current
+        camera, and the pair's information on it (:func:`jaxvo.core.lm.pair_factor`).
       noise: the sensor noise model; params: numeric settings (``confidence``).
       cfg: static settings (``keyframe_window``, ``keyframe_iters``, ``keyframe_stride``);
       grid: static ``(rows, cols)``; focal: () pixels.
@@ -334,7 +402,7 @@ def update_keyframe(state: KeyframeState, kf, T_w_c, static, noise: NoiseScale,
     index = keyframe_index(grid, cfg.keyframe_stride)
 
     def take(st):
-        st = _take(st, kf, T_w_c, static, index)
+        st = _take(st, kf, T_w_c, static, index, link)
         if cfg.keyframe_window < 2 or not cfg.keyframe_iters:
             return st
         fixed = jnp.argmax(st.taken)
@@ -350,4 +418,28 @@ def update_keyframe(state: KeyframeState, kf, T_w_c, static, noise: NoiseScale,
     new = jax.lax.cond(kf.renew, take, lambda st: st, state)
     T_out = jnp.where(kf.renew, new.T_w_kf[-1], T_w_c)
     readings = jnp.sum(new.seen & new.taken[:, None, None] & new.static[None])
-    return new, KeyframeOut(T_out, new.count, readings.astype(jnp.int32))
+    return new, KeyframeOut(T_out, new.count, readings.astype(jnp.int32), new.T_w_kf)
+
+
+def keyframe_trajectory(outs: KeyframeOut, T_w_c):
+    """Every pair's final pose: its pose relative to its keyframe, on that keyframe's pose
+    when it last was in the window (its pose is final from then on).
+
+    As ORB-SLAM3 writes its trajectory: the window refines a keyframe's pose after the
+    frames that followed it were given theirs, and those frames were tracked against it.
+
+    Args:
+      outs: :class:`KeyframeOut` stacked over the T pairs of a run.
+      T_w_c: (T, 4, 4) each pair's current camera pose as the step gave it.
+    Returns:
+      (T, 4, 4) camera-to-world poses of the pairs' current cameras.
+    """
+    count, T_w_kf = outs.count, outs.T_w_kf
+    K = T_w_kf.shape[1]
+    steps = jnp.arange(count.shape[0])
+    # the last step at which each pair's keyframe was in the window, and its slot there
+    inside = count[None, :] <= count[:, None] + K - 1  # (T pair, T step)
+    last = jnp.max(jnp.where(inside & (steps[None] >= steps[:, None]), steps[None], -1), axis=1)
+    slot = K - 1 - (count[last] - count)
+    T_final = T_w_kf[last, slot]
+    return T_final @ invert_pose(T_w_kf[:, K - 1]) @ T_w_c

@@ -18,6 +18,8 @@ import jax.numpy as jnp
 import optax
 
 from jaxvo.core.geometry import make_pose, so3_exp
+from jaxvo.core.noise import Points, mahalanobis
+from jaxvo.core.robust import cauchy
 
 # Levenberg-Marquardt damping (relative to the Gauss-Newton matrix's diagonal): start, the
 # factors after a rejected and an accepted step, and its range.
@@ -138,3 +140,60 @@ def skew(v):
                       jnp.stack([-v[..., 1], v[..., 0], z], -1)], axis=-2)
 
 
+
+
+def cross_cols(a, b):
+    """Cross products of columns: (..., 3, n) x (..., 3, n)."""
+    return jnp.stack([a[..., 1, :] * b[..., 2, :] - a[..., 2, :] * b[..., 1, :],
+                      a[..., 2, :] * b[..., 0, :] - a[..., 0, :] * b[..., 2, :],
+                      a[..., 0, :] * b[..., 1, :] - a[..., 1, :] * b[..., 0, :]], axis=-2)
+
+
+def adjoint(T):
+    """Adjoint (..., 6, 6) of poses (..., 4, 4) for ``xi = (omega, nu)``: ``T exp(xi)
+    T^-1 = exp(Ad_T xi)``, ``Ad_T = [[R, 0], [[t]x R, R]]``."""
+    R, t = T[..., :3, :3], T[..., :3, 3]
+    zero = jnp.zeros_like(R)
+    return jnp.concatenate([jnp.concatenate([R, zero], -1),
+                            jnp.concatenate([skew(t) @ R, R], -1)], axis=-2)
+
+
+def pair_factor(T, pts: Points, use, c2):
+    """One pair's points as a quadratic factor on its relative pose, about its ego-motion.
+
+    The normalised residuals ``T src - dst`` of the points the ego-motion used
+    (:mod:`jaxvo.core.noise`: lateral and along-ray parts, each in units of its noise, Cauchy
+    weights at ``T``), as their gradient and Gauss-Newton matrix for a left perturbation
+    ``exp(delta) T`` (``delta = (omega, nu)`` in the current camera): the window's pose of
+    the pair then costs ``g . delta + delta^T H delta / 2``. Linearised once, when the pair
+    enters (during the refinement a pair's motion moves by a fraction of a millimetre), so
+    an iteration costs O(K) for the pairs instead of O(K n). The gradient is that of this
+    cost, not of the ego-motion's own (whose depth weighting and robust scale differ), so
+    the window refines every pair against its points, wherever the ego-motion landed.
+
+    Args:
+      T: (4, 4) the pair's ego-motion; pts: the pair's points and their noise
+        (:func:`jaxvo.core.noise.frame_points`); use: (n,) bool; c2: () the robust loss's scale.
+
+    Returns:
+      ``(H (6, 6), g (6,))`` float32.
+    """
+    X = T[:3, :3] @ pts.src + T[:3, 3:4]  # (3, n), in the current camera
+    noise = pts.noise
+    u = noise.ray
+    r = X - pts.dst
+    along = jnp.sum(r * u, axis=0)
+    d2 = mahalanobis(r, noise)
+    w = jnp.where(use, cauchy(d2, c2)[1], 0.0)  # IRLS weight at T
+    Mr = noise.w_lat * (r - along * u) + noise.w_ray * along * u  # (3, n)
+    g = jnp.concatenate([jnp.sum(cross_cols(X, w * Mr), axis=1), Mr @ w])
+    # A^T M A for A = [-[X]x | I], M = w_lat (I - u u^T) + w_ray u u^T: the w_lat A^T A part
+    # from the moments of X, the rest through q = A^T u
+    wl = w * noise.w_lat
+    m0, m1 = jnp.sum(wl), X @ wl
+    m2 = (X * wl) @ X.T
+    eye3 = jnp.eye(3, dtype=T.dtype)
+    AtA = jnp.concatenate([jnp.concatenate([jnp.trace(m2) * eye3 - m2, skew(m1)], -1),
+                           jnp.concatenate([-skew(m1), m0 * eye3], -1)], axis=0)
+    q = jnp.concatenate([cross_cols(X, u), u], axis=0)  # (6, n)
+    return AtA + (q * (w * (noise.w_ray - noise.w_lat))) @ q.T, g

@@ -28,8 +28,9 @@ import jax.numpy as jnp
 
 from jaxvo.config import Config, Params
 from jaxvo.core.egomotion import EgoState, init_ego, predicted_motion, update_egomotion
-from jaxvo.core.geometry import full_precision
+from jaxvo.core.geometry import full_precision, invert_pose
 from jaxvo.core.keyframe import (
+    KeyframeOut,
     KeyframeState,
     init_keyframe,
     join_points,
@@ -37,6 +38,7 @@ from jaxvo.core.keyframe import (
     keyframe_points,
     update_keyframe,
 )
+from jaxvo.core.lm import pair_factor
 from jaxvo.core.noise import NoiseScale, frame_points, init_noise, transfer, update_noise
 from jaxvo.core.spatial import Segmentation, segment_points
 from jaxvo.core.temporal import (
@@ -95,6 +97,7 @@ class StepOutput(NamedTuple):
     # (jaxvo.core.window.WindowOut); T_w_c above is then the window's newest pose
     window: WindowOut | None = None
     keyframes: jax.Array | None = None  # () int32 keyframes taken so far (cfg.keyframes)
+    keyframe: KeyframeOut | None = None  # the keyframe window after this pair (cfg.keyframes)
 
 
 def init_pipeline(*, cfg: Config, grid: tuple[int, int], T_w_c0=None,
@@ -175,13 +178,16 @@ def step(state: PipelineState, flow, key, params: Params, *, cfg: Config, grid,
     # static on this image (its evidence is already carried onto this image's grid)
     kf_state, kout = state.keyframe, None
     if use_kf:
+        # the chain's motion from the keyframe to this camera, and this pair's information
+        T_cur_kf = eo.T_cur_prev @ invert_pose(state.ego.T_w_c) @ kf_state.T_w_kf[-1]
+        link = (T_cur_kf, *pair_factor(eo.T_cur_prev, pts, eo.used, pts.thr))
         kf_state, kout = update_keyframe(kf_state, keyframe, ego.T_w_c,
-                                         temporal.evidence <= moving_logodds(params), noise,
-                                         params, cfg=cfg, grid=grid, focal=flow.focal)
+                                         temporal.evidence <= moving_logodds(params), link,
+                                         noise, params, cfg=cfg, grid=grid, focal=flow.focal)
         ego = ego._replace(T_w_c=kout.T_w_c)
     out = _output(ego, eo, seg, bg, tout, noise, wout, pts.valid, params, cfg=cfg, grid=grid)
     if kout is not None:
-        out = out._replace(keyframes=kout.count)
+        out = out._replace(keyframes=kout.count, keyframe=kout)
     return PipelineState(temporal, ego, state.frame + 1, noise, window, kf_state), out
 
 

@@ -65,8 +65,16 @@ import optax
 
 from jaxvo.config import Config, Params
 from jaxvo.core.geometry import invert_pose
-from jaxvo.core.lm import ArrowCurvature, levenberg_marquardt, orthonormal, perturb, skew
-from jaxvo.core.noise import NoiseScale, Points, mahalanobis
+from jaxvo.core.lm import (
+    ArrowCurvature,
+    adjoint,
+    cross_cols,
+    levenberg_marquardt,
+    orthonormal,
+    pair_factor,
+    perturb,
+)
+from jaxvo.core.noise import NoiseScale, Points
 from jaxvo.core.robust import cauchy, chi2_quantile
 
 # A track continues where its four neighbours' depths agree within this fraction: across a
@@ -257,63 +265,6 @@ class _Problem(NamedTuple):
     c2_dep: jax.Array  # () Cauchy scale of the depth terms, squared normalised residual
 
 
-def _cross(a, b):
-    """Cross products of columns: (..., 3, n) x (..., 3, n)."""
-    return jnp.stack([a[..., 1, :] * b[..., 2, :] - a[..., 2, :] * b[..., 1, :],
-                      a[..., 2, :] * b[..., 0, :] - a[..., 0, :] * b[..., 2, :],
-                      a[..., 0, :] * b[..., 1, :] - a[..., 1, :] * b[..., 0, :]], axis=-2)
-
-
-def _adjoint(T):
-    """Adjoint (..., 6, 6) of poses (..., 4, 4) for ``xi = (omega, nu)``: ``T exp(xi)
-    T^-1 = exp(Ad_T xi)``, ``Ad_T = [[R, 0], [[t]x R, R]]``."""
-    R, t = T[..., :3, :3], T[..., :3, 3]
-    zero = jnp.zeros_like(R)
-    return jnp.concatenate([jnp.concatenate([R, zero], -1),
-                            jnp.concatenate([skew(t) @ R, R], -1)], axis=-2)
-
-
-def pair_factor(T, pts: Points, use, c2):
-    """One pair's points as a quadratic factor on its relative pose, about its ego-motion.
-
-    The normalised residuals ``T src - dst`` of the points the ego-motion used
-    (:mod:`jaxvo.core.noise`: lateral and along-ray parts, each in units of its noise, Cauchy
-    weights at ``T``), as their gradient and Gauss-Newton matrix for a left perturbation
-    ``exp(delta) T`` (``delta = (omega, nu)`` in the current camera): the window's pose of
-    the pair then costs ``g . delta + delta^T H delta / 2``. Linearised once, when the pair
-    enters (during the refinement a pair's motion moves by a fraction of a millimetre), so
-    an iteration costs O(K) for the pairs instead of O(K n). The gradient is that of this
-    cost, not of the ego-motion's own (whose depth weighting and robust scale differ), so
-    the window refines every pair against its points, wherever the ego-motion landed.
-
-    Args:
-      T: (4, 4) the pair's ego-motion; pts: the pair's points and their noise
-        (:func:`jaxvo.core.noise.frame_points`); use: (n,) bool; c2: () the robust loss's scale.
-
-    Returns:
-      ``(H (6, 6), g (6,))`` float32.
-    """
-    X = T[:3, :3] @ pts.src + T[:3, 3:4]  # (3, n), in the current camera
-    noise = pts.noise
-    u = noise.ray
-    r = X - pts.dst
-    along = jnp.sum(r * u, axis=0)
-    d2 = mahalanobis(r, noise)
-    w = jnp.where(use, cauchy(d2, c2)[1], 0.0)  # IRLS weight at T
-    Mr = noise.w_lat * (r - along * u) + noise.w_ray * along * u  # (3, n)
-    g = jnp.concatenate([jnp.sum(_cross(X, w * Mr), axis=1), Mr @ w])
-    # A^T M A for A = [-[X]x | I], M = w_lat (I - u u^T) + w_ray u u^T: the w_lat A^T A part
-    # from the moments of X, the rest through q = A^T u
-    wl = w * noise.w_lat
-    m0, m1 = jnp.sum(wl), X @ wl
-    m2 = (X * wl) @ X.T
-    eye3 = jnp.eye(3, dtype=T.dtype)
-    AtA = jnp.concatenate([jnp.concatenate([jnp.trace(m2) * eye3 - m2, skew(m1)], -1),
-                           jnp.concatenate([-skew(m1), m0 * eye3], -1)], axis=0)
-    q = jnp.concatenate([_cross(X, u), u], axis=0)  # (6, n)
-    return AtA + (q * (w * (noise.w_ray - noise.w_lat))) @ q.T, g
-
-
 def _pair_terms(T, pb: _Problem):
     """Each pair's deviation ``delta`` (K-1, 6) from its measured motion, with
     ``T_k^-1 T_(k-1) = exp(delta) T_meas`` (first order: the window moves poses by
@@ -324,7 +275,7 @@ def _pair_terms(T, pb: _Problem):
     S = 0.5 * (E[:, :3, :3] - jnp.swapaxes(E[:, :3, :3], 1, 2))
     delta = jnp.stack([S[:, 2, 1], S[:, 0, 2], S[:, 1, 0], E[:, 0, 3], E[:, 1, 3], E[:, 2, 3]],
                       axis=1)
-    return delta, _adjoint(invert_pose(T[1:]))
+    return delta, adjoint(invert_pose(T[1:]))
 
 
 def _depth_terms(T, s, pb: _Problem):
@@ -383,7 +334,7 @@ def normal_equations(T, s, pb: _Problem):
     value_d, wd = cauchy(pb.w_dep * rd * rd, pb.c2_dep)
     rho = jnp.einsum("kij,kjn->kin", R, pb.ray)  # rays in window axes, (K, 3, cap)
     wdep = wd * pb.w_dep
-    qd = jnp.concatenate([_cross(Xa[None], rho), rho], axis=1)  # (K, 6, cap)
+    qd = jnp.concatenate([cross_cols(Xa[None], rho), rho], axis=1)  # (K, 6, cap)
     Ra = (pb.anchor1h @ R.reshape(K, 9)).reshape(-1, 3, 3)
     RP = jnp.einsum("nij,jn->in", Ra, pb.point)
     e = jnp.sum(rho * RP[None], axis=1)  # d(depth residual)/ds, (K, cap)
