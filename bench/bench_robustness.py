@@ -19,6 +19,7 @@ Run: ``.venv/bin/python bench/bench_robustness.py [--split dev|val|all] [--only 
 from __future__ import annotations
 
 import argparse
+import dataclasses
 import datetime
 import hashlib
 import json
@@ -103,7 +104,17 @@ def prepare(case: Case, cache: Path, cfg: Config) -> dict:
 def flow_path(case: Case, cache: Path, cfg: Config) -> Path:
     """Where the case's flow is cached: keyed by the flow's settings and code, and apart
     when it holds the keyframe flow too (``cfg.keyframes``)."""
-    return cache / f"{case.name}__{_flow_key(cfg)}{'_kf' if cfg.keyframes else ''}.npz"
+    if not cfg.keyframes:
+        return cache / f"{case.name}__{_flow_key(cfg)}.npz"
+    import inspect
+
+    import jaxvo.host.keyframes
+
+    fields = {f.name: getattr(cfg, f.name) for f in dataclasses.fields(cfg)
+              if f.name.startswith("keyframe")}
+    kf = hashlib.sha1(json.dumps([fields, inspect.getsource(jaxvo.host.keyframes)],
+                                 sort_keys=True).encode()).hexdigest()[:8]
+    return cache / f"{case.name}__{_flow_key(cfg)}_kf{kf}.npz"
 
 
 def build_flow(case: Case, path: Path, cfg: Config):

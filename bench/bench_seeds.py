@@ -46,8 +46,8 @@ from jaxvo.core.pipeline import frame_key, init_pipeline, step
 from jaxvo.evaluation.metrics import SegmentationScores
 from jaxvo.evaluation.scores import trajectory_scores
 from jaxvo.host.flow import GridFlow
-from jaxvo.host.keyframes import KeyframeFlow
 from jaxvo.host.io import InMemorySequence, Trajectory, data_root, open_sequence
+from jaxvo.host.keyframes import KeyframeFlow
 from jaxvo.host.peers import OPENCV_PEERS
 
 

@@ -55,6 +55,9 @@ from jaxvo.core.noise import NoiseScale, Points, frame_points
 from jaxvo.core.robust import cauchy, chi2_quantile
 
 _TINY = 1e-12
+import os
+
+_LS = float(os.environ.get("KF_LINK_SCALE", "1"))
 
 
 def keyframe_index(grid: tuple[int, int], stride: int) -> np.ndarray:
@@ -339,8 +342,8 @@ def _problem(st: KeyframeState, focal, scale: NoiseScale, params: Params) -> _Pr
         free=st.taken & (jnp.arange(K) != fixed),
         c2=chi2_quantile(3, params.confidence),
         link_T=st.link_T,
-        link_H=jnp.where(both[:, None, None], st.link_H, 0.0),
-        link_g=jnp.where(both[:, None], st.link_g, 0.0),
+        link_H=jnp.where(both[:, None, None], st.link_H, 0.0) * _LS,
+        link_g=jnp.where(both[:, None], st.link_g, 0.0) * _LS,
     )
 
 

@@ -45,6 +45,7 @@ from jaxvo.core.temporal import (
     BackgroundOut,
     TemporalOut,
     TemporalState,
+    belief_weights,
     init_temporal,
     measured_labels,
     moving_evidence,
@@ -148,9 +149,18 @@ def step(state: PipelineState, flow, key, params: Params, *, cfg: Config, grid,
         kpts = keyframe_points(state.keyframe, keyframe, state.ego.T_w_c, params,
                                focal=flow.focal, scale=state.noise,
                                index=keyframe_index(grid, cfg.keyframe_stride))
+        # a keyframe point counts as the cell of the previous image it lay in: by what
+        # earlier frames say of that cell, and not where this frame's segment there moves
+        # unlike the background
+        prior = belief_weights(state.temporal.evidence, params)
+        moving_seg = pts.valid & (bg.belief > 0) & (bg.use == 0)
+        cell = keyframe.cell_prev[keyframe_index(grid, cfg.keyframe_stride)]
+        at = jnp.maximum(cell, 0)
+        k_belief = jnp.where(kpts.valid & (cell >= 0), prior[at], 0.0)
+        k_use = jnp.where(moving_seg[at], 0.0, k_belief)
         ego_pts = join_points(pts, kpts)
-        ego_weights = jnp.concatenate([bg.use, kpts.valid.astype(bg.use.dtype)])
-        belief = jnp.concatenate([belief, kpts.valid.astype(belief.dtype)])
+        ego_weights = jnp.concatenate([bg.use, k_use.astype(bg.use.dtype)])
+        belief = jnp.concatenate([belief, k_belief.astype(belief.dtype)])
     candidates = jnp.concatenate([predicted_motion(state.ego)[None], seg.motions])
     ego, eo = update_egomotion(state.ego, ego_pts, ego_weights,
                                seg.motions[jnp.maximum(bg.background - 1, 0)],

@@ -47,6 +47,9 @@ class KeyframeFlow(NamedTuple):
     win_cur: np.ndarray  # (W, n, 3) float32 metres
     win_valid: np.ndarray  # (W, n) bool
     new_kf: np.ndarray  # (n, 3) float32 metres, where renew: the new keyframe's points
+    # (n,) int32 the grid cell of the pair's previous image each latest keyframe point lay
+    # in (its segment and evidence are that cell's), -1 where unknown
+    cell_prev: np.ndarray
 
 
 class _Keyframe:
@@ -138,6 +141,8 @@ class KeyframeTracker:
         """The keyframe flow of the frame just pushed to the tracker, whose pair flow is
         ``flow`` and depth ``depth`` (H, W) metres; renews the keyframe when it says so."""
         cfg, n, W = self.t.cfg, self.t.n, self._window
+        cell_prev = np.full(n, -1, np.int32)
+        cell_prev[self._keys[-1].idx] = self._cell(self._keys[-1].track)
         for key in self._keys:
             key.track = self._predict(flow, key.track)
         latest = self._keys[-1]
@@ -166,7 +171,16 @@ class KeyframeTracker:
             new_kf[use] = backproject(cur.uv[use], cur.z_grid[use], self.t.K)
             self._renew()
         return KeyframeFlow(pts_kf, pts_cur, valid, np.bool_(renew), win_kf, win_cur,
-                            win_valid, new_kf)
+                            win_valid, new_kf, cell_prev)
+
+    def _cell(self, uv: np.ndarray) -> np.ndarray:
+        """(m,) int32 the grid cell holding each position ``uv`` (m, 2), -1 off the grid."""
+        rows, cols = self.t.grid
+        cell = self.t.cfg.cell
+        c = np.floor(uv[:, 0] / cell).astype(np.int64)
+        r = np.floor(uv[:, 1] / cell).astype(np.int64)
+        on = (c >= 0) & (c < cols) & (r >= 0) & (r < rows)
+        return np.where(on, r * cols + c, -1).astype(np.int32)
 
 
 def invalid_keyframe_flow(n: int, window: int) -> KeyframeFlow:
@@ -177,4 +191,4 @@ def invalid_keyframe_flow(n: int, window: int) -> KeyframeFlow:
     z = np.zeros((n, 3), np.float32)
     return KeyframeFlow(z, z.copy(), np.zeros(n, bool), np.bool_(True),
                         np.zeros((W, n, 3), np.float32), np.zeros((W, n, 3), np.float32),
-                        np.zeros((W, n), bool), z.copy())
+                        np.zeros((W, n), bool), z.copy(), np.full(n, -1, np.int32))

@@ -94,9 +94,8 @@ def flow_fields() -> tuple[str, ...]:
     """
     import jaxvo.host.depth
     import jaxvo.host.flow
-    import jaxvo.host.keyframes
 
-    used = {f for mod in (jaxvo.host.flow, jaxvo.host.depth, jaxvo.host.keyframes)
+    used = {f for mod in (jaxvo.host.flow, jaxvo.host.depth)
             for f in re.findall(r"\bcfg\.(\w+)", inspect.getsource(mod))}
     return tuple(f for f in config_fields() if f in used)
 
@@ -109,13 +108,12 @@ def code_hash() -> str:
     import jaxvo.host.flow
     import jaxvo.host.frames
     import jaxvo.host.io
-    import jaxvo.host.keyframes
     import jaxvo.host.patches
     import jaxvo.synth.render
     import jaxvo.synth.scenes
 
     h = hashlib.sha256()
-    for mod in (jaxvo.host.flow, jaxvo.host.depth, jaxvo.host.keyframes, jaxvo.host.patches,
+    for mod in (jaxvo.host.flow, jaxvo.host.depth, jaxvo.host.patches,
                 jaxvo.host.frames, jaxvo.host.io,
                 jaxvo.synth.render, jaxvo.synth.scenes):
         h.update(inspect.getsource(mod).encode())
