@@ -41,7 +41,6 @@ from people_masks import people_masks
 from splits import Case, cases, runnable
 
 from jaxvo.config import Config, Params, grid_shape, params_as_arrays
-from jaxvo.core.keyframe import keyframe_trajectory
 from jaxvo.core.pipeline import frame_key, init_pipeline, step
 from jaxvo.evaluation.metrics import SegmentationScores
 from jaxvo.evaluation.scores import trajectory_scores
@@ -83,18 +82,9 @@ def run_seeds(flows: dict, T0, params: Params, cfg: Config, seeds: int):
     outs = jax.tree.map(lambda *xs: np.stack([np.asarray(x) for x in xs], axis=1), *outs)
     t = np.asarray(flows["timestamps"], np.float64)
     T0 = np.asarray(T0, np.float64)
-    trajs = [Trajectory(t, np.concatenate([T0[None], _poses(outs, s, cfg)]))
+    trajs = [Trajectory(t, np.concatenate([T0[None], outs.T_w_c[s].astype(np.float64)]))
              for s in range(seeds)]
     return trajs, outs
-
-
-def _poses(outs, s: int, cfg: Config):
-    """Seed ``s``'s poses of every pair (T, 4, 4) float64: with keyframes each frame's pose
-    relative to its keyframe on the keyframe's final pose (jaxvo.core.keyframe)."""
-    if not cfg.keyframes:
-        return outs.T_w_c[s].astype(np.float64)
-    one = jax.tree.map(lambda x: x[s], outs)
-    return np.asarray(keyframe_trajectory(one.keyframe, one.T_w_c), np.float64)
 
 
 def config_from(pairs: list[str]) -> Config:

@@ -95,9 +95,6 @@ class KeyframeOut(NamedTuple):
     T_w_c: jax.Array  # (4, 4) float32 the current camera's pose after the window's refinement
     count: jax.Array  # () int32 keyframes taken so far: the latest keyframe's number
     readings: jax.Array  # () int32 readings of points in later keyframes the window holds
-    # (K, 4, 4) float32 the window's keyframe poses after this step, oldest first: slot k
-    # holds keyframe number count - (K - 1 - k) (see keyframe_trajectory)
-    T_w_kf: jax.Array
 
 
 def init_keyframe(T_w_c0, *, cfg: Config, grid: tuple[int, int]) -> KeyframeState:
@@ -421,28 +418,5 @@ def update_keyframe(state: KeyframeState, kf, T_w_c, static, link, noise: NoiseS
     new = jax.lax.cond(kf.renew, take, lambda st: st, state)
     T_out = jnp.where(kf.renew, new.T_w_kf[-1], T_w_c)
     readings = jnp.sum(new.seen & new.taken[:, None, None] & new.static[None])
-    return new, KeyframeOut(T_out, new.count, readings.astype(jnp.int32), new.T_w_kf)
+    return new, KeyframeOut(T_out, new.count, readings.astype(jnp.int32))
 
-
-def keyframe_trajectory(outs: KeyframeOut, T_w_c):
-    """Every pair's final pose: its pose relative to its keyframe, on that keyframe's pose
-    when it last was in the window (its pose is final from then on).
-
-    As ORB-SLAM3 writes its trajectory: the window refines a keyframe's pose after the
-    frames that followed it were given theirs, and those frames were tracked against it.
-
-    Args:
-      outs: :class:`KeyframeOut` stacked over the T pairs of a run.
-      T_w_c: (T, 4, 4) each pair's current camera pose as the step gave it.
-    Returns:
-      (T, 4, 4) camera-to-world poses of the pairs' current cameras.
-    """
-    count, T_w_kf = outs.count, outs.T_w_kf
-    K = T_w_kf.shape[1]
-    steps = jnp.arange(count.shape[0])
-    # the last step at which each pair's keyframe was in the window, and its slot there
-    inside = count[None, :] <= count[:, None] + K - 1  # (T pair, T step)
-    last = jnp.max(jnp.where(inside & (steps[None] >= steps[:, None]), steps[None], -1), axis=1)
-    slot = K - 1 - (count[last] - count)
-    T_final = T_w_kf[last, slot]
-    return T_final @ invert_pose(T_w_kf[:, K - 1]) @ T_w_c

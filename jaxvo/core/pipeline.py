@@ -30,7 +30,6 @@ from jaxvo.config import Config, Params
 from jaxvo.core.egomotion import EgoState, init_ego, predicted_motion, update_egomotion
 from jaxvo.core.geometry import full_precision, invert_pose
 from jaxvo.core.keyframe import (
-    KeyframeOut,
     KeyframeState,
     init_keyframe,
     join_points,
@@ -98,7 +97,6 @@ class StepOutput(NamedTuple):
     # (jaxvo.core.window.WindowOut); T_w_c above is then the window's newest pose
     window: WindowOut | None = None
     keyframes: jax.Array | None = None  # () int32 keyframes taken so far (cfg.keyframes)
-    keyframe: KeyframeOut | None = None  # the keyframe window after this pair (cfg.keyframes)
 
 
 def init_pipeline(*, cfg: Config, grid: tuple[int, int], T_w_c0=None,
@@ -197,7 +195,7 @@ def step(state: PipelineState, flow, key, params: Params, *, cfg: Config, grid,
         ego = ego._replace(T_w_c=kout.T_w_c)
     out = _output(ego, eo, seg, bg, tout, noise, wout, pts.valid, params, cfg=cfg, grid=grid)
     if kout is not None:
-        out = out._replace(keyframes=kout.count, keyframe=kout)
+        out = out._replace(keyframes=kout.count)
     return PipelineState(temporal, ego, state.frame + 1, noise, window, kf_state), out
 
 
