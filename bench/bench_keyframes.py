@@ -1,19 +1,25 @@
-"""Frame-to-keyframe tracking (``Config.keyframes``, issue 27) against frame to frame.
+"""Keyframes and their local window (``Config.keyframes``, issues 27 and 39) against frame to
+frame, over seeds, beside ORB-SLAM3.
 
-On the real 7-Scenes frames (all 300, and the development and validation halves of
-``bench/splits.py``) at every 1st, 2nd and 4th frame, and on the validation composites
-(frames 150-299, seed 1): ATE and RPE (1 frame) with and without keyframes, and how many
-keyframes were taken. Then ``Odometry.process`` on the first ``--timing-frames`` frames,
-keyframes off and on in alternating runs (the first 5 frames of each apart), median ms a
-frame. ORB-SLAM3's figures on the same frames are in ``docs/report/orbslam3_val.md``.
+Three settings on the same cached flows: keyframes off (the default), the latest keyframe
+only (``keyframe_window=1``, issue 27's tracking) and the local window
+(``keyframe_window``'s default: the recent keyframes' poses and points refined together).
+Cases: all 300 shared 7-Scenes frames at every 1st, 2nd and 4th frame (issue 39's target
+frames), and ``bench/splits.py``'s development and validation splits (static halves,
+composites, the TUM walking clip). Every figure is the median [best-worst] over ``--seeds``
+seeds (``bench_seeds.py``'s runner); ORB-SLAM3 (stand-in vocabulary, RGB-D) and the best
+OpenCV peer are one run each on the same frames, from the peer cache. Then
+``Odometry.process`` on the first ``--timing-frames`` 7-Scenes frames, each setting in
+alternating runs (the first 5 frames of each apart), median ms a frame.
 
-Run: ``.venv/bin/python bench/bench_keyframes.py [--out results/] [--timing-frames 150]``;
-writes ``keyframes.md`` and ``keyframes.json``.
+Run: ``.venv/bin/python bench/bench_keyframes.py [--split dev|val|all] [--seeds 5]
+[--out results/] [--timing-frames 150]``; writes ``keyframes.md`` and ``keyframes.json``.
 """
 
 from __future__ import annotations
 
 import argparse
+import dataclasses
 import json
 import sys
 import time
@@ -22,83 +28,102 @@ from pathlib import Path
 import numpy as np
 
 sys.path.insert(0, str(Path(__file__).resolve().parent))
-from _common import SEVEN_SCENES, log, machine_line
-from splits import COMPOSITES, HALF
+from _common import SEVEN_SCENES, log, machine_line, markdown_table
+from bench_robustness import prepare
+from bench_seeds import score_case
+from splits import Case, cases, runnable
 
-from jaxvo.config import Config
-from jaxvo.evaluation.metrics import ate, rpe
+from jaxvo.config import Config, Params
 from jaxvo.host.io import InMemorySequence, data_root, open_sequence
-from jaxvo.odometry import Odometry, run_sequence
-from jaxvo.synth.scenes import composite_sequence
+from jaxvo.odometry import Odometry
+
+SETTINGS = {
+    "off": Config(),
+    "latest keyframe": Config(keyframes=True, keyframe_window=1),
+    "window": Config(keyframes=True),
+}
 
 
-def scores(seq) -> dict:
-    """ATE, RPE (mm) and keyframes of ``seq`` with keyframes off and on."""
-    row = {}
-    for kf in (False, True):
-        r = run_sequence(seq, cfg=Config(keyframes=kf))
-        gt = seq.groundtruth
-        row["on" if kf else "off"] = {
-            "ate_mm": 1e3 * float(ate(gt, r.trajectory).stats.rmse),
-            "rpe_mm": 1e3 * float(rpe(gt, r.trajectory, delta=1).trans.rmse),
-            "keyframes": int(r.outputs.keyframes[-1]) if kf else 0}
-    return row
+def _all_frames(step: int) -> Case:
+    def build():
+        seq = InMemorySequence(open_sequence(data_root() / SEVEN_SCENES), step=step)
+        seq.name = f"{SEVEN_SCENES}_every{step}"
+        return seq
+    return Case(f"static_all_every{step}", "target", "static", SEVEN_SCENES, build)
 
 
 def process_ms(seq, frames: int, repeats: int = 2) -> dict:
-    """Median ms a frame of ``Odometry.process``, keyframes off and on, alternating."""
-    times: dict[bool, list] = {False: [], True: []}
+    """Median ms a frame of ``Odometry.process`` for each setting, alternating runs."""
+    times: dict[str, list] = {k: [] for k in SETTINGS}
     for _ in range(repeats):
-        for kf in (False, True):
-            odo = Odometry(seq.intrinsics, cfg=Config(keyframes=kf))
+        for name, cfg in SETTINGS.items():
+            odo = Odometry(seq.intrinsics, cfg=cfg)
             ts = []
             for f in list(seq)[:frames]:
                 t0 = time.perf_counter()
                 odo.process(f.bgr, f.depth, f.timestamp)
                 ts.append(time.perf_counter() - t0)
-            times[kf] += ts[5:]
-    return {("on" if kf else "off"): 1e3 * float(np.median(t)) for kf, t in times.items()}
+            times[name] += ts[5:]
+    return {k: 1e3 * float(np.median(t)) for k, t in times.items()}
+
+
+def _cell(row: dict) -> str:
+    s = row.get("ate_mm") or row.get("distance_mm")
+    return f"{s['median']:.1f} [{s['best']:.1f}-{s['worst']:.1f}]" if s else "-"
 
 
 def main(argv=None) -> int:
     ap = argparse.ArgumentParser(description=__doc__.split("\n\n")[0])
-    ap.add_argument("--out", default="results", help="folder for keyframes.md / .json")
+    ap.add_argument("--split", choices=("dev", "val", "all"), default="all")
+    ap.add_argument("--only", nargs="*", help="case names")
+    ap.add_argument("--seeds", type=int, default=5)
+    ap.add_argument("--cache", type=Path, default=Path("results/cache"))
+    ap.add_argument("--out", type=Path, default=Path("results"))
     ap.add_argument("--timing-frames", type=int, default=150)
     args = ap.parse_args(argv)
+    splits = ("dev", "val") if args.split == "all" else (args.split,)
+    todo = [_all_frames(k) for k in (1, 2, 4)] + [c for c in cases() if c.split in splits]
+    todo = [c for c in todo if not args.only or c.name in args.only]
+    todo, skipped = runnable(todo)
+    rows: dict[str, dict] = {}
+    for case in todo:
+        rows[case.name] = {}
+        for name, cfg in SETTINGS.items():
+            row = score_case(case, prepare(case, args.cache, cfg), Params(), args.seeds,
+                             args.cache, cfg)
+            rows[case.name][name] = row
+            log(f"{case.name} {name}: {_cell(row)}")
+    timing = {}
     folder = data_root() / SEVEN_SCENES
-    if not folder.is_dir():
-        print(f"bench_keyframes: skipped, the 7-Scenes frames are not at {folder}")
-        return 0
-    full = open_sequence(folder)
-    rows = {}
-    for name, start, count in (("7-Scenes 300", 0, len(full)), ("dev 0-149", 0, HALF),
-                               ("val 150-299", HALF, HALF)):
-        for k in (1, 2, 4):
-            label = f"{name}, every {k}"
-            log(label)
-            rows[label] = scores(InMemorySequence(full, start=start, frames=-(-count // k),
-                                                  step=k))
-    for scenario in COMPOSITES:
-        label = f"comp_{scenario}_val"
-        log(label)
-        rows[label] = scores(InMemorySequence(composite_sequence(
-            folder, scenario, start=HALF, frames=HALF, seed=1)))
-    log("Odometry.process timing")
-    timing = process_ms(InMemorySequence(full, frames=args.timing_frames), args.timing_frames)
-    out = Path(args.out)
-    out.mkdir(parents=True, exist_ok=True)
-    (out / "keyframes.json").write_text(json.dumps({"rows": rows, "process_ms": timing},
-                                                   indent=1))
-    L = ["# Frame-to-keyframe tracking against frame to frame", "", machine_line(), "",
-         "| frames | ATE off [mm] | ATE on [mm] | RPE off [mm] | RPE on [mm] | keyframes |",
-         "|---|---|---|---|---|---|"]
-    L += [f"| {k} | {r['off']['ate_mm']:.2f} | {r['on']['ate_mm']:.2f} | "
-          f"{r['off']['rpe_mm']:.2f} | {r['on']['rpe_mm']:.2f} | {r['on']['keyframes']} |"
-          for k, r in rows.items()]
-    L += ["", (f"`Odometry.process`, median of 2 alternating runs over the first "
-               f"{args.timing_frames} frames: {timing['off']:.2f} ms a frame without keyframes, "
-               f"{timing['on']:.2f} ms with (+{timing['on'] - timing['off']:.2f} ms)."), ""]
-    (out / "keyframes.md").write_text("\n".join(L))
+    if args.timing_frames and folder.is_dir():
+        log("Odometry.process timing")
+        timing = process_ms(InMemorySequence(open_sequence(folder), frames=args.timing_frames),
+                            args.timing_frames)
+    args.out.mkdir(parents=True, exist_ok=True)
+    (args.out / "keyframes.json").write_text(json.dumps(
+        {"seeds": args.seeds, "settings": {k: dataclasses.asdict(c) for k, c in SETTINGS.items()},
+         "rows": rows, "process_ms": timing, "skipped": skipped}, indent=1))
+    head = ["case"] + [f"{k} mm" for k in SETTINGS] + ["window / ORB-SLAM3", "ORB-SLAM3 mm",
+                                                       "best OpenCV peer mm", "keyframes"]
+    cells = []
+    for name, r in rows.items():
+        w = r["window"]
+        orb = w.get("orbslam3_mm")
+        ratio = f"{w['ate_mm']['median'] / orb:.2f}" if orb and "ate_mm" in w else "-"
+        cells.append([name] + [_cell(r[k]) for k in SETTINGS]
+                     + [ratio, f"{orb:.1f}" if orb else "-",
+                        f"{w['best_peer_mm']:.1f}" if "best_peer_mm" in w else "-",
+                        str(w.get("keyframes", "-"))])
+    L = [f"# Keyframes and their local window over {args.seeds} seeds", "", machine_line(), "",
+         ("ATE after rigid alignment, mm, median [best-worst] over the seeds (the TUM clip: "
+          "the distance from its people-masked reference, computed with the same setting)."),
+         "", markdown_table(head, cells), ""]
+    if timing:
+        L += [f"`Odometry.process`, median of 2 alternating runs over the first "
+              f"{args.timing_frames} 7-Scenes frames, ms a frame: "
+              + ", ".join(f"{k} {v:.2f}" for k, v in timing.items()) + ".", ""]
+    L += [f"{k}: skipped, {v}" for k, v in skipped.items()]
+    (args.out / "keyframes.md").write_text("\n".join(L) + "\n")
     print("\n".join(L))
     return 0
 

@@ -122,6 +122,8 @@ def score_case(case: Case, data: dict, params: Params, seeds: int, cache: Path,
                  "moving_cells_pct": spread(100.0 * outs.moving.mean(axis=(1, 2)))}
     status = np.asarray(outs.status)
     row["skipped"] = int(np.sum(status != 0))
+    if cfg.keyframes:
+        row["keyframes"] = int(np.median(outs.keyframes[:, -1]))
     if "gt_poses" in data:
         gt = Trajectory(data["timestamps"], data["gt_poses"])
         row["ate_mm"] = spread([1e3 * trajectory_scores(gt, tr)["ate_rmse_m"] for tr in trajs])

@@ -1,5 +1,6 @@
-"""Frame-to-keyframe tracking: jaxvo.core.keyframe (device) and its host tracker
-(jaxvo.host.flow.KeyframeTracker), tested together because neither runs without the other."""
+"""Keyframes and their local window: jaxvo.core.keyframe (device) and its host tracker
+(jaxvo.host.keyframes.KeyframeTracker), tested together because neither runs without the
+other."""
 
 from __future__ import annotations
 
@@ -12,9 +13,18 @@ from scipy.spatial.transform import Rotation
 from test_flow import CFG, H, K, W, bgr, plane, texture, warp
 
 from jaxvo.config import Config, Params
-from jaxvo.core.keyframe import init_keyframe, keyframe_points, update_keyframe
+from jaxvo.core.keyframe import (
+    KeyframeState,
+    _problem,
+    init_keyframe,
+    keyframe_index,
+    keyframe_points,
+    refine,
+    update_keyframe,
+)
 from jaxvo.core.noise import init_noise
 from jaxvo.host.flow import FrameChain, GridFlowTracker
+from jaxvo.host.keyframes import KeyframeFlow, invalid_keyframe_flow
 from jaxvo.odometry import Odometry, run_sequence
 from jaxvo.synth.scenes import make_sequence
 
@@ -28,23 +38,32 @@ def _pose(rng) -> np.ndarray:
     return T
 
 
+GRID = (5, 10)  # 50 grid points, every one a keyframe point (keyframe_stride 1)
+UNIT_CFG = dataclasses.replace(Config(), keyframes=True, keyframe_stride=1, keyframe_window=3)
+
+
+def _kf_flow(n: int, W: int, **fields) -> KeyframeFlow:
+    """An all-invalid keyframe flow of n points and W window slots, ``fields`` replaced."""
+    return invalid_keyframe_flow(n, W + 1)._replace(**{"renew": np.bool_(False), **fields})
+
+
 def test_keyframe_points_are_the_keyframe_points_in_the_previous_camera():
     """src = inv(T_w_prev) T_w_kf p_kf in float64 numpy, to 1e-5 m; points not static or
     not valid are left out."""
     rng = np.random.default_rng(0)
-    n = 50
+    n = GRID[0] * GRID[1]
     T_w_kf, T_w_prev = _pose(rng), _pose(rng)
-    p_kf = rng.uniform([-1, -1, 1], [1, 1, 4], (n, 3))
-    p_cur = rng.uniform([-1, -1, 1], [1, 1, 4], (n, 3))
+    p_kf = rng.uniform([-1, -1, 1], [1, 1, 4], (n, 3)).astype(np.float32)
+    p_cur = rng.uniform([-1, -1, 1], [1, 1, 4], (n, 3)).astype(np.float32)
     valid = rng.random(n) > 0.2
     static = rng.random(n) > 0.2
-    state = init_keyframe(T_w_kf, n)._replace(static=jnp.asarray(static))
-    kf = (jnp.asarray(p_kf, jnp.float32), jnp.asarray(p_cur, jnp.float32), jnp.asarray(valid))
-    from jaxvo.host.flow import KeyframeFlow
-
-    pts = keyframe_points(state, KeyframeFlow(*kf, jnp.bool_(False)),
-                          jnp.asarray(T_w_prev, jnp.float32), Params(), focal=525.0,
-                          scale=init_noise(Params()))
+    state = init_keyframe(T_w_kf, cfg=UNIT_CFG, grid=GRID)
+    state = state._replace(point=state.point.at[-1].set(p_kf),
+                           static=state.static.at[-1].set(jnp.asarray(static)),
+                           fresh=jnp.bool_(False))
+    kf = _kf_flow(n, 2, pts_cur=p_cur, valid=valid)  # pts_kf zero: the state's points count
+    pts = keyframe_points(state, kf, jnp.asarray(T_w_prev, jnp.float32), Params(), focal=525.0,
+                          scale=init_noise(Params()), index=keyframe_index(GRID, 1))
     want = (np.linalg.inv(T_w_prev) @ T_w_kf @ np.c_[p_kf, np.ones(n)].T)[:3]
     keep = valid & static
     np.testing.assert_array_equal(np.asarray(pts.valid), keep)
@@ -52,19 +71,100 @@ def test_keyframe_points_are_the_keyframe_points_in_the_previous_camera():
     np.testing.assert_allclose(np.asarray(pts.dst)[:, keep], p_cur.T[:, keep], atol=1e-6)
 
 
-def test_update_keyframe_renews_only_when_told():
-    n = 4
-    st = init_keyframe(np.eye(4), n)
+def _update(state, kf, T, static):
+    link = (jnp.eye(4), jnp.zeros((6, 6)), jnp.zeros(6))
+    return update_keyframe(state, kf, jnp.asarray(T, jnp.float32), jnp.asarray(static), link,
+                           init_noise(Params()), Params(), cfg=UNIT_CFG, grid=GRID, focal=525.0)
+
+
+def test_update_keyframe_takes_a_keyframe_only_when_told():
+    """Without ``renew`` the window keeps its keyframes (the first pair teaches it the first
+    keyframe's points); with it the current frame becomes the latest keyframe with its own
+    points and its readings of the window's points, the oldest slot leaving."""
+    n = GRID[0] * GRID[1]
+    rng = np.random.default_rng(1)
+    p0 = rng.uniform([-1, -1, 1], [1, 1, 4], (n, 3)).astype(np.float32)
     T = np.eye(4, dtype=np.float32)
     T[0, 3] = 1.0
-    static = jnp.asarray([True, False, True, False])
-    same = update_keyframe(st, jnp.bool_(False), T, static)
-    np.testing.assert_array_equal(np.asarray(same.T_w_kf), np.eye(4))
-    assert bool(same.static.all()) and int(same.count) == 1
-    new = update_keyframe(st, jnp.bool_(True), T, static)
-    np.testing.assert_array_equal(np.asarray(new.T_w_kf), T)
-    np.testing.assert_array_equal(np.asarray(new.static), np.asarray(static))
-    assert int(new.count) == 2
+    st = init_keyframe(np.eye(4), cfg=UNIT_CFG, grid=GRID)
+    static = np.arange(n) % 2 == 0
+    same, out = _update(st, _kf_flow(n, 2, pts_kf=p0, valid=np.ones(n, bool)), T, static)
+    np.testing.assert_array_equal(np.asarray(same.T_w_kf[-1]), np.eye(4))
+    np.testing.assert_array_equal(np.asarray(out.T_w_c), T)  # no keyframe: the pose stays
+    np.testing.assert_array_equal(np.asarray(same.point[-1]), p0)
+    assert bool(same.static[-1].all()) and int(out.count) == 1 and not bool(same.fresh)
+    p1 = p0 + np.float32(0.1)
+    seen = np.zeros((2, n), bool)
+    seen[1] = True
+    kf = _kf_flow(n, 2, renew=np.bool_(True), new_kf=p1, win_cur=np.stack([p0, p1]),
+                  win_valid=seen)
+    new, out = _update(same, kf, T, static)
+    assert int(out.count) == 2 and bool(new.taken[-1]) and bool(new.taken[-2])
+    np.testing.assert_array_equal(np.asarray(new.point[-1]), p1)
+    np.testing.assert_array_equal(np.asarray(new.static[-1]), static)
+    np.testing.assert_array_equal(np.asarray(new.point[-2]), p0)  # the first keyframe, shifted
+    np.testing.assert_array_equal(np.asarray(new.seen[-1, -2]), np.ones(n, bool))
+    np.testing.assert_array_equal(np.asarray(new.obs[-1, -2]), p1)
+    assert not bool(new.seen[-1, 0].any())  # slot 0 is still empty
+
+
+def _window(rng, K: int, m: int):
+    """A window of K keyframes (the first at the origin) around m points a keyframe, each
+    point read exactly by every later keyframe."""
+    def pose(w, t):
+        T = np.eye(4)
+        T[:3, :3] = Rotation.from_rotvec(w).as_matrix()
+        T[:3, 3] = t
+        return T
+    T = np.stack([np.eye(4)] + [pose(rng.normal(0, 0.05, 3), rng.normal(0, 0.1, 3))
+                                for _ in range(K - 1)])
+    Xw = np.stack([rng.uniform(-1, 1, (K, m)), rng.uniform(-1, 1, (K, m)),
+                   rng.uniform(2, 3, (K, m))], -1)
+    point = np.einsum("iba,imb->ima", T[:, :3, :3], Xw - T[:, None, :3, 3])
+    obs = np.einsum("jba,jimb->jima", T[:, :3, :3], Xw[None] - T[:, None, None, :3, 3])
+    seen = np.broadcast_to(np.tril(np.ones((K, K), bool), -1)[:, :, None], (K, K, m))
+    f32 = lambda x: jnp.asarray(x, jnp.float32)
+    state = KeyframeState(f32(T), jnp.ones(K, bool), f32(point), jnp.ones((K, m), bool),
+                          f32(obs), jnp.asarray(seen), jnp.int32(K), jnp.bool_(False),
+                          f32(np.broadcast_to(np.eye(4), (K, 4, 4))), jnp.zeros((K, 6, 6)),
+                          jnp.zeros((K, 6)))
+    return T, state, pose
+
+
+def test_window_refinement_finds_the_poses_the_readings_agree_on():
+    """Exact readings, every pose but the oldest moved by about 1 cm and 0.6 degrees: the
+    refinement brings each back to 1e-4 m and the depths to 1e-4 (float32)."""
+    rng = np.random.default_rng(2)
+    K, m = 4, 60
+    T, state, pose = _window(rng, K, m)
+    pb = _problem(state, 525.0, init_noise(Params()), Params())
+    moved = T.copy()
+    for k in range(1, K):
+        moved[k] = pose(rng.normal(0, 0.01, 3), rng.normal(0, 0.01, 3)) @ T[k]
+    assert np.abs(moved[:, :3, 3] - T[:, :3, 3]).max() > 5e-3
+    refined, s = refine(jnp.asarray(moved, jnp.float32), pb, 8)
+    np.testing.assert_allclose(np.asarray(refined)[:, :3, 3], T[:, :3, 3], atol=1e-4)
+    np.testing.assert_allclose(np.asarray(refined)[:, :3, :3], T[:, :3, :3], atol=1e-4)
+    assert float(jnp.abs(s).max()) < 1e-4
+
+
+def test_chain_factor_alone_holds_each_keyframe_where_the_chain_put_it():
+    """No readings: the chain's factors (T_k_(k-1) measured, a strong information) are the
+    whole cost, and the refinement puts every keyframe where the chain says, relative to
+    the fixed oldest one."""
+    rng = np.random.default_rng(3)
+    K, m = 3, 10
+    T, state, pose = _window(rng, K, m)
+    link = np.stack([np.eye(4)] + [np.linalg.inv(T[k]) @ T[k - 1] for k in range(1, K)])
+    state = state._replace(seen=jnp.zeros_like(state.seen),
+                           link_T=jnp.asarray(link, jnp.float32),
+                           link_H=jnp.broadcast_to(1e6 * jnp.eye(6), (K, 6, 6)))
+    moved = T.copy()
+    for k in range(1, K):
+        moved[k] = pose(rng.normal(0, 0.01, 3), rng.normal(0, 0.02, 3)) @ T[k]
+    pb = _problem(state, 525.0, init_noise(Params()), Params())
+    refined, _ = refine(jnp.asarray(moved, jnp.float32), pb, 8)
+    np.testing.assert_allclose(np.asarray(refined)[:, :3, 3], T[:, :3, 3], atol=1e-4)
 
 
 @pytest.fixture(scope="module")
@@ -118,3 +218,38 @@ def test_stream_and_scan_take_the_same_keyframes_and_poses(kf_seq):
     assert off.outputs.keyframes is None
     # the switch changes the poses (the keyframe points enter the fit)
     assert np.abs(off.trajectory.poses - res.trajectory.poses).max() > 1e-7
+
+
+def test_a_new_keyframe_reads_the_points_of_the_window_keyframes(shifted_frames):
+    """When a keyframe is taken, every window keyframe whose points are still in view gives
+    readings in the new one: 12 px per frame since that keyframe to the left (median, to
+    0.2 px), the latest keyframe's slot the pair's own keyframe flow, and the new keyframe's
+    own points at its grid. (A keyframe every few frames: ``keyframe_overlap`` 0.9.)"""
+    cfg = dataclasses.replace(CFG, keyframes=True, keyframe_window=3, keyframe_overlap=0.9)
+    chain = FrameChain(GridFlowTracker(K, cfg, height=H, width=W), min_valid=5, keyframes=True)
+    chain.push(bgr(shifted_frames[0]), plane(2.0))
+    taken = [0]  # frame index of each keyframe
+    older_read = 0
+    for i, img in enumerate(shifted_frames[1:], start=1):
+        chain.push(bgr(img), plane(2.0))
+        kf = chain.keyframe_flow
+        assert kf.win_valid.shape == (cfg.keyframe_window - 1, len(kf.valid))
+        if not kf.renew:
+            assert not kf.win_valid.any()
+            continue
+        np.testing.assert_array_equal(kf.win_valid[-1], kf.valid)
+        np.testing.assert_array_equal(kf.win_cur[-1], kf.pts_cur)
+        keys = taken[-(cfg.keyframe_window - 1):]
+        for w, k in enumerate(keys, start=cfg.keyframe_window - 1 - len(keys)):
+            v = kf.win_valid[w]
+            if v.sum() < 20:
+                continue
+            older_read += w < cfg.keyframe_window - 2
+            # a point read at x in the new image lay at x + 12 (i - k) in keyframe k's,
+            # which is where keyframe k's grid point was
+            x = kf.win_cur[w, v, 0] * K.fx / kf.win_cur[w, v, 2] + K.cx + 12.0 * (i - k)
+            f = (x - (cfg.cell - 1) / 2) / cfg.cell
+            assert np.median(np.abs(f - np.round(f))) * cfg.cell < 0.2, (w, k, i)
+        assert (kf.new_kf[:, 2] > 0).sum() > 100
+        taken.append(i)
+    assert len(taken) >= 3 and older_read >= 1
