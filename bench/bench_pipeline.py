@@ -47,7 +47,7 @@ from _common import SEVEN_SCENES, data_name, load_average, log, machine
 
 from jaxvo.config import Config, Params, grid_shape, params_as_arrays
 from jaxvo.core.pipeline import run_scan
-from jaxvo.host.flow import flows_for_sequence
+from jaxvo.host.flow import sequence_flows
 from jaxvo.host.io import InMemorySequence, data_root, open_sequence
 from jaxvo.host.peers import run_peer
 from jaxvo.odometry import Odometry
@@ -84,6 +84,9 @@ def sequence_folder(tmp: str) -> Path:
     return seq_dir
 
 
+CFG = Config()  # the settings of every jaxvo run here (--keyframes: everything on)
+
+
 def child_env() -> dict:
     return dict(os.environ, JAX_PLATFORMS=os.environ.get("JAX_PLATFORMS", "cpu"))
 
@@ -94,7 +97,8 @@ def jaxvo_run(seq_dir: Path, out: Path, cache: Path) -> dict:
     t0 = time.perf_counter()
     proc = subprocess.run(
         [sys.executable, "-m", "jaxvo.cli.main", "run", str(seq_dir), "--out", str(out),
-         "--json", "--frames", str(FRAMES), "--compile-cache", str(cache)],
+         "--json", "--frames", str(FRAMES), "--compile-cache", str(cache),
+         "--keyframes" if CFG.keyframes else "--no-keyframes"],
         capture_output=True, text=True, check=False, env=child_env(),
     )
     wall = time.perf_counter() - t0
@@ -152,7 +156,7 @@ def bench_streaming(frames: list, K, *, pipelined: bool) -> dict:
     the call returns), or of ``Odometry.submit`` (throughput: the call returns the previous
     frame's result while this frame's device step keeps running). A fresh ``Odometry``; the
     step compiles on the first pair's call unless this process compiled it already."""
-    odo = Odometry(K, cfg=Config(), seed=0)
+    odo = Odometry(K, cfg=CFG, seed=0)
     call = odo.submit if pipelined else odo.process
     times = []
     for f in frames:
@@ -172,17 +176,21 @@ def bench_streaming(frames: list, K, *, pipelined: bool) -> dict:
 def bench_scan(seq, cfg: Config, *, repeats: int = 5) -> dict:
     """``run_scan`` over the sequence's precomputed flow: the first call (compile) apart,
     then the median of ``repeats`` calls."""
-    flows = jax.tree.map(jnp.asarray, flows_for_sequence(seq, cfg))
+    chain = sequence_flows(seq, cfg)
+    flows = jax.tree.map(jnp.asarray, chain.flows)
+    kfs = None if chain.keyframes is None else jax.tree.map(jnp.asarray, chain.keyframes)
     grid = grid_shape(seq.height, seq.width, cfg.cell)
     p = params_as_arrays(Params())
     T0 = jnp.eye(4, dtype=jnp.float32)
     t0 = time.perf_counter()
-    jax.block_until_ready(run_scan(flows, jax.random.key(0), p, T0, cfg=cfg, grid=grid))
+    jax.block_until_ready(run_scan(flows, jax.random.key(0), p, T0, cfg=cfg, grid=grid,
+                                   keyframes=kfs))
     compile_s = time.perf_counter() - t0
     runs = []
     for r in range(repeats):
         t0 = time.perf_counter()
-        jax.block_until_ready(run_scan(flows, jax.random.key(r), p, T0, cfg=cfg, grid=grid))
+        jax.block_until_ready(run_scan(flows, jax.random.key(r), p, T0, cfg=cfg, grid=grid,
+                                       keyframes=kfs))
         runs.append(time.perf_counter() - t0)
     n = int(flows.valid.shape[0])
     med = float(np.median(runs))
@@ -268,7 +276,8 @@ def markdown(res: dict) -> str:
          f"{m['jax']} ({', '.join(m['jax_devices'])}); OpenCV {m['opencv']}; load average "
          f"{m['load_average_start']} at the start, {res['load_average_end']} at the end."),
         (f"Sequence: `{res['sequence']}`, {FRAMES} frames; the peer is OpenCV's RGB odometry "
-         f"(`{PEER}`), timed per pair as `run_peer` times it."),
+         f"(`{PEER}`), timed per pair as `run_peer` times it. jaxvo's keyframes and their "
+         f"window: {'on' if res.get('keyframes') else 'off'}."),
         "",
         "| measure | this run | target | met |",
         "|---|---|---|---|",
@@ -295,12 +304,16 @@ def main() -> None:
                     help="jaxvo run children after the first (warm compile cache)")
     ap.add_argument("--peer-runs", type=int, default=2, help="peer child processes")
     ap.add_argument("--out", default="results", help="folder for pipeline.json / .md")
+    ap.add_argument("--keyframes", action="store_true",
+                    help="everything on: keyframes and their window (jaxvo run --keyframes)")
     args = ap.parse_args()
+    global CFG
+    CFG = Config(keyframes=args.keyframes)
     out_dir = Path(args.out)
     out_dir.mkdir(parents=True, exist_ok=True)
 
     res = {"date": datetime.datetime.now().isoformat(timespec="seconds"),
-           "machine": machine(), "frames": FRAMES}
+           "machine": machine(), "frames": FRAMES, "keyframes": CFG.keyframes}
     log(f"machine: {res['machine']}")
     with tempfile.TemporaryDirectory() as tmp:
         seq_dir = sequence_folder(tmp)
@@ -316,7 +329,7 @@ def main() -> None:
         log(f"Odometry.process: {res['process']}")
         res["submit"] = bench_streaming(frames, mem.intrinsics, pipelined=True)
         log(f"Odometry.submit: {res['submit']}")
-        res["scan"] = bench_scan(mem, Config())
+        res["scan"] = bench_scan(mem, CFG)
         log(f"run_scan from precomputed flow: {res['scan']}")
     res["load_average_end"] = load_average()
     res["headline"] = headline(res)
