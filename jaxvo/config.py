@@ -261,7 +261,8 @@ def check_config(
 
     The grid cell must be at least :data:`MIN_CELL` pixels (and leave 2 x 2 cells on the
     image, when its size is given); there must be at least one hypothesis, minimal samples
-    of at least 3 points, and room for at least one segment; the refinement window is 0
+    of at least 3 points, and room for at least one segment; the keyframe window holds at
+    least one keyframe, its points every stride-th grid point; the refinement window is 0
     (off) or at least 2 frames, with no negative iteration count.
 
     Args:
@@ -280,6 +281,9 @@ def check_config(
         ("num_hypotheses", 1, "hypothesis"),
         ("sample_size", 3, "points (a rigid fit needs 3)"),
         ("max_segments", 1, "segment"),
+        ("keyframe_window", 1, "keyframe"),
+        ("keyframe_stride", 1, "grid row and column"),
+        ("keyframe_iters", 0, "iterations"),
     )
     for field, least, unit in checks:
         value = getattr(cfg, field)
