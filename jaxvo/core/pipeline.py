@@ -114,8 +114,11 @@ def step(state: PipelineState, flow, key, params: Params, *, cfg: Config, grid,
 
     Args:
       state: carried :class:`PipelineState`.
-      flow: a ``GridFlow`` of device or host arrays (``pts_prev``, ``pts_cur``, ``uv_prev``,
-        ``uv_cur``, ``valid``, ``status``, ``focal``), see :mod:`jaxvo.host.flow`.
+      flow: a ``GridFlow`` of device or host arrays, see :mod:`jaxvo.host.flow`: the
+        points ``pts_prev``, ``pts_cur``, ``valid`` and the pair's ``status`` (the frame's
+        points); ``focal``, ``fb_error``, ``depth_slope`` (their noise); ``uv_prev``,
+        ``uv_cur`` (the displacement that carries the grid model forward); ``depth_seen``
+        (cells without depth keep their evidence). Every field is read.
       key: PRNG key of this frame (hypothesis sampling).
       params: numeric settings, possibly traced (vmappable).
       cfg: static settings; grid: static ``(rows, cols)``.
