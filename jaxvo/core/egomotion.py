@@ -151,7 +151,7 @@ def fit_egomotion(pts: Points, weights, params: Params, *, cfg: Config, T_init=N
     (``T_init``, the background segment's; ``candidates`` (k, 4, 4), the predicted motion
     and every segment's; and the plain weighted fit), so that the random hypotheses
     choose where the deterministic re-weighting starts, not where it ends. With ``belief``
-    (n,) (:func:`jaxvo.core.temporal.belief_weights`: 1 where earlier frames established
+    (n,) (:func:`jaxvo.core.background.belief_weights`: 1 where earlier frames established
     the point as background) the support grows with the fit: every established point that
     the current motion explains within the inlier test joins it, whatever segment it fell
     in this frame. A piece of the background that the spatial stage split off (and so
