@@ -5,9 +5,12 @@ host side does."""
 from __future__ import annotations
 
 import ast
+import io
 import pkgutil
+import re
 import subprocess
 import sys
+import tokenize
 from pathlib import Path
 
 import jaxvo.core
@@ -116,3 +119,48 @@ def test_no_module_of_jaxvo_imports_itself_through_others():
     graph = {name: _jaxvo_imports(p, set(paths)) for name, p in paths.items()}
     assert "jaxvo.host.frames" in graph["jaxvo.host.rosbag"]  # the walk sees imports
     assert import_circles(graph) == []
+
+
+# A figure with a unit of an experiment (millimetres, milli- or microseconds, a percentage)
+# or an issue number: evidence that goes stale as the code moves, kept in docs/report/.
+NARRATION = re.compile(r"\d(?:[\d.,]*\d)?\s*(?:mm|ms|µs|us)\b|\d(?:[\d.]*\d)?\s*%"
+                       r"|\bissues?\s+#?\d+", re.IGNORECASE)
+
+
+def narrations(source: str) -> list[tuple[int, str]]:
+    """``(line, text)`` of each figure with a unit or issue number that a comment or a
+    docstring of ``source`` cites (code and other strings are not read)."""
+    found = []
+    for tok in tokenize.generate_tokens(io.StringIO(source).readline):
+        if tok.type == tokenize.COMMENT:
+            found += [(tok.start[0], m.group(0)) for m in NARRATION.finditer(tok.string)]
+    for node in ast.walk(ast.parse(source)):
+        if isinstance(node, (ast.Module, ast.ClassDef, ast.FunctionDef, ast.AsyncFunctionDef)) \
+                and node.body and isinstance(node.body[0], ast.Expr) \
+                and isinstance(node.body[0].value, ast.Constant) \
+                and isinstance(node.body[0].value.value, str):
+            doc = node.body[0].value
+            found += [(doc.lineno + doc.value[:m.start()].count("\n"), m.group(0))
+                      for m in NARRATION.finditer(doc.value)]
+    return sorted(found)
+
+
+def test_the_narration_pattern_finds_figures_and_leaves_equations_and_shapes():
+    bad = ['"""RPE 12.2 mm per frame."""', '"""Took 26 against 140 us."""',
+           "x = 1  # 0.84 against 0.06 ms", '"""From 48.8 % to 58.4 %."""',
+           "# faded as it came near, issue 26", '"""See Issue #30."""', "# 3µs"]
+    for src in bad:
+        assert narrations(src), src
+    good = ['"""Eq. (4.1): C_ij = N_ij / sqrt(N_i N_j); shapes (3, n), (n, 4)."""',
+            '"""Within a relative 2**-12; m^2; 1e-6 m; chi2_3(0.99)."""',
+            "r = idx % cols  # row-major: c = i % cols", 'msg = f"{x:.1f} % of {n} ms"',
+            '"""Algorithm 3 lines 5-7; thesis section 4.2.1; 3 users."""']
+    for src in good:
+        assert not narrations(src), src
+
+
+def test_no_docstring_or_comment_of_the_core_narrates_an_experiment():
+    """Figures go in docs/report/ (docs/report/core_decisions.md), linked from the code."""
+    found = [f"{p.name}:{line}: {text}" for p in sorted(CORE.glob("*.py"))
+             for line, text in narrations(p.read_text(encoding="utf-8"))]
+    assert not found, "\n".join(found)

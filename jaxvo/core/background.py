@@ -56,8 +56,7 @@ def choose_background(state: BackgroundState, segment_ids, support, consistency,
     identifier has been the background, the prediction whether its segment still moves as
     the background does, and the choice takes their product. Without the product, the
     history alone kept the background on an object that a first frame had merged with it
-    (``three_boxes`` composite, frames 150-299: the box, once split off, kept identifier 1
-    and the camera followed it for 130 frames).
+    (docs/report/core_decisions.md).
     The background is the segment present now with the highest weighted score (the segment
     of most weighted support when no segment has an identifier). When its identifier is not
     1, the two identifiers swap (the background is re-acquired in this frame, never lost):

@@ -49,14 +49,14 @@ def refine_reprojection(T, src, dst, weights, iters):
 
     The 3D-3D fit treats a point's error as isotropic, but the depth noise of an RGB-D
     camera lies along the viewing ray and is several times the lateral error of the
-    tracked pixel; least squares on such points shortens the estimated motion (3 % with a
-    plain fit on the synthetic static scene). The tracked pixel carries no depth noise: its
+    tracked pixel; least squares on such points shortens the estimated motion. The tracked
+    pixel carries no depth noise: its
     direction is ``dst / dst_z``. So the pose is refined, from the 3D-3D estimate and on its
     inliers, on the error of ``T src`` in the current view split into an image-plane part
     (normalised image coordinates, the classic 3D-2D error) and a depth part, each divided
     by its robust scale (Huber weights as in the 3D re-weighting): the data say how much
-    each is worth. Image error alone helped the synthetic scenes but not
-    7-Scenes, whose depth is not registered to its colour image exactly.
+    each is worth: the image error alone does not pay where the depth is not registered to
+    the colour image exactly (figures: docs/report/core_decisions.md).
 
     Args:
       T: (4, 4) starting pose; src, dst: (3, n) columns; weights: (n,) bool or float.

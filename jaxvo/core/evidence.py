@@ -48,8 +48,8 @@ def evidence_delta(seg_labels, d2_ego, d2_seg, explained, valid, params: Params,
     coherence, :func:`neighbourhood_agreement`), so a mover that no segment separates (a
     person: many small parts, none rigid) gains evidence over frames, while a lone large
     residual (a depth edge, a mistracked point) stays an outlier: counted on its own, it
-    put 1-2 % of a static real scene's cells in motion (7-Scenes frames 0-149). Every ratio is kept within ``+-params.evidence_step``:
-    one frame cannot shift the odds by more than that.
+    put cells of static real scenes in motion (docs/report/core_decisions.md). Every ratio is kept
+    within ``+-params.evidence_step``: one frame cannot shift the odds by more than that.
     """
     s = d2_seg.shape[0]
     lab = jnp.clip(seg_labels - 1, 0, s - 1)
@@ -68,12 +68,9 @@ def evidence_delta(seg_labels, d2_ego, d2_seg, explained, valid, params: Params,
 def neighbourhood_agreement(values, valid, *, grid: tuple[int, int]):
     """(n,) what the valid cells of each cell's 3 x 3 neighbourhood on the ``grid`` agree
     on: the lower quartile of their ``values`` (n,), so that with 9 measured cells 7 must
-    reach it; -inf where fewer than 5 are measured (too few to agree).
-
-    On the development split the median instead (5 of 9) flagged 2.0 % of the pixels of
-    the static real frames at every 4th frame, the lower quartile 0.3 % (0.1 % without the
-    rule); on the validation split the lower quartile took the people of the TUM clip from
-    48.8 % to 58.4 % covered (issue 26).
+    reach it; -inf where fewer than 5 are measured (too few to agree). The median (5 of 9)
+    flagged static real frames as moving where the lower quartile did not, and the lower
+    quartile covered more of the people (docs/report/core_decisions.md).
     """
     rows, cols = grid
     v = jnp.where(valid, values, jnp.inf).reshape(rows, cols)
@@ -107,7 +104,7 @@ def update_evidence(evidence, delta, measured, hidden, params: Params):
     mind) and a measured cell adds this frame's log-likelihood ratio ``delta``. A cell the
     sensor cannot see (``hidden``: no depth reading, as an object nearer than the depth
     range) keeps its evidence unchanged until it is seen again: nothing was learnt of it
-    (``close_approach``: its object's cells faded as it came near, issue 26). The sum is
+    (else an approaching object fades from the mask, docs/report/core_decisions.md). The sum is
     kept within ``+-(logit(confidence) + params.evidence_margin)``, so that a cell can
     pass the moving test at any confidence and a long history cannot outweigh a change
     for longer than about ``bound / |delta|`` frames.

@@ -22,10 +22,10 @@ from jax import lax
 def full_precision(fn):
     """``fn`` traced with every float32 matrix product at full float32 precision.
 
-    JAX lets a GPU run float32 products in TF32 (a 10-bit mantissa) by default: a point 2 m
-    away then moves by millimetres in every transform and fit, and the trajectory of a
-    synthetic scene came out 5x less accurate on an H100 than on the CPU (issue 30). The
-    CPU computes in float32 anyway; the products here are small, so the cost is nil.
+    JAX lets a GPU run float32 products in TF32 (a 10-bit mantissa) by default, which
+    moves every transformed point and fit by far more than the sensor's noise
+    (docs/report/core_decisions.md). The CPU computes in float32 anyway; the products here are
+    small, so the cost is nil.
     """
     @functools.wraps(fn)
     def traced(*args, **kwargs):
@@ -116,7 +116,8 @@ def masked_median(x, mask, precision_bits: int | None = None):
 
     Exact (the mean of the two middle values), found by bisection on the float bit
     patterns rather than a sort: 32 fused count-reductions cost a fifth of an XLA CPU sort
-    of 1200 values (26 against 140 us), and the ego-motion takes a median per iteration.
+    of a grid's values (docs/report/core_decisions.md), and the ego-motion takes a median per
+    iteration.
 
     With ``precision_bits`` b: the lower middle value to a relative ``2**-b`` (at most
     that much toward -inf), one order statistic by ``9 + b`` halvings instead of two by 32

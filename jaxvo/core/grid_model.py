@@ -14,7 +14,7 @@ the moving evidence and the window of label matching move with them.
 Design decisions where the thesis leaves room:
 
 * After a swap the demoted model is cleared, as in the model the thesis builds on
-  (Yi et al., MCD5.8ms, ref. [20]); keeping it would let a single erroneous label swap back.
+  (Yi et al. 2013, ref. [20]); keeping it would let a single erroneous label swap back.
   The swap is checked only on frames where the candidate was updated.
 * Compensation reads the flow forward: each previous cell's models move to where its
   point went, and a cell without flow moves as its identifier's valid cells do on average
@@ -153,8 +153,8 @@ def splat_weights(disp, flow_valid, ids, *, cfg: Config, grid: tuple[int, int]):
     nothing lands on (newly uncovered, or new in view) is empty. Read forward, a moving
     object's model moves with the object: looking back from each current cell with the
     displacement measured at the same previous cell gave the cells an object had just
-    entered the background's model alone (synthetic scenes: moving recall 0.79-0.85 ->
-    0.84-0.89). A cell the object has just entered still receives the background it covers
+    entered the background's model alone (docs/report/core_decisions.md). A cell the object has
+    just entered still receives the background it covers
     too, and a tie of the two labels goes to the lower identifier, so its label may lag a
     frame.
 

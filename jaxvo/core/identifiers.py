@@ -76,10 +76,8 @@ def label_correlation(seg_labels, id_map, *, num_segments: int, num_ids: int):
     absent (no division by zero). ``N_j`` counts identifier ``j``'s cells among the cells
     measured now (``seg_labels > 0``): the window's maps also carry the retained labels of
     unmeasured cells, and counting those made the correlation fall with the share of
-    cells measured. With a third of the cells measured (fast motion: 7-Scenes at every
-    fourth frame) the background segment correlated under 0.3 with identifier 1 and no
-    segment was matched for 9 frames in a row (RPE 12.2 mm per frame; 8.0 mm counting
-    measured cells only, OpenCV's RGB-D odometry 7.9 mm).
+    cells measured: under fast motion no segment was matched for frames in a row
+    (docs/report/core_decisions.md).
 
     Args:
       seg_labels: (n,) int32 current segment per grid cell, 0 = none, 1..num_segments.

@@ -18,10 +18,8 @@ millimetre thresholds tuned per scene.
 
 The two scales are not constants of a sensor: the tracker's noise grows with motion blur,
 the depth noise after :func:`jaxvo.host.flow.refine_depth` depends on the sensor's spatial
-correlation, and colour-to-depth misregistration adds to both. Measured against ground
-truth on the development split (``bench/calibrate_noise.py``, a depth reading): synthetic
-frames 0.05 px and ``0.3e-3 z^2``; real 7-Scenes frames 0.75 px and ``0.9-1.3e-3 z^2``, at
-every 4th frame 0.9-1.6 px and ``1.2-2.0e-3 z^2``. Every test uses the model of
+correlation, and colour-to-depth misregistration adds to both (measured against ground
+truth by ``bench/calibrate_noise.py``; the figures in docs/report/core_decisions.md). Every test uses the model of
 :class:`jaxvo.config.Params`' ``pixel_sigma`` and ``depth_coeff`` (a real sensor's values,
 measured on the development frames); with ``noise_rate > 0`` the pipeline also calibrates
 both online from the residuals of the background under its own ego-motion
@@ -151,8 +149,7 @@ def frame_points(pts_prev, pts_cur, valid, params, *, focal, scale=None, fb_erro
 
 # Every function below works on coordinate planes: a vector quantity over many points is
 # three arrays, one per axis, never an array with an axis of 3 to reduce over, which XLA's
-# CPU backend vectorises about 14 times worse (64 motions x 1200 points: 0.84 against 0.06
-# ms).
+# CPU backend vectorises far worse (docs/report/core_decisions.md).
 
 
 def components(r, noise: PointNoise):
@@ -208,14 +205,11 @@ def update_noise(scale: NoiseScale, r, used, noise: PointNoise, rate, *,
     freedom along the ray, 2 across). The points are those the ego-motion was fitted to:
     the background as the pipeline believes it (not yet known to move, not in a segment
     that moves unlike it), whatever their residuals, so that no inlier test cuts the
-    distribution short. Two sets did worse on the development split: the inliers of the
+    distribution short. Two sets did worse (docs/report/core_decisions.md): the inliers of the
     background segment (a real scene is not exactly rigid, and the model shrank to the
     spread within one segment until the background split into regional segments, each split
-    shrinking it further: 0.75 -> 0.22 px in 20 frames on 7-Scenes), and a quantile over
-    all valid points (objects covering half the view then set the noise of the background:
-    the model grew to 4 px or shrank to a synthetic box's 0.1 px, and on the ``three_boxes``
-    composite a box took the background, ATE 271 mm; with the background's points the
-    background held at all three seeds tried, ATE 26-32 mm). The scale moves towards the
+    shrinking it further), and a quantile over all valid points (objects covering half the
+    view then set the noise of the background). The scale moves towards the
     measurement in log space at ``rate`` per frame and stays within ``floor`` and
     ``ceiling`` (by default :data:`NOISE_FLOOR`, :data:`NOISE_CEILING`); at ``rate`` 0 (the default, ``Params.noise_rate``) it is left exactly as
     given, outside those bounds too.

@@ -26,7 +26,8 @@ from jaxvo.core.geometry import make_pose
 # normalised M, below float32 resolution for every set that passes the planarity check below.
 _SQUARINGS = 20
 # A set is degenerate (collinear) when the second eigenvalue of its scatter matrix is below
-# this fraction of the largest, i.e. its thinnest extent is under ~1 % of its longest.
+# this fraction of the largest, i.e. its thinnest extent is under about a hundredth of its
+# longest.
 _PLANARITY = 1e-4
 # Coincident points: total scatter below this (m^2) leaves the rotation undetermined.
 _MIN_SCATTER = 1e-10
