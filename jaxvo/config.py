@@ -153,7 +153,7 @@ class Params(NamedTuple):
     # identifiers have been used and a new motion needs one (objects that come and go
     # over a long sequence): on the built-in scenes it changes no bit of any run
     id_retention: float = 15.0
-    # moving evidence of a cell (temporal.evidence_delta, temporal.update_evidence): a
+    # moving evidence of a cell (evidence.evidence_delta, evidence.update_evidence): a
     # point that moves has residuals about evidence_effect times the noise; one frame
     # shifts the log-odds by at most evidence_step; the evidence decays by evidence_decay
     # a frame and stays within +-(logit(confidence) + evidence_margin); a cell is reported
@@ -165,8 +165,26 @@ class Params(NamedTuple):
     evidence_decay: float = 0.9
     evidence_margin: float = 1.4
 
-    # ego-motion
+    # ego-motion; also the fewest points any fit of the camera's motion is made from
+    # (jaxvo.core.robust.enough_points)
     min_static_points: float = 12.0  # fewer static points than this: the frame is skipped
+
+    # the background choice (jaxvo.core.background). Both were set at 0.1 when the choice
+    # was written and have not been swept since (params_effect.md predates them as fields):
+    # an order of magnitude below the full weight, so that they break ties without deciding.
+    # A point not yet established as background or as moving (new in view, or its
+    # evidence faded) weighs this much in the background's support against one established
+    # as background: new surface can support the background, the established decides.
+    unestablished_weight: float = 0.1
+    # a segment's support counts this much (plus the share of it the predicted camera
+    # motion explains) even when none of it follows the prediction, so that a wrong
+    # prediction (a sudden camera move: nothing follows it) leaves the choice to the support
+    unpredicted_support: float = 0.1
+    # spatial segmentation: two motions are the same motion found twice when one moves the
+    # other's points to within this share of the inlier test of where the other does; a
+    # quarter: the gap is a fraction of the noise, so a small object whose motion differs
+    # from the camera's by less than the noise at its depth is not merged into it
+    same_place: float = 0.25
 
 
 def default_params() -> Params:
@@ -209,6 +227,9 @@ _PARAM_RANGES = {
     "evidence_decay": (0.0, True, 1.0, True),
     "evidence_margin": (0.0, True, None, False),
     "min_static_points": (0.0, True, None, False),
+    "unestablished_weight": (0.0, True, 1.0, True),
+    "unpredicted_support": (0.0, True, None, False),
+    "same_place": (0.0, False, 1.0, True),
 }
 
 

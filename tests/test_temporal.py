@@ -777,13 +777,15 @@ def test_background_support_is_the_surface_explained_and_its_share_that_follows(
     d2_pred[6:] = 0.5  # the prediction explains the far points
     sizes = np.array([6, 4, 0])
     args = [jnp.asarray(a, jnp.float32) for a in (d2_seg, sizes, weights, z, d2_pred)]
-    support, consistency = background_support(*args, jnp.bool_(True), jnp.float32(11.345))
+    support, consistency = background_support(*args, jnp.bool_(True), jnp.float32(11.345),
+                                              jnp.float32(0.1))
     far = 3 * 9.0 + 0.5 * 9.0
     # float32 sums of a few terms: 1e-6 relative
     np.testing.assert_allclose(np.asarray(support), [6.0, far + 2.0, 0.0], rtol=1e-6)
     np.testing.assert_allclose(np.asarray(consistency), [0.1, 0.1 + far / (far + 2.0), 0.0],
                                rtol=1e-6)
-    _, consistency = background_support(*args, jnp.bool_(False), jnp.float32(11.345))
+    _, consistency = background_support(*args, jnp.bool_(False), jnp.float32(11.345),
+                                        jnp.float32(0.1))
     np.testing.assert_allclose(np.asarray(consistency), [1.1, 1.1, 0.0], rtol=1e-6)
 
 

@@ -19,16 +19,9 @@ import jax.numpy as jnp
 
 from jaxvo.config import Config, Params
 from jaxvo.core.evidence import explained_segments, moving_logodds
+from jaxvo.core.geometry import tiny
 from jaxvo.core.identifiers import STATIC_ID, relabel, swap_perm
 from jaxvo.core.noise import Points, residuals_many
-
-# The weight of a point whose evidence has not yet established it as background or as
-# moving (new in view, or its evidence faded) against one established as background.
-_UNESTABLISHED = 0.1
-# A segment's support counts this much even when none of its explained points follows the
-# predicted camera motion, so that a wrong prediction (a sudden camera move: nothing
-# follows it) leaves the choice to the support alone.
-_UNPREDICTED = 0.1
 
 
 class BackgroundState(NamedTuple):
@@ -108,13 +101,13 @@ class BackgroundOut(NamedTuple):
 def belief_weights(prior, params: Params):
     """(n,) how much each point counts as background by what earlier frames say of it: 1
     where its static posterior reaches the confidence (established background),
-    ``_UNESTABLISHED`` where it is not yet established either way (new in view, or its
-    evidence faded), 0 where it is believed to move."""
+    ``params.unestablished_weight`` where it is not yet established either way (new in
+    view, or its evidence faded), 0 where it is believed to move."""
     L = moving_logodds(params)
-    return jnp.where(prior <= -L, 1.0, jnp.where(prior <= L, _UNESTABLISHED, 0.0))
+    return jnp.where(prior <= -L, 1.0, jnp.where(prior <= L, params.unestablished_weight, 0.0))
 
 
-def background_support(d2_seg, sizes, weights, z, d2_pred, have_last, thr):
+def background_support(d2_seg, sizes, weights, z, d2_pred, have_last, thr, unpredicted):
     """Each segment's support as the background in this frame, and its consistency with
     the camera's predicted motion: ``(support (S,), consistency (S,))``, 0 where unused.
 
@@ -126,7 +119,7 @@ def background_support(d2_seg, sizes, weights, z, d2_pred, have_last, thr):
     half the view (nearer, and at one depth) still has more surface than they have. Points
     count where the motion explains them (not only its own segment's), so a piece of the
     background split off by noise adds to the motion that explains it. The consistency is
-    ``_UNPREDICTED + f``, ``f`` the share of that surface the predicted motion explains too
+    ``unpredicted + f``, ``f`` the share of that surface the predicted motion explains too
     (1 before any ego-motion). :func:`choose_background` accumulates the support per
     identifier and weighs it by the consistency.
 
@@ -134,15 +127,16 @@ def background_support(d2_seg, sizes, weights, z, d2_pred, have_last, thr):
       d2_seg: (S, n) normalised residuals of every point under each segment's motion;
       sizes: (S,) segment sizes (0 unused); weights: (n,) belief weights (0 invalid);
       z: (n,) depth, metres; d2_pred: (n,) normalised residuals under the predicted
-      motion; have_last: () bool a prediction exists; thr: () the inlier test.
+      motion; have_last: () bool a prediction exists; thr: () the inlier test;
+      unpredicted: () ``params.unpredicted_support``.
     """
     explained = d2_seg <= thr
     surface = explained * (weights * z * z)[None, :]
     follows = jnp.sum(surface * (d2_pred <= thr)[None, :], axis=1)
     total = jnp.sum(surface, axis=1)
-    f = jnp.where(have_last, follows / jnp.maximum(total, 1e-12), 1.0)
+    f = jnp.where(have_last, follows / jnp.maximum(total, tiny()), 1.0)
     used = sizes > 0
-    return jnp.where(used, total, 0.0), jnp.where(used, _UNPREDICTED + f, 0.0)
+    return jnp.where(used, total, 0.0), jnp.where(used, unpredicted + f, 0.0)
 
 
 def update_background(state: BackgroundState, seg, pts: Points, T_pred, have_last,
@@ -177,7 +171,7 @@ def update_background(state: BackgroundState, seg, pts: Points, T_pred, have_las
     z = jnp.maximum(pts.src[2], pts.dst[2])
     belief = jnp.where(valid, belief_weights(evidence, params), 0.0)
     support, consistency = background_support(d2_seg, seg.sizes, belief, z, d2_pred,
-                                              have_last, pts.thr)
+                                              have_last, pts.thr, params.unpredicted_support)
     state, segment_ids, bg, reacquired, perm = choose_background(
         state, segment_ids, support, consistency, initialised, params)
     bgi = jnp.maximum(bg - 1, 0)

@@ -65,6 +65,16 @@ def evidence_delta(seg_labels, d2_ego, d2_seg, explained, valid, params: Params,
     return jnp.where(valid, delta, 0.0).astype(jnp.float32)
 
 
+def neighbourhood(values, fill, *, grid: tuple[int, int]):
+    """(n, 9) each cell's 3 x 3 neighbourhood (itself included, row by row) of ``values``
+    (n,) on the row-major ``grid``; ``fill`` beyond the grid's edge. The one neighbourhood
+    of the grid that every stage reads (the evidence's agreement, the mask's growth)."""
+    rows, cols = grid
+    p = jnp.pad(values.reshape(rows, cols), 1, constant_values=fill)
+    return jnp.stack([p[dr:dr + rows, dc:dc + cols].reshape(-1)
+                      for dr in range(3) for dc in range(3)], axis=-1)
+
+
 def neighbourhood_agreement(values, valid, *, grid: tuple[int, int]):
     """(n,) what the valid cells of each cell's 3 x 3 neighbourhood on the ``grid`` agree
     on: the lower quartile of their ``values`` (n,), so that with 9 measured cells 7 must
@@ -72,11 +82,7 @@ def neighbourhood_agreement(values, valid, *, grid: tuple[int, int]):
     flagged static real frames as moving where the lower quartile did not, and the lower
     quartile covered more of the people (docs/report/core_decisions.md).
     """
-    rows, cols = grid
-    v = jnp.where(valid, values, jnp.inf).reshape(rows, cols)
-    p = jnp.pad(v, 1, constant_values=jnp.inf)
-    near = jnp.stack([p[dr:dr + rows, dc:dc + cols].reshape(-1)
-                      for dr in range(3) for dc in range(3)], axis=-1)  # (n, 9)
+    near = neighbourhood(jnp.where(valid, values, jnp.inf), jnp.inf, grid=grid)  # (n, 9)
     count = jnp.sum(jnp.isfinite(near), axis=-1)
     median = jnp.take_along_axis(jnp.sort(near, axis=-1),
                                  jnp.maximum(count - 1, 0)[:, None] // 4, axis=-1)[:, 0]

@@ -13,6 +13,7 @@ Conventions, used everywhere in jaxvo:
 from __future__ import annotations
 
 import functools
+import math
 
 import jax
 import jax.numpy as jnp
@@ -32,6 +33,16 @@ def full_precision(fn):
         with jax.default_matmul_precision("highest"):
             return fn(*args, **kwargs)
     return traced
+
+
+def tiny(dtype=jnp.float32) -> float:
+    """The one guard of a division or a square root in the traced code, as jaxlie's
+    ``get_epsilon(dtype)``: the square root of the smallest normal number of ``dtype``
+    (about 1e-19 in float32). A denominator floored at it, or a square root's argument
+    raised by it, stays finite where the value is 0 (masked-out lanes, empty sets); nothing
+    the pipeline measures (residuals, variances, scatter, weights) comes near it, so it
+    changes no result, and a value up to ``1 / tiny`` divided by it is still finite."""
+    return math.sqrt(float(jnp.finfo(dtype).tiny))
 
 
 def make_pose(R, t):
@@ -55,10 +66,10 @@ def so3_exp(w):
     """Rodrigues: the rotation (3, 3) of the rotation vector ``w`` (3,), radians; Taylor
     terms near 0 so that no 0 / 0 appears."""
     theta2 = jnp.sum(w * w)
-    theta = jnp.sqrt(theta2 + 1e-30)
+    theta = jnp.sqrt(theta2 + tiny(w.dtype))
     small = theta2 < 1e-10
     a = jnp.where(small, 1.0 - theta2 / 6.0, jnp.sin(theta) / theta)
-    b = jnp.where(small, 0.5 - theta2 / 24.0, (1.0 - jnp.cos(theta)) / (theta2 + 1e-30))
+    b = jnp.where(small, 0.5 - theta2 / 24.0, (1.0 - jnp.cos(theta)) / (theta2 + tiny(w.dtype)))
     zero = jnp.zeros_like(w[0])
     k = jnp.stack([
         jnp.stack([zero, -w[2], w[1]]),

@@ -34,9 +34,14 @@ from typing import NamedTuple
 import jax
 import jax.numpy as jnp
 
-from jaxvo.core.robust import CHI2_1_MEDIAN, CHI2_2_MEDIAN, chi2_quantile, quantile_scale
-
-_FLOOR = 1e-12  # keeps divisions finite in masked-out lanes
+from jaxvo.core.geometry import tiny
+from jaxvo.core.robust import (
+    CHI2_1_MEDIAN,
+    CHI2_2_MEDIAN,
+    chi2_quantile,
+    enough_points,
+    quantile_scale,
+)
 
 
 class NoiseScale(NamedTuple):
@@ -94,7 +99,7 @@ def point_noise(pts_prev, pts_cur, focal, scale: NoiseScale, fb_error=None,
     """
     z0, z1 = pts_prev[2], pts_cur[2]
     norm = jnp.sqrt(pts_cur[0] * pts_cur[0] + pts_cur[1] * pts_cur[1] + pts_cur[2] * pts_cur[2])
-    ray = pts_cur / jnp.maximum(norm, _FLOOR)
+    ray = pts_cur / jnp.maximum(norm, tiny())
     px2 = scale.pixel_sigma ** 2
     if fb_error is not None:
         px2 = px2 + 0.25 * fb_error * fb_error
@@ -103,8 +108,8 @@ def point_noise(pts_prev, pts_cur, focal, scale: NoiseScale, fb_error=None,
     if depth_slope is not None:
         var_ray = var_ray + depth_slope * depth_slope * px2
     ok = (z0 > 0) & (z1 > 0)
-    return PointNoise(ray, jnp.where(ok, 1.0 / jnp.maximum(var_lat, _FLOOR), 0.0),
-                      jnp.where(ok, 1.0 / jnp.maximum(var_ray, _FLOOR), 0.0))
+    return PointNoise(ray, jnp.where(ok, 1.0 / jnp.maximum(var_lat, tiny()), 0.0),
+                      jnp.where(ok, 1.0 / jnp.maximum(var_ray, tiny()), 0.0))
 
 
 class Points(NamedTuple):
@@ -194,7 +199,7 @@ def residuals(T, src, dst, noise: PointNoise):
     return d2[0], e2[0]
 
 
-def update_noise(scale: NoiseScale, r, used, noise: PointNoise, rate, *,
+def update_noise(scale: NoiseScale, r, used, noise: PointNoise, params, *,
                  floor: NoiseScale = NOISE_FLOOR, ceiling: NoiseScale = NOISE_CEILING):
     """Calibrate the noise from the residuals ``r`` (3, n) of the points the ego-motion
     ``used`` (n,) bool under the motion just estimated; ``noise`` is those points'
@@ -210,16 +215,18 @@ def update_noise(scale: NoiseScale, r, used, noise: PointNoise, rate, *,
     spread within one segment until the background split into regional segments, each split
     shrinking it further), and a quantile over all valid points (objects covering half the
     view then set the noise of the background). The scale moves towards the
-    measurement in log space at ``rate`` per frame and stays within ``floor`` and
-    ``ceiling`` (by default :data:`NOISE_FLOOR`, :data:`NOISE_CEILING`); at ``rate`` 0 (the default, ``Params.noise_rate``) it is left exactly as
-    given, outside those bounds too.
+    measurement in log space at ``rate = params.noise_rate`` per frame and stays within
+    ``floor`` and ``ceiling`` (by default :data:`NOISE_FLOOR`, :data:`NOISE_CEILING`); at
+    ``rate`` 0 (the default) it is left exactly as given, outside those bounds too.
 
-    Returns the new :class:`NoiseScale` (unchanged where fewer than 12 points are used).
+    Returns the new :class:`NoiseScale` (unchanged where the points are not
+    :func:`jaxvo.core.robust.enough_points`).
     """
+    rate = params.noise_rate
     lat2, ray2 = components(r, noise)
     m_lat = quantile_scale(lat2 * noise.w_lat, used, 0.5, CHI2_2_MEDIAN)
     m_ray = quantile_scale(ray2 * noise.w_ray, used, 0.5, CHI2_1_MEDIAN)
-    moves = (jnp.sum(used) >= 12) & (rate > 0)
+    moves = enough_points(used, params) & (rate > 0)
 
     def step(value, ratio2, low, high):
         # ratio2 is (measured / modelled)^2: move log(value) by rate * log(ratio)

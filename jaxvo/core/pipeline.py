@@ -35,7 +35,7 @@ from jaxvo.core.background import (
     update_background,
 )
 from jaxvo.core.egomotion import EgoState, init_ego, predicted_motion, update_egomotion
-from jaxvo.core.evidence import moving_evidence, moving_logodds, reported_ids
+from jaxvo.core.evidence import moving_evidence, moving_logodds, neighbourhood, reported_ids
 from jaxvo.core.geometry import full_precision
 from jaxvo.core.identifiers import identify, measured_labels
 from jaxvo.core.keyframe import (
@@ -168,7 +168,7 @@ def step(state: PipelineState, flow, key, params: Params, *, cfg: Config, grid,
         depth_seen=flow.depth_seen, permutation=bg.permutation)
     # 6. the sensor noise, from the residuals of the points the ego-motion was fitted to
     noise = update_noise(state.noise, transfer(eo.T_cur_prev, pts.src) - pts.dst,
-                         (bg.use > 0) & eo.ok, pts.noise, params.noise_rate)
+                         (bg.use > 0) & eo.ok, pts.noise, params)
     # 7. the sliding-window refinement of the recent poses (jaxvo.core.window, cfg.window > 0)
     window, wout = state.window, None
     if cfg.window:
@@ -223,17 +223,10 @@ def grow_moving(moving, open_cells, *, grid, steps: int):
     its measured neighbourhood: it is reported moving when it touches a moving cell.
     Measured cells and established background bound the growth.
     """
-    rows, cols = grid
-    m = moving.reshape(rows, cols)
-    o = open_cells.reshape(rows, cols)
     for _ in range(steps):
-        p = jnp.pad(m, 1)
-        near = jnp.zeros_like(m)
-        for dr in (0, 1, 2):
-            for dc in (0, 1, 2):
-                near = near | p[dr:dr + rows, dc:dc + cols]
-        m = m | (near & o)
-    return m.reshape(-1)
+        moving = moving | (jnp.any(neighbourhood(moving, False, grid=grid), axis=-1)
+                           & open_cells)
+    return moving
 
 
 def final_moving(state: PipelineState, params: Params):

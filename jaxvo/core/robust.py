@@ -15,7 +15,7 @@ from __future__ import annotations
 import jax
 import jax.numpy as jnp
 
-from jaxvo.core.geometry import masked_median, masked_quantile
+from jaxvo.core.geometry import masked_median, masked_quantile, tiny
 
 # The standard deviation of Gaussian residuals over their median absolute value:
 # 1 / Phi^-1(3/4).
@@ -58,10 +58,17 @@ def mad_scale(x, mask, times: float = 1.0):
     return times * MAD_SIGMA * masked_median(x, mask, precision_bits=12)
 
 
+def enough_points(mask, params):
+    """() bool whether the points of ``mask`` (n,) bool are enough to fit and judge the
+    camera's motion: at least ``params.min_static_points`` (the ego-motion's fit, the noise
+    calibration, the window's refinement of a pair)."""
+    return jnp.sum(mask) >= params.min_static_points
+
+
 def huber_weights(r, c, w):
     """Weights ``w`` times Huber's ``min(1, c / r)`` for residual sizes ``r >= 0`` and corner
     ``c``; 0 beyond three corners (``3 c``): such a point is an outlier, not a large error."""
-    return jnp.where(r < 3.0 * c, w * jnp.minimum(1.0, c / jnp.maximum(r, 1e-20)), 0.0)
+    return jnp.where(r < 3.0 * c, w * jnp.minimum(1.0, c / jnp.maximum(r, tiny())), 0.0)
 
 
 def cauchy(d2, c2):

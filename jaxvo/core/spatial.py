@@ -55,9 +55,6 @@ from jaxvo.status import Status
 _FAR = 1e6
 # Grid offsets drawn around a seed, of which the first m - 1 valid ones are used.
 _NEIGHBOUR_DRAWS = 12
-# Two motions move a point to the same place when the gap between their images is within
-# this share of the inlier test (:func:`_same_motion`).
-_SAME_PLACE = 0.25
 
 
 class Segmentation(NamedTuple):
@@ -350,9 +347,10 @@ def _assign(d2, inliers, keep, tie, *, by_fit=False):
     return best, jnp.any(cand, axis=0)
 
 
-def _same_motion(motions_a, own_a, motions_b, pts: Points, eps):
+def _same_motion(motions_a, own_a, motions_b, pts: Points, params):
     """(A, B) bool: motion ``b`` moves more than ``1 - eps`` of ``a``'s own points to where
-    motion ``a`` does, within ``_SAME_PLACE`` of the inlier test: the same motion found twice.
+    motion ``a`` does, within ``params.same_place`` of the inlier test: the same motion found
+    twice (``eps = params.cluster_eps``).
 
     Comparing the motions where ``a``'s points are (not inlier-set overlap) keeps a small
     object whose motion differs from the camera's by less than the noise at depth.
@@ -363,7 +361,8 @@ def _same_motion(motions_a, own_a, motions_b, pts: Points, eps):
     a, b = motions_a.shape[0], motions_b.shape[0]
     diff = (motions_a[:, None] - motions_b[None, :]).reshape(a * b, 4, 4)
     gap = mahalanobis(transfer_many(diff, pts.src), pts.noise).reshape(a, b, -1)
-    return explains(gap <= _SAME_PLACE * pts.thr, own_a[:, None, :], 1.0 - eps, strict=True)
+    return explains(gap <= params.same_place * pts.thr, own_a[:, None, :],
+                    1.0 - params.cluster_eps, strict=True)
 
 
 def _leftover_segment(motions, d2_c, inl_c, keep, left, pts: Points, params):
@@ -387,7 +386,7 @@ def _leftover_segment(motions, d2_c, inl_c, keep, left, pts: Points, params):
         motion, ok = fit_rigid_cols(pts.src, pts.dst, inl.astype(jnp.float32))
         d2 = _res(motion, pts)[0]
         inl = left & (d2 <= pts.thr) & ok
-    again = _same_motion(motion[None], inl[None], motions, pts, params.cluster_eps)[0]
+    again = _same_motion(motion[None], inl[None], motions, pts, params)[0]
     slot = jnp.argmin(keep)  # the first free slot
     add = ~jnp.all(keep) & (jnp.sum(inl) > params.min_segment_points) & ~jnp.any(keep & again)
     at = add & (jnp.arange(keep.shape[0]) == slot)
@@ -534,7 +533,7 @@ def _cluster(hyps: _Hypothesis, pts: Points, params, *, cfg):
     big_enough = active & (n_c > params.min_segment_points)
 
     # Merge: the same motion found twice (cluster k duplicates a larger kept cluster j) ...
-    same = _same_motion(motions, own_c, motions, pts, params.cluster_eps)  # (k, j)
+    same = _same_motion(motions, own_c, motions, pts, params)  # (k, j)
     # ... and k's motion explains most of j's own points: a near object's motion can move
     # the far wall's points to within the wall's wide noise of where the wall's motion
     # does, but the wall's motion does not explain the object (docs/report/core_decisions.md)
