@@ -80,6 +80,13 @@ class Config:
     # (egomotion.refine_reprojection; 0 turns it off)
     ego_reprojection_iters: int = 3
 
+    # --- sensor noise (jaxvo.core.noise) ---
+    # calibrate the noise online (Params.noise_rate a frame, 0 leaves it as given). Off, the
+    # step does not compile the calibration (two masked quantiles a frame): it did not pay
+    # on the validation split (docs/report/robustness.md), and a study that sweeps
+    # noise_rate turns it on
+    noise_calibration: bool = False
+
     # --- sliding-window refinement (jaxvo.core.window, our addition) ---
     # frames whose poses are refined together, the oldest held fixed; a frame's pose is
     # final when it leaves the window. 0: off, else at least 2
@@ -135,9 +142,10 @@ class Params(NamedTuple):
     # development frames' noise measured against ground truth (7-Scenes frames 0-149: 0.75
     # px across the ray, 0.9-1.3e-3 z^2 a depth reading along it; bench/calibrate_noise.py):
     # a start below the noise splits the background into regional segments, a start above
-    # it only merges slow motions for the first frames. With noise_rate > 0 the pipeline
-    # calibrates both online from the background's residuals, moving log(value) by
-    # noise_rate a frame. Off by default: at 0.2 it did not pay on the validation split
+    # it only merges slow motions for the first frames. With Config.noise_calibration the
+    # pipeline calibrates both online from the background's residuals, moving log(value) by
+    # noise_rate a frame (without it, noise_rate has no effect). Off by default: at 0.2 it
+    # did not pay on the validation split
     # (7-Scenes frames 150-299 ATE 33.2/32.0/24.4 mm at every 1st/2nd/4th frame against
     # 24.3/24.5/25.8 off; TUM people covered 26.9 % against 48.8 %; docs/report/robustness.md)
     pixel_sigma: float = 0.75  # tracker noise across the viewing ray, pixels per axis

@@ -217,7 +217,8 @@ def update_noise(scale: NoiseScale, r, used, noise: PointNoise, params, *,
     view then set the noise of the background). The scale moves towards the
     measurement in log space at ``rate = params.noise_rate`` per frame and stays within
     ``floor`` and ``ceiling`` (by default :data:`NOISE_FLOOR`, :data:`NOISE_CEILING`); at
-    ``rate`` 0 (the default) it is left exactly as given, outside those bounds too.
+    ``rate`` 0 it is left exactly as given, outside those bounds too. The pipeline calls it
+    only with ``Config.noise_calibration``.
 
     Returns the new :class:`NoiseScale` (unchanged where the points are not
     :func:`jaxvo.core.robust.enough_points`).

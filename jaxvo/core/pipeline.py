@@ -167,8 +167,10 @@ def step(state: PipelineState, flow, key, params: Params, *, cfg: Config, grid,
         grid=grid, segment_ids=bg.segment_ids, explained=explained, evidence_delta=delta,
         depth_seen=flow.depth_seen, permutation=bg.permutation)
     # 6. the sensor noise, from the residuals of the points the ego-motion was fitted to
-    noise = update_noise(state.noise, transfer(eo.T_cur_prev, pts.src) - pts.dst,
-                         (bg.use > 0) & eo.ok, pts.noise, params)
+    noise = state.noise
+    if cfg.noise_calibration:
+        noise = update_noise(noise, transfer(eo.T_cur_prev, pts.src) - pts.dst,
+                             (bg.use > 0) & eo.ok, pts.noise, params)
     # 7. the sliding-window refinement of the recent poses (jaxvo.core.window, cfg.window > 0)
     window, wout = state.window, None
     if cfg.window:
