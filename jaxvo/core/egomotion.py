@@ -45,8 +45,12 @@ _SCALE_RANGE = (0.25, 2.0)
 
 
 def _huber_threshold(x, mask):
-    """Twice the robust standard deviation of ``x[mask]`` (``x >= 0``, :func:`mad_scale`):
-    a fifth of outliers cannot inflate it (13 medians a frame)."""
+    """Twice the robust standard deviation of ``x[mask]`` (``x >= 0``, :func:`mad_scale`).
+
+    Not the re-weighting's lower quartile (``_QUARTILE``): the reprojection refines on the
+    3D fit's inliers, where the question is their spread, not the noise among outliers, and
+    the median measures it with less scatter; the quartile with the inlier test as corner
+    here did worse on part of the validation split (docs/report/core_decisions.md)."""
     return mad_scale(x, mask, 2.0)
 
 
