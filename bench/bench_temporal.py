@@ -20,7 +20,8 @@ import numpy as np
 from _common import machine_line
 
 from jaxvo.config import Config, Params, grid_shape, params_as_arrays
-from jaxvo.core.temporal import identify, init_temporal, measured_labels, update_temporal
+from jaxvo.core.identifiers import identify, measured_labels
+from jaxvo.core.temporal import init_temporal, update_temporal
 
 
 class Seg(NamedTuple):
@@ -65,7 +66,7 @@ def temporal_frame(state, seg, disp, valid, params, *, cfg, grid):
     background choice, no segment explained by the ego-motion, no evidence)."""
     labels = measured_labels(seg, valid, cfg=cfg)
     return update_temporal(state, labels, disp, valid, params, cfg=cfg, grid=grid,
-                           segment_ids=identify(state, labels, params, cfg=cfg),
+                           segment_ids=identify(state.identifiers, labels, params, cfg=cfg),
                            explained=jnp.zeros((cfg.max_segments,), bool),
                            evidence_delta=jnp.zeros(valid.shape, jnp.float32))
 

@@ -80,6 +80,13 @@ class Config:
     # (egomotion.refine_reprojection; 0 turns it off)
     ego_reprojection_iters: int = 3
 
+    # --- sensor noise (jaxvo.core.noise) ---
+    # calibrate the noise online (Params.noise_rate a frame, 0 leaves it as given). Off, the
+    # step does not compile the calibration (two masked quantiles a frame): it did not pay
+    # on the validation split (docs/report/robustness.md), and a study that sweeps
+    # noise_rate turns it on
+    noise_calibration: bool = False
+
     # --- sliding-window refinement (jaxvo.core.window, our addition) ---
     # frames whose poses are refined together, the oldest held fixed; a frame's pose is
     # final when it leaves the window. 0: off, else at least 2
@@ -139,9 +146,10 @@ class Params(NamedTuple):
     # development frames' noise measured against ground truth (7-Scenes frames 0-149: 0.75
     # px across the ray, 0.9-1.3e-3 z^2 a depth reading along it; bench/calibrate_noise.py):
     # a start below the noise splits the background into regional segments, a start above
-    # it only merges slow motions for the first frames. With noise_rate > 0 the pipeline
-    # calibrates both online from the background's residuals, moving log(value) by
-    # noise_rate a frame. Off by default: at 0.2 it did not pay on the validation split
+    # it only merges slow motions for the first frames. With Config.noise_calibration the
+    # pipeline calibrates both online from the background's residuals, moving log(value) by
+    # noise_rate a frame (without it, noise_rate has no effect). Off by default: at 0.2 it
+    # did not pay on the validation split
     # (7-Scenes frames 150-299 ATE 33.2/32.0/24.4 mm at every 1st/2nd/4th frame against
     # 24.3/24.5/25.8 off; TUM people covered 26.9 % against 48.8 %; docs/report/robustness.md)
     pixel_sigma: float = 0.75  # tracker noise across the viewing ray, pixels per axis
@@ -157,7 +165,7 @@ class Params(NamedTuple):
     # identifiers have been used and a new motion needs one (objects that come and go
     # over a long sequence): on the built-in scenes it changes no bit of any run
     id_retention: float = 15.0
-    # moving evidence of a cell (temporal.evidence_delta, temporal.update_evidence): a
+    # moving evidence of a cell (evidence.evidence_delta, evidence.update_evidence): a
     # point that moves has residuals about evidence_effect times the noise; one frame
     # shifts the log-odds by at most evidence_step; the evidence decays by evidence_decay
     # a frame and stays within +-(logit(confidence) + evidence_margin); a cell is reported
@@ -169,8 +177,26 @@ class Params(NamedTuple):
     evidence_decay: float = 0.9
     evidence_margin: float = 1.4
 
-    # ego-motion
+    # ego-motion; also the fewest points any fit of the camera's motion is made from
+    # (jaxvo.core.robust.enough_points)
     min_static_points: float = 12.0  # fewer static points than this: the frame is skipped
+
+    # the background choice (jaxvo.core.background). Both were set at 0.1 when the choice
+    # was written and have not been swept since (params_effect.md predates them as fields):
+    # an order of magnitude below the full weight, so that they break ties without deciding.
+    # A point not yet established as background or as moving (new in view, or its
+    # evidence faded) weighs this much in the background's support against one established
+    # as background: new surface can support the background, the established decides.
+    unestablished_weight: float = 0.1
+    # a segment's support counts this much (plus the share of it the predicted camera
+    # motion explains) even when none of it follows the prediction, so that a wrong
+    # prediction (a sudden camera move: nothing follows it) leaves the choice to the support
+    unpredicted_support: float = 0.1
+    # spatial segmentation: two motions are the same motion found twice when one moves the
+    # other's points to within this share of the inlier test of where the other does; a
+    # quarter: the gap is a fraction of the noise, so a small object whose motion differs
+    # from the camera's by less than the noise at its depth is not merged into it
+    same_place: float = 0.25
 
 
 def default_params() -> Params:
@@ -213,6 +239,9 @@ _PARAM_RANGES = {
     "evidence_decay": (0.0, True, 1.0, True),
     "evidence_margin": (0.0, True, None, False),
     "min_static_points": (0.0, True, None, False),
+    "unestablished_weight": (0.0, True, 1.0, True),
+    "unpredicted_support": (0.0, True, None, False),
+    "same_place": (0.0, False, 1.0, True),
 }
 
 

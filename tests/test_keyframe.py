@@ -22,7 +22,7 @@ from jaxvo.core.keyframe import (
     refine,
     update_keyframe,
 )
-from jaxvo.core.noise import init_noise
+from jaxvo.core.noise import frame_points, init_noise
 from jaxvo.host.flow import FrameChain, GridFlowTracker
 from jaxvo.host.keyframes import KeyframeFlow, invalid_keyframe_flow
 from jaxvo.odometry import Odometry, run_sequence
@@ -72,8 +72,11 @@ def test_keyframe_points_are_the_keyframe_points_in_the_previous_camera():
 
 
 def _update(state, kf, T, static):
-    link = (jnp.eye(4), jnp.zeros((6, 6)), jnp.zeros(6))
-    return update_keyframe(state, kf, jnp.asarray(T, jnp.float32), jnp.asarray(static), link,
+    n = len(static)
+    none = frame_points(jnp.zeros((n, 3)), jnp.zeros((n, 3)), jnp.zeros(n, bool), Params(),
+                        focal=525.0)
+    pair = (jnp.eye(4), jnp.eye(4), none, jnp.zeros(n, bool))  # the pair adds no information
+    return update_keyframe(state, kf, jnp.asarray(T, jnp.float32), jnp.asarray(static), pair,
                            init_noise(Params()), Params(), cfg=UNIT_CFG, grid=GRID, focal=525.0)
 
 

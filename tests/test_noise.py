@@ -210,7 +210,8 @@ def _calibrate(scale, src, dst, used, rate):
     T = jnp.asarray(MOTION, jnp.float32)
     r = T[:3, :3] @ src + T[:3, 3:4] - dst
     noise = point_noise(src, dst, jnp.float32(FOCAL), scale)
-    return update_noise(scale, r, used, noise, rate, floor=FLOOR, ceiling=CEILING)
+    return update_noise(scale, r, used, noise, Params(noise_rate=rate), floor=FLOOR,
+                        ceiling=CEILING)
 
 
 def _run_calibration(start, true, frames=40, rate=0.3, seed=2, n=1500):

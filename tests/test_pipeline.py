@@ -5,6 +5,8 @@ point is compiled once for it.
 """
 
 
+import dataclasses
+
 import jax
 import jax.numpy as jnp
 import numpy as np
@@ -382,3 +384,21 @@ def test_final_moving_is_the_final_evidence_above_the_confidence():
     state = state._replace(temporal=state.temporal._replace(evidence=ev))
     np.testing.assert_array_equal(np.asarray(final_moving(state, prm)),
                                   [False, False, False, True, True, True])
+
+
+def test_the_noise_calibration_is_compiled_in_only_when_switched_on():
+    """Config.noise_calibration off (the default): the step's program holds no calibration,
+    whose two masked quantiles are a bisection loop (a scan) each; on, it holds them."""
+    from jaxvo.core.pipeline import init_pipeline, step
+
+    flow = hand_flow(np.random.default_rng(0), box_moves=True)
+    prm = params_as_arrays(Params(noise_rate=0.5))
+    loops = {}
+    for on in (False, True):
+        cfg = dataclasses.replace(CFG, noise_calibration=on)
+        state = init_pipeline(cfg=cfg, grid=GRID_S, params=prm)
+        jaxpr = jax.make_jaxpr(lambda s, f, k, p, cfg=cfg: step(s, f, k, p, cfg=cfg,
+                                                                  grid=GRID_S))(
+            state, flow, jax.random.key(0), prm)
+        loops[on] = str(jaxpr).count("scan[")
+    assert loops[True] == loops[False] + 2, loops

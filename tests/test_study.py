@@ -41,6 +41,7 @@ frames = 8
 cell = 32
 num_hypotheses = 4
 confidence = 0.9
+noise_calibration = true
 noise_rate = 0.2
 [sweep]
 lam = [10.0, 100000.0]
@@ -281,7 +282,7 @@ def test_a_study_run_matches_run_study_called_directly(tiny):
 
     data, cached = study.sequence_data(spec.sequences[0], Config(cell=32), root / "flows")
     assert cached and data.truth.shape == (7, 15 * 20)
-    cfg = Config(cell=32, num_hypotheses=4)
+    cfg = Config(cell=32, num_hypotheses=4, noise_calibration=True)
     for row in (res.rows[1], res.rows[4]):  # lam 1000 seed 1, lam 1e5 seed 0
         out = run_study(jax.tree.map(jnp.asarray, data.flows), jax.random.key(row["seed"])[None],
                         batch_params(Params(confidence=0.9, noise_rate=0.2), lam=[row["lam"]]),

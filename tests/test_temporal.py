@@ -1,5 +1,7 @@
-"""Tests of jaxvo.core.temporal: label matching (thesis 4.1), the dual-mode grid model (4.2.1),
-forward-splat compensation (4.2.2), the background's choice and the moving evidence.
+"""Tests of the temporal stages: label matching (thesis 4.1, jaxvo.core.identifiers), the
+dual-mode grid model (4.2.1) and its forward-splat compensation (4.2.2,
+jaxvo.core.grid_model), the background's choice (jaxvo.core.background), the moving evidence
+(jaxvo.core.evidence) and their join (jaxvo.core.temporal).
 
 Segmentations are built by hand on a 12 x 16 grid; a small NamedTuple stands in for the
 spatial stage's ``Segmentation`` (only the documented fields). One jitted update is shared by
@@ -16,21 +18,18 @@ import numpy as np
 import pytest
 
 from jaxvo.config import Config, Params, params_as_arrays
-from jaxvo.core.temporal import (
-    TemporalOut,
-    TemporalState,
-    _permute_identifiers,
-    _swap_perm,
-    choose_background,
+from jaxvo.core.background import BackgroundState, choose_background
+from jaxvo.core.evidence import update_evidence
+from jaxvo.core.grid_model import splat_weights, update_grid_model
+from jaxvo.core.identifiers import (
     identify,
-    init_temporal,
     label_correlation,
     match_segments,
     measured_labels,
-    splat_weights,
-    update_evidence,
-    update_temporal,
+    permute_identifiers,
+    swap_perm,
 )
+from jaxvo.core.temporal import TemporalOut, TemporalState, init_temporal, update_temporal
 
 CFG = Config()
 GRID = (12, 16)
@@ -71,7 +70,7 @@ def temporal_frame(state, seg, disp, valid, prm, *, segment_ids=None, explained=
     evidence, unless given."""
     labels = measured_labels(seg, valid, cfg=CFG)
     if segment_ids is None:
-        segment_ids = identify(state, labels, prm, cfg=CFG)
+        segment_ids = identify(state.identifiers, labels, prm, cfg=CFG)
     if explained is None:
         explained = jnp.zeros((CFG.max_segments,), bool)
     if evidence_delta is None:
@@ -394,14 +393,18 @@ def _random_state(seed):
     age = rng.uniform(1.0, 30.0, N).astype(np.float32)
     ids = rng.integers(1, CFG.max_ids + 1, N).astype(np.int32)
     evidence = rng.uniform(-6.0, 6.0, N).astype(np.float32)
-    state = init_temporal(cfg=CFG, grid=GRID)._replace(
-        app_prob=jnp.asarray(prob),
-        app_age=jnp.asarray(age),
-        cand_prob=jnp.asarray(prob[::-1].copy()),
-        cand_age=jnp.asarray(age[::-1].copy()),
-        ids=jnp.asarray(ids),
+    state = init_temporal(cfg=CFG, grid=GRID)
+    state = state._replace(
+        model=state.model._replace(
+            app_prob=jnp.asarray(prob),
+            app_age=jnp.asarray(age),
+            cand_prob=jnp.asarray(prob[::-1].copy()),
+            cand_age=jnp.asarray(age[::-1].copy()),
+            ids=jnp.asarray(ids),
+        ),
         evidence=jnp.asarray(evidence),
-        history=jnp.tile(jnp.asarray(ids), (CFG.match_window, 1)),
+        identifiers=state.identifiers._replace(
+            history=jnp.tile(jnp.asarray(ids), (CFG.match_window, 1))),
     )
     return state, prob, age, ids, evidence
 
@@ -420,26 +423,26 @@ def test_integer_shift_moves_models_exactly_and_drops_what_leaves_the_grid(step)
         return out.reshape((N,) + x.shape[2:])
 
     # float32 sums of one overlap of weight 1: 1e-6 relative
-    np.testing.assert_allclose(np.asarray(new.app_prob), shifted(prob, 0.0), rtol=1e-6, atol=1e-7)
-    np.testing.assert_allclose(np.asarray(new.app_age), shifted(age, 0.0), rtol=1e-6)
-    np.testing.assert_allclose(np.asarray(new.cand_age), shifted(age[::-1], 0.0), rtol=1e-6)
+    np.testing.assert_allclose(np.asarray(new.model.app_prob), shifted(prob, 0.0), rtol=1e-6, atol=1e-7)
+    np.testing.assert_allclose(np.asarray(new.model.app_age), shifted(age, 0.0), rtol=1e-6)
+    np.testing.assert_allclose(np.asarray(new.model.cand_age), shifted(age[::-1], 0.0), rtol=1e-6)
     # the evidence of a frame without any (decayed, update_evidence) moves with the models
     decayed = _evidence(jnp.asarray(evidence), jnp.zeros(N, jnp.float32), jnp.ones(N, bool),
                         jnp.zeros(N, bool), params())
     np.testing.assert_allclose(np.asarray(new.evidence), shifted(decayed, 0.0), rtol=1e-6,
                                atol=1e-7)
-    np.testing.assert_array_equal(np.asarray(new.ids), shifted(ids, 0))
-    np.testing.assert_array_equal(np.asarray(new.history[1]), shifted(ids, 0))
+    np.testing.assert_array_equal(np.asarray(new.model.ids), shifted(ids, 0))
+    np.testing.assert_array_equal(np.asarray(new.identifiers.history[1]), shifted(ids, 0))
     # what the top row and the left two columns held: nothing lands there, they are empty
     empty = np.ones(GRID, bool)
     empty[dr:, dc:] = False
-    assert np.all(np.asarray(new.app_age).reshape(GRID)[empty] == 0.0)
-    assert np.all(np.asarray(new.app_prob).reshape(GRID + (-1,))[empty] == 0.0)
-    assert np.all(np.asarray(new.ids).reshape(GRID)[empty] == 0)
+    assert np.all(np.asarray(new.model.app_age).reshape(GRID)[empty] == 0.0)
+    assert np.all(np.asarray(new.model.app_prob).reshape(GRID + (-1,))[empty] == 0.0)
+    assert np.all(np.asarray(new.model.ids).reshape(GRID)[empty] == 0)
     # the rest moved off the grid and is dropped: the total age is what stayed on it
     stay = np.zeros(GRID, bool)
     stay[: ROWS - dr, : COLS - dc] = True
-    np.testing.assert_allclose(float(np.sum(np.asarray(new.app_age))),
+    np.testing.assert_allclose(float(np.sum(np.asarray(new.model.app_age))),
                                float(np.sum(age.reshape(GRID)[stay])), rtol=1e-5)
 
 
@@ -487,16 +490,16 @@ def test_fractional_shift_weights_are_overlap_areas(step):
                                    params()))  # a frame without evidence
     want_ev = np.where(landed, ref @ decayed / np.where(landed, total, 1.0), 0.0)
     # averages of a few float32 products: 1e-4 relative (ages up to 30, evidence up to 6)
-    np.testing.assert_allclose(np.asarray(new.app_age), want_age, rtol=1e-4, atol=1e-4)
-    np.testing.assert_allclose(np.asarray(new.app_prob), want_prob, rtol=1e-4, atol=1e-5)
+    np.testing.assert_allclose(np.asarray(new.model.app_age), want_age, rtol=1e-4, atol=1e-4)
+    np.testing.assert_allclose(np.asarray(new.model.app_prob), want_prob, rtol=1e-4, atol=1e-5)
     np.testing.assert_allclose(np.asarray(new.evidence), want_ev, rtol=1e-4, atol=1e-4)
     assert not np.all(landed)  # some cells receive nothing ...
-    assert np.all(np.asarray(new.app_age)[~landed] == 0)  # ... and are empty
-    assert np.all(np.asarray(new.ids)[~landed] == 0)
+    assert np.all(np.asarray(new.model.app_age)[~landed] == 0)  # ... and are empty
+    assert np.all(np.asarray(new.model.ids)[~landed] == 0)
     votes = ref @ np.eye(CFG.max_ids)[ids - 1]  # overlap of each identifier landing
     want_ids = np.where(votes.max(axis=1) > 1e-6, votes.argmax(axis=1) + 1, 0)
     clear = np.sort(votes, axis=1)[:, -1] - np.sort(votes, axis=1)[:, -2] > 1e-4
-    np.testing.assert_array_equal(np.asarray(new.ids)[clear], want_ids[clear])
+    np.testing.assert_array_equal(np.asarray(new.model.ids)[clear], want_ids[clear])
 
 
 def test_an_object_moving_with_its_flow_leaves_no_trail(step):
@@ -564,16 +567,17 @@ def _seg_vec(values, fill=0, dtype=jnp.float32):
     return jnp.asarray(list(values) + [fill] * (S - len(values)), dtype)
 
 
-def _bg_state(bg_score, initialised=True):
-    st = init_temporal(cfg=CFG, grid=GRID)
+def _bg_state(bg_score):
     score = np.zeros(M, np.float32)
     score[: len(bg_score)] = bg_score
-    return st._replace(bg_score=jnp.asarray(score), initialised=jnp.bool_(initialised))
+    return BackgroundState(jnp.asarray(score))
 
 
 def choose(bg_score, ids, support, consistency, initialised=True, **kw):
-    return _choose(_bg_state(bg_score, initialised), _seg_vec(ids, dtype=jnp.int32),
-                   _seg_vec(support), _seg_vec(consistency), params(**kw))
+    """``choose_background`` without its permutation: ``(state, ids, background,
+    reacquired)``."""
+    return _choose(_bg_state(bg_score), _seg_vec(ids, dtype=jnp.int32), _seg_vec(support),
+                   _seg_vec(consistency), jnp.bool_(initialised), params(**kw))[:4]
 
 
 def test_the_identifier_with_the_most_accumulated_support_becomes_the_background():
@@ -585,7 +589,7 @@ def test_the_identifier_with_the_most_accumulated_support_becomes_the_background
     assert int(background) == 2 and bool(reacquired)
     np.testing.assert_array_equal(np.asarray(ids)[:2], [2, 1])
     # the scores, decayed and added to, swap with the identifiers (float32: 1e-6)
-    np.testing.assert_allclose(np.asarray(state.bg_score)[:3], [0.9 * 20 + 10, 0.9 * 5 + 10, 0],
+    np.testing.assert_allclose(np.asarray(state.score)[:3], [0.9 * 20 + 10, 0.9 * 5 + 10, 0],
                                rtol=1e-6)
     # the history of identifier 1 wins when the supports are equal to its advantage
     _, ids, background, reacquired = choose([20.0, 5.0], [1, 2], [10.0, 10.0], [1.1, 1.1])
@@ -618,48 +622,60 @@ def test_without_identifiers_the_most_supported_segment_is_the_background():
     state, ids, background, reacquired = choose([3.0, 4.0], [2, 1], [0.0, 0.0], [0.0, 0.0])
     assert int(background) == 0 and not bool(reacquired)
     np.testing.assert_array_equal(np.asarray(ids)[:2], [2, 1])
-    np.testing.assert_allclose(np.asarray(state.bg_score)[:2], [2.7, 3.6], rtol=1e-6)
+    np.testing.assert_allclose(np.asarray(state.score)[:2], [2.7, 3.6], rtol=1e-6)
 
 
 def test_the_swap_relabels_every_map_model_and_count_consistently():
-    """Choosing identifier 3 exchanges identifiers 1 and 3 everywhere: the label maps, the
-    window, both models' probability vectors, the observation counts and the scores;
-    everything else is untouched."""
+    """Choosing identifier 3 exchanges identifiers 1 and 3 everywhere: the background's
+    scores, and by its permutation in each later stage's own state the label maps, the
+    window, both models' probability vectors and the observation counts; everything else
+    is untouched."""
     rng = np.random.default_rng(8)
     state, prob, _, ids, _ = _random_state(9)
-    state = state._replace(
+    state = state._replace(identifiers=state.identifiers._replace(
         history=jnp.asarray(rng.integers(0, M + 1, (CFG.match_window, N)), jnp.int32),
         obs_count=jnp.asarray(rng.integers(0, 50, M), jnp.int32),
         last_seen=jnp.asarray(rng.integers(-5, 30, M), jnp.int32),
-        bg_score=jnp.asarray(np.r_[50.0, 1.0, 10.0, np.zeros(M - 3)], jnp.float32),
         frame=jnp.int32(30), initialised=jnp.bool_(True),
-    )
+    ))
+    score0 = np.r_[50.0, 1.0, 10.0, np.zeros(M - 3)].astype(np.float32)
     seg_ids = _seg_vec([1, 3, 2], dtype=jnp.int32)
-    new, new_ids, background, reacquired = _choose(
-        state, seg_ids, _seg_vec([5.0, 60.0, 1.0]), _seg_vec([0.1, 1.1, 0.1]), params())
+    bg, new_ids, background, reacquired, perm_out = _choose(
+        BackgroundState(jnp.asarray(score0)), seg_ids, _seg_vec([5.0, 60.0, 1.0]),
+        _seg_vec([0.1, 1.1, 0.1]), jnp.bool_(True), params())
     assert int(background) == 2 and bool(reacquired)
     perm = np.arange(M + 1)
     perm[[1, 3]] = [3, 1]  # identifier -> identifier, 0 stays 0
+    np.testing.assert_array_equal(np.asarray(perm_out), perm[1:] - 1)
     np.testing.assert_array_equal(np.asarray(new_ids)[:3], [3, 1, 2])
-    np.testing.assert_array_equal(np.asarray(new.ids), perm[ids])
-    np.testing.assert_array_equal(np.asarray(new.history), perm[np.asarray(state.history)])
+    score = 0.9 * score0 + np.r_[5.0, 1.0, 60.0, np.zeros(M - 3)]
     cols = perm[1:] - 1  # column j of the new vectors is column cols[j] of the old
-    np.testing.assert_array_equal(np.asarray(new.app_prob), prob[:, cols])
-    np.testing.assert_array_equal(np.asarray(new.cand_prob), prob[::-1][:, cols])
-    np.testing.assert_array_equal(np.asarray(new.obs_count), np.asarray(state.obs_count)[cols])
-    np.testing.assert_array_equal(np.asarray(new.last_seen), np.asarray(state.last_seen)[cols])
-    score = 0.9 * np.asarray(state.bg_score) + np.r_[5.0, 1.0, 60.0, np.zeros(M - 3)]
-    np.testing.assert_allclose(np.asarray(new.bg_score), score[cols], rtol=1e-6)
+    np.testing.assert_allclose(np.asarray(bg.score), score[cols], rtol=1e-6)
+    # each later stage renumbers its own state: an update without a measurement only does
+    new_id = jax.jit(permute_identifiers)(state.identifiers, perm_out)
+    new_model = jax.jit(lambda m, p: update_grid_model(
+        m, jnp.zeros((N,), jnp.int32), params(), cfg=CFG, permutation=p))(state.model, perm_out)
+    np.testing.assert_array_equal(np.asarray(new_model.ids), perm[ids])
+    np.testing.assert_array_equal(np.asarray(new_id.history),
+                                  perm[np.asarray(state.identifiers.history)])
+    np.testing.assert_array_equal(np.asarray(new_model.app_prob), prob[:, cols])
+    np.testing.assert_array_equal(np.asarray(new_model.cand_prob), prob[::-1][:, cols])
+    np.testing.assert_array_equal(np.asarray(new_id.obs_count),
+                                  np.asarray(state.identifiers.obs_count)[cols])
+    np.testing.assert_array_equal(np.asarray(new_id.last_seen),
+                                  np.asarray(state.identifiers.last_seen)[cols])
     # a cell's apparent label follows its probability vector
-    np.testing.assert_array_equal(np.argmax(np.asarray(new.app_prob), axis=1) + 1,
+    np.testing.assert_array_equal(np.argmax(np.asarray(new_model.app_prob), axis=1) + 1,
                                   perm[np.argmax(prob, axis=1) + 1])
-    for name in ("app_age", "cand_age", "evidence", "history_valid", "frame", "initialised"):
-        np.testing.assert_array_equal(np.asarray(getattr(new, name)),
-                                      np.asarray(getattr(state, name)), err_msg=name)
+    for name in ("app_age", "cand_age"):
+        np.testing.assert_array_equal(np.asarray(getattr(new_model, name)),
+                                      np.asarray(getattr(state.model, name)), err_msg=name)
+    for name in ("history_valid", "frame", "initialised"):
+        np.testing.assert_array_equal(np.asarray(getattr(new_id, name)),
+                                      np.asarray(getattr(state.identifiers, name)), err_msg=name)
     # swapping back restores the state
-    back = jax.jit(_permute_identifiers)(new, _swap_perm(3, M))
-    for a, b in zip(jax.tree.leaves(back._replace(bg_score=state.bg_score)),
-                    jax.tree.leaves(state)):
+    back = jax.jit(permute_identifiers)(new_id, swap_perm(3, M))
+    for a, b in zip(jax.tree.leaves(back), jax.tree.leaves(state.identifiers)):
         np.testing.assert_array_equal(np.asarray(a), np.asarray(b))
 
 
@@ -699,7 +715,7 @@ def test_the_evidence_bound_lets_a_steady_motion_pass_the_test_at_any_confidence
     """The bound follows the confidence: with a fixed bound of 6 a cell could never pass
     the moving test at confidence 0.999 (log-odds 6.9); with the bound at logit + margin
     a cell pushed every frame passes it at 0.9, 0.99, 0.999 and 0.9999."""
-    from jaxvo.core.temporal import moving_logodds
+    from jaxvo.core.evidence import moving_logodds
 
     for conf in (0.9, 0.99, 0.999, 0.9999):
         prm = params(evidence_decay=0.9, confidence=conf)
@@ -737,7 +753,7 @@ def test_update_temporal_adds_the_evidence_of_cells_with_flow_and_carries_it():
 
 
 def test_belief_weights_follow_the_evidence():
-    from jaxvo.core.temporal import belief_weights
+    from jaxvo.core.background import belief_weights
 
     L = np.log(0.99 / 0.01)  # logit of the confidence, 4.595
     prior = jnp.asarray([-6.0, -L - 1e-3, -L + 1e-3, 0.0, L - 1e-3, L + 1e-3, 6.0], jnp.float32)
@@ -749,7 +765,7 @@ def test_background_support_is_the_surface_explained_and_its_share_that_follows(
     """Support: the surface (z^2 per point, times its belief) of every point a segment's
     motion explains; consistency: 0.1 plus the share of it the predicted motion explains
     too (1.1 before any ego-motion)."""
-    from jaxvo.core.temporal import background_support
+    from jaxvo.core.background import background_support
 
     z = np.r_[np.full(6, 1.0), np.full(4, 3.0)]  # 6 near points, 4 far
     weights = np.r_[np.ones(9), 0.5]
@@ -761,13 +777,15 @@ def test_background_support_is_the_surface_explained_and_its_share_that_follows(
     d2_pred[6:] = 0.5  # the prediction explains the far points
     sizes = np.array([6, 4, 0])
     args = [jnp.asarray(a, jnp.float32) for a in (d2_seg, sizes, weights, z, d2_pred)]
-    support, consistency = background_support(*args, jnp.bool_(True), jnp.float32(11.345))
+    support, consistency = background_support(*args, jnp.bool_(True), jnp.float32(11.345),
+                                              jnp.float32(0.1))
     far = 3 * 9.0 + 0.5 * 9.0
     # float32 sums of a few terms: 1e-6 relative
     np.testing.assert_allclose(np.asarray(support), [6.0, far + 2.0, 0.0], rtol=1e-6)
     np.testing.assert_allclose(np.asarray(consistency), [0.1, 0.1 + far / (far + 2.0), 0.0],
                                rtol=1e-6)
-    _, consistency = background_support(*args, jnp.bool_(False), jnp.float32(11.345))
+    _, consistency = background_support(*args, jnp.bool_(False), jnp.float32(11.345),
+                                        jnp.float32(0.1))
     np.testing.assert_allclose(np.asarray(consistency), [1.1, 1.1, 0.0], rtol=1e-6)
 
 
@@ -779,7 +797,7 @@ def test_evidence_delta_signs_and_clip():
     an outlier, not motion); within +-evidence_step; 0 where invalid."""
     from scipy.stats import norm
 
-    from jaxvo.core.temporal import evidence_delta
+    from jaxvo.core.evidence import evidence_delta
 
     prm = params_as_arrays(Params())
     k, step_ = float(prm.evidence_effect), float(prm.evidence_step)
@@ -813,7 +831,7 @@ def test_evidence_delta_signs_and_clip():
 
 
 def test_reported_ids_name_an_object_exactly_where_cells_move():
-    from jaxvo.core.temporal import reported_ids
+    from jaxvo.core.evidence import reported_ids
 
     ids = jnp.asarray([0, 1, 2, 3, 1, 0, 2, 1], jnp.int32)
     matched = jnp.asarray([0, 1, 2, 4, 5, 0, 0, 0], jnp.int32)
@@ -876,7 +894,7 @@ def test_usable_inside_scan_and_matches_python_loop(step, scanned):
         assert isinstance(final, TemporalState)
         # the same arithmetic batched and not: float32 rounding, 1e-6
         np.testing.assert_allclose(
-            np.asarray(final.app_prob), np.asarray(loop_state.app_prob), atol=1e-6
+            np.asarray(final.model.app_prob), np.asarray(loop_state.model.app_prob), atol=1e-6
         )
 
 
@@ -898,11 +916,11 @@ def test_all_zero_measurement_gives_no_nan_and_no_update(step):
         if jnp.issubdtype(leaf.dtype, jnp.floating):
             assert np.all(np.isfinite(np.asarray(leaf)))
     assert np.all(np.asarray(out.ids) == 0) and np.all(np.asarray(out.matched) == 0)
-    assert np.all(np.asarray(state.app_age) == 0) and not bool(state.initialised)
+    assert np.all(np.asarray(state.model.app_age) == 0) and not bool(state.identifiers.initialised)
     # a failed spatial stage (status != OK) counts as no measurement either
     seg = make_seg(scene([(3, 8, 4, 9)]), status=3)
     state, out = step(state, seg, jnp.zeros((N, 2), jnp.float32), jnp.ones((N,), bool), params())
-    assert np.all(np.asarray(out.matched) == 0) and np.all(np.asarray(state.app_age) == 0)
+    assert np.all(np.asarray(out.matched) == 0) and np.all(np.asarray(state.model.app_age) == 0)
     # NaN displacements where the flow is invalid leave everything finite
     disp = jnp.full((N, 2), jnp.nan, jnp.float32)
     state, out = step(state, make_seg(scene([(3, 8, 4, 9)])), disp, jnp.zeros((N,), bool),
@@ -917,7 +935,7 @@ def test_a_large_residual_counts_as_motion_only_where_its_neighbourhood_agrees()
     explain gains evidence of motion (its centre by the block's agreement, its border
     cells, with fewer agreeing neighbours, none); a lone cell with an even larger residual,
     and a block cell whose neighbours are not measured, gain none."""
-    from jaxvo.core.temporal import evidence_delta
+    from jaxvo.core.evidence import evidence_delta
 
     prm = params_as_arrays(Params())
     k2 = float(prm.evidence_effect) ** 2

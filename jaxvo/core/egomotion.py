@@ -22,10 +22,16 @@ import jax
 import jax.numpy as jnp
 
 from jaxvo.config import Config, Params
-from jaxvo.core.geometry import invert_pose, make_pose, so3_exp
-from jaxvo.core.noise import Points, init_noise, point_noise, residuals, residuals_many
+from jaxvo.core.geometry import invert_pose, make_pose, so3_exp, tiny
+from jaxvo.core.noise import Points, frame_points, residuals, residuals_many
 from jaxvo.core.procrustes import fit_rigid_cols
-from jaxvo.core.robust import CHI_3_Q25, chi2_quantile, huber_weights, mad_scale, quantile_scale
+from jaxvo.core.robust import (
+    CHI_3_Q25,
+    enough_points,
+    huber_weights,
+    mad_scale,
+    quantile_scale,
+)
 from jaxvo.status import Status, first_failure
 
 # The robust noise scale of a frame is the lower quartile of the normalised residual
@@ -39,8 +45,12 @@ _SCALE_RANGE = (0.25, 2.0)
 
 
 def _huber_threshold(x, mask):
-    """Twice the robust standard deviation of ``x[mask]`` (``x >= 0``, :func:`mad_scale`):
-    a fifth of outliers cannot inflate it (13 medians a frame)."""
+    """Twice the robust standard deviation of ``x[mask]`` (``x >= 0``, :func:`mad_scale`).
+
+    Not the re-weighting's lower quartile (``_QUARTILE``): the reprojection refines on the
+    3D fit's inliers, where the question is their spread, not the noise among outliers, and
+    the median measures it with less scatter; the quartile with the inlier test as corner
+    here did worse on part of the validation split (docs/report/core_decisions.md)."""
     return mad_scale(x, mask, 2.0)
 
 
@@ -49,14 +59,14 @@ def refine_reprojection(T, src, dst, weights, iters):
 
     The 3D-3D fit treats a point's error as isotropic, but the depth noise of an RGB-D
     camera lies along the viewing ray and is several times the lateral error of the
-    tracked pixel; least squares on such points shortens the estimated motion (3 % with a
-    plain fit on the synthetic static scene). The tracked pixel carries no depth noise: its
+    tracked pixel; least squares on such points shortens the estimated motion. The tracked
+    pixel carries no depth noise: its
     direction is ``dst / dst_z``. So the pose is refined, from the 3D-3D estimate and on its
     inliers, on the error of ``T src`` in the current view split into an image-plane part
     (normalised image coordinates, the classic 3D-2D error) and a depth part, each divided
     by its robust scale (Huber weights as in the 3D re-weighting): the data say how much
-    each is worth. Image error alone helped the synthetic scenes but not
-    7-Scenes, whose depth is not registered to its colour image exactly.
+    each is worth: the image error alone does not pay where the depth is not registered to
+    the colour image exactly (figures: docs/report/core_decisions.md).
 
     Args:
       T: (4, 4) starting pose; src, dst: (3, n) columns; weights: (n,) bool or float.
@@ -70,7 +80,7 @@ def refine_reprojection(T, src, dst, weights, iters):
         z = jnp.where(q[2] > 1e-6, q[2], 1e-6)
         u, v = q[0] / z, q[1] / z
         ru, rv = u - m[0], v - m[1]
-        e = jnp.sqrt(ru * ru + rv * rv + 1e-20)
+        e = jnp.sqrt(ru * ru + rv * rv + tiny())
         c = jnp.maximum(_huber_threshold(e, w > 0), 1e-5)
         wr = huber_weights(e, c, w)
         # d(u, v)/d(q) times d(q)/d(xi) for a left perturbation xi = (omega, nu):
@@ -132,13 +142,7 @@ def estimate_egomotion(pts_prev, pts_cur, weights, params: Params, *, cfg: Confi
     chex.assert_rank([pts_prev, pts_cur], 2)
     chex.assert_equal_shape([pts_prev, pts_cur])
     chex.assert_shape(weights, (pts_prev.shape[0],))
-    # columns (3, n): every coordinate a contiguous vector, which XLA's CPU backend
-    # vectorises far better than (n, 3) rows (see procrustes.fit_rigid_cols)
-    src, dst = pts_prev.T, pts_cur.T
-    noise = point_noise(src, dst, jnp.asarray(focal, jnp.float32),
-                        init_noise(params) if scale is None else scale)
-    thr = chi2_quantile(3, params.confidence)
-    pts = Points(src, dst, noise, weights > 0, thr, thr)
+    pts = frame_points(pts_prev, pts_cur, weights > 0, params, focal=focal, scale=scale)
     return fit_egomotion(pts, weights, params, cfg=cfg, T_init=T_init)
 
 
@@ -151,7 +155,7 @@ def fit_egomotion(pts: Points, weights, params: Params, *, cfg: Config, T_init=N
     (``T_init``, the background segment's; ``candidates`` (k, 4, 4), the predicted motion
     and every segment's; and the plain weighted fit), so that the random hypotheses
     choose where the deterministic re-weighting starts, not where it ends. With ``belief``
-    (n,) (:func:`jaxvo.core.temporal.belief_weights`: 1 where earlier frames established
+    (n,) (:func:`jaxvo.core.background.belief_weights`: 1 where earlier frames established
     the point as background) the support grows with the fit: every established point that
     the current motion explains within the inlier test joins it, whatever segment it fell
     in this frame. A piece of the background that the spatial stage split off (and so
@@ -166,7 +170,7 @@ def fit_egomotion(pts: Points, weights, params: Params, *, cfg: Config, T_init=N
     if cfg.ego_reprojection_iters > 0:
         T = refine_reprojection(T, src, dst, inliers, cfg.ego_reprojection_iters)
     status = jnp.where(
-        jnp.sum(support > 0) < params.min_static_points,
+        ~enough_points(support > 0, params),
         jnp.int32(Status.NO_STATIC),
         jnp.where(ok & ok0, jnp.int32(Status.OK), jnp.int32(Status.EGO_DEGENERATE)),
     )
@@ -180,7 +184,7 @@ def _precision(pts: Points):
     optimal 1/sigma^2, which let near, mislabelled object points pull the fit;
     docs/report/robustness.md)."""
     w_ray = jnp.sqrt(pts.noise.w_ray)
-    return w_ray, jnp.maximum(jnp.max(w_ray), 1e-12)
+    return w_ray, jnp.maximum(jnp.max(w_ray), tiny())
 
 
 def _prior_weights(weights, precision):
@@ -205,7 +209,7 @@ def _reweight(pts: Points, weights, T, iters: int, established):
         d2 = residuals(T, pts.src, pts.dst, pts.noise)[0]
         support = jnp.where(weights > 0, weights,
                             jnp.where(established & (d2 <= pts.thr), 1.0, 0.0))
-        r = jnp.sqrt(d2 + 1e-12)
+        r = jnp.sqrt(d2 + tiny())
         q = quantile_scale(r, support > 0, _QUARTILE, CHI_3_Q25)
         return r, jnp.sqrt(pts.thr) * jnp.clip(q, *_SCALE_RANGE), support
 

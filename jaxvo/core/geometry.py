@@ -13,6 +13,7 @@ Conventions, used everywhere in jaxvo:
 from __future__ import annotations
 
 import functools
+import math
 
 import jax
 import jax.numpy as jnp
@@ -22,16 +23,26 @@ from jax import lax
 def full_precision(fn):
     """``fn`` traced with every float32 matrix product at full float32 precision.
 
-    JAX lets a GPU run float32 products in TF32 (a 10-bit mantissa) by default: a point 2 m
-    away then moves by millimetres in every transform and fit, and the trajectory of a
-    synthetic scene came out 5x less accurate on an H100 than on the CPU (issue 30). The
-    CPU computes in float32 anyway; the products here are small, so the cost is nil.
+    JAX lets a GPU run float32 products in TF32 (a 10-bit mantissa) by default, which
+    moves every transformed point and fit by far more than the sensor's noise
+    (docs/report/core_decisions.md). The CPU computes in float32 anyway; the products here are
+    small, so the cost is nil.
     """
     @functools.wraps(fn)
     def traced(*args, **kwargs):
         with jax.default_matmul_precision("highest"):
             return fn(*args, **kwargs)
     return traced
+
+
+def tiny(dtype=jnp.float32) -> float:
+    """The one guard of a division or a square root in the traced code, as jaxlie's
+    ``get_epsilon(dtype)``: the square root of the smallest normal number of ``dtype``
+    (about 1e-19 in float32). A denominator floored at it, or a square root's argument
+    raised by it, stays finite where the value is 0 (masked-out lanes, empty sets); nothing
+    the pipeline measures (residuals, variances, scatter, weights) comes near it, so it
+    changes no result, and a value up to ``1 / tiny`` divided by it is still finite."""
+    return math.sqrt(float(jnp.finfo(dtype).tiny))
 
 
 def make_pose(R, t):
@@ -55,10 +66,10 @@ def so3_exp(w):
     """Rodrigues: the rotation (3, 3) of the rotation vector ``w`` (3,), radians; Taylor
     terms near 0 so that no 0 / 0 appears."""
     theta2 = jnp.sum(w * w)
-    theta = jnp.sqrt(theta2 + 1e-30)
+    theta = jnp.sqrt(theta2 + tiny(w.dtype))
     small = theta2 < 1e-10
     a = jnp.where(small, 1.0 - theta2 / 6.0, jnp.sin(theta) / theta)
-    b = jnp.where(small, 0.5 - theta2 / 24.0, (1.0 - jnp.cos(theta)) / (theta2 + 1e-30))
+    b = jnp.where(small, 0.5 - theta2 / 24.0, (1.0 - jnp.cos(theta)) / (theta2 + tiny(w.dtype)))
     zero = jnp.zeros_like(w[0])
     k = jnp.stack([
         jnp.stack([zero, -w[2], w[1]]),
@@ -116,7 +127,8 @@ def masked_median(x, mask, precision_bits: int | None = None):
 
     Exact (the mean of the two middle values), found by bisection on the float bit
     patterns rather than a sort: 32 fused count-reductions cost a fifth of an XLA CPU sort
-    of 1200 values (26 against 140 us), and the ego-motion takes a median per iteration.
+    of a grid's values (docs/report/core_decisions.md), and the ego-motion takes a median per
+    iteration.
 
     With ``precision_bits`` b: the lower middle value to a relative ``2**-b`` (at most
     that much toward -inf), one order statistic by ``9 + b`` halvings instead of two by 32

@@ -42,22 +42,19 @@ import numpy as np
 import optax
 
 from jaxvo.config import Config, Params
-from jaxvo.core.geometry import invert_pose
+from jaxvo.core.background import belief_weights
+from jaxvo.core.geometry import invert_pose, tiny
 from jaxvo.core.lm import (
     ArrowCurvature,
     adjoint,
     levenberg_marquardt,
     orthonormal,
+    pair_factor,
     perturb,
     skew,
 )
 from jaxvo.core.noise import NoiseScale, Points, frame_points
 from jaxvo.core.robust import cauchy, chi2_quantile
-
-_TINY = 1e-12
-import os
-
-_LS = float(os.environ.get("KF_LINK_SCALE", "1"))
 
 
 def keyframe_index(grid: tuple[int, int], stride: int) -> np.ndarray:
@@ -143,6 +140,30 @@ def join_points(a: Points, b: Points) -> Points:
     cat = lambda x, y: jnp.concatenate([x, y], axis=-1)
     return Points(cat(a.src, b.src), cat(a.dst, b.dst), jax.tree.map(cat, a.noise, b.noise),
                   cat(a.valid, b.valid), a.thr, a.tie)
+
+
+def keyframe_support(state: KeyframeState, kf, T_w_prev, pts: Points, bg, evidence,
+                     params: Params, *, cfg: Config, grid, focal, scale: NoiseScale):
+    """The ego-motion's points, weights and beliefs with the latest keyframe's points joined
+    to the pair's (``(Points, weights, belief)``, the keyframe's after the pair's).
+
+    A keyframe point counts as the cell of the pair's previous image it lay in
+    (``kf.cell_prev``): by what earlier frames say of that cell (its belief,
+    :func:`jaxvo.core.background.belief_weights` of ``evidence``), and not at all where this
+    frame's segment there moves unlike the background (``bg``, the background's output:
+    a valid point it believes in but does not use). So a keyframe taken while a box stood
+    still does not pull the ego-motion along once the box moves.
+    """
+    index = keyframe_index(grid, cfg.keyframe_stride)
+    kpts = keyframe_points(state, kf, T_w_prev, params, focal=focal, scale=scale, index=index)
+    prior = belief_weights(evidence, params)
+    moving_seg = pts.valid & (bg.belief > 0) & (bg.use == 0)
+    cell = kf.cell_prev[index]
+    at = jnp.maximum(cell, 0)
+    belief = jnp.where(kpts.valid & (cell >= 0), prior[at], 0.0)
+    use = jnp.where(moving_seg[at], 0.0, belief)
+    return (join_points(pts, kpts), jnp.concatenate([bg.use, use.astype(bg.use.dtype)]),
+            jnp.concatenate([bg.belief, belief.astype(bg.belief.dtype)]))
 
 
 # ------------------------------------------------------------------ the window's problem
@@ -329,18 +350,18 @@ def _problem(st: KeyframeState, focal, scale: NoiseScale, params: Params) -> _Pr
     return _Problem(
         point=st.point,
         obs=st.obs,
-        ray=st.obs / jnp.maximum(norm, _TINY)[..., None],
-        w_lat=jnp.where(seen, focal * focal / jnp.maximum((scale.pixel_sigma * z) ** 2, _TINY),
+        ray=st.obs / jnp.maximum(norm, tiny())[..., None],
+        w_lat=jnp.where(seen, focal * focal / jnp.maximum((scale.pixel_sigma * z) ** 2, tiny()),
                         0.0),
-        w_ray=jnp.where(seen, 1.0 / jnp.maximum((scale.depth_coeff * z * z) ** 2, _TINY), 0.0),
-        w_own=jnp.where(st.static, 1.0 / jnp.maximum((scale.depth_coeff * zp * zp) ** 2, _TINY)
-                        / jnp.maximum(jnp.sum(st.point * st.point, axis=-1) / (zp * zp + _TINY),
-                                      _TINY), 0.0),
+        w_ray=jnp.where(seen, 1.0 / jnp.maximum((scale.depth_coeff * z * z) ** 2, tiny()), 0.0),
+        w_own=jnp.where(st.static, 1.0 / jnp.maximum((scale.depth_coeff * zp * zp) ** 2, tiny())
+                        / jnp.maximum(jnp.sum(st.point * st.point, axis=-1) / (zp * zp + tiny()),
+                                      tiny()), 0.0),
         free=st.taken & (jnp.arange(K) != fixed),
         c2=chi2_quantile(3, params.confidence),
         link_T=st.link_T,
-        link_H=jnp.where(both[:, None, None], st.link_H, 0.0) * _LS,
-        link_g=jnp.where(both[:, None], st.link_g, 0.0) * _LS,
+        link_H=jnp.where(both[:, None, None], st.link_H, 0.0),
+        link_g=jnp.where(both[:, None], st.link_g, 0.0),
     )
 
 
@@ -380,7 +401,7 @@ def _learn_first(state: KeyframeState, kf, index) -> KeyframeState:
         static=state.static.at[-1].set(ok), fresh=jnp.bool_(False))
 
 
-def update_keyframe(state: KeyframeState, kf, T_w_c, static, link, noise: NoiseScale,
+def update_keyframe(state: KeyframeState, kf, T_w_c, static, pair, noise: NoiseScale,
                     params: Params, *, cfg: Config, grid, focal):
     """After the pair: where the host renews the keyframe (``kf.renew``), the current frame
     joins the window as its latest keyframe and the window is refined.
@@ -389,8 +410,11 @@ def update_keyframe(state: KeyframeState, kf, T_w_c, static, link, noise: NoiseS
       state: the window; kf: the pair's ``KeyframeFlow``.
       T_w_c: (4, 4) the current camera's pose from the ego-motion.
       static: (n,) bool grid points of the current image the temporal model holds static.
-      link: ``(T_cur_kf, H, g)``: the chain's motion from the latest keyframe to the current
-        camera, and the pair's information on it (:func:`jaxvo.core.lm.pair_factor`).
+      pair: ``(T_cur_prev, T_w_prev, pts, used)``: the pair's ego-motion, the previous
+        camera's pose, the pair's points and those the ego-motion used. They give the chain's
+        motion from the latest keyframe to the current camera and the pair's information
+        on it (:func:`jaxvo.core.lm.pair_factor`), the window's tie between a new keyframe
+        and the one before.
       noise: the sensor noise model; params: numeric settings (``confidence``).
       cfg: static settings (``keyframe_window``, ``keyframe_iters``, ``keyframe_stride``);
       grid: static ``(rows, cols)``; focal: () pixels.
@@ -400,6 +424,9 @@ def update_keyframe(state: KeyframeState, kf, T_w_c, static, link, noise: NoiseS
       where a keyframe was taken, else ``T_w_c``.
     """
     index = keyframe_index(grid, cfg.keyframe_stride)
+    T_cur_prev, T_w_prev, pts, used = pair
+    T_cur_kf = T_cur_prev @ invert_pose(T_w_prev) @ state.T_w_kf[-1]
+    link = (T_cur_kf, *pair_factor(T_cur_prev, pts, used, pts.thr))
 
     def take(st):
         st = _take(st, kf, T_w_c, static, index, link)

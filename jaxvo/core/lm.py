@@ -17,14 +17,13 @@ import jax
 import jax.numpy as jnp
 import optax
 
-from jaxvo.core.geometry import make_pose, so3_exp
+from jaxvo.core.geometry import make_pose, so3_exp, tiny
 from jaxvo.core.noise import Points, mahalanobis
 from jaxvo.core.robust import cauchy
 
 # Levenberg-Marquardt damping (relative to the Gauss-Newton matrix's diagonal): start, the
 # factors after a rejected and an accepted step, and its range.
 _DAMPING = (1e-3, 10.0, 0.1, 1e-6, 1e6)
-_TINY = 1e-12
 
 
 class ArrowCurvature(NamedTuple):
@@ -50,8 +49,8 @@ def _arrow_solve(C: ArrowCurvature, g_dense, g_diag, lam):
     """The damped Gauss-Newton step ``-(H + lam (diag H + eps))^-1 g`` of an arrow matrix,
     by the Schur complement of its diagonal part (one Cholesky of the dense part)."""
     d = jnp.diagonal(C.dense)
-    A = C.dense + jnp.diag(lam * (d + 1e-6 * jnp.mean(d) + _TINY))
-    a = C.diagonal * (1.0 + lam) + lam * (1e-6 * jnp.mean(C.diagonal) + _TINY)
+    A = C.dense + jnp.diag(lam * (d + 1e-6 * jnp.mean(d) + tiny()))
+    a = C.diagonal * (1.0 + lam) + lam * (1e-6 * jnp.mean(C.diagonal) + tiny())
     W = C.cross / a
     S = A - W @ C.cross.T
     x = -jax.scipy.linalg.cho_solve(jax.scipy.linalg.cho_factor(S), g_dense - W @ g_diag)

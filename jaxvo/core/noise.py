@@ -18,10 +18,8 @@ millimetre thresholds tuned per scene.
 
 The two scales are not constants of a sensor: the tracker's noise grows with motion blur,
 the depth noise after :func:`jaxvo.host.flow.refine_depth` depends on the sensor's spatial
-correlation, and colour-to-depth misregistration adds to both. Measured against ground
-truth on the development split (``bench/calibrate_noise.py``, a depth reading): synthetic
-frames 0.05 px and ``0.3e-3 z^2``; real 7-Scenes frames 0.75 px and ``0.9-1.3e-3 z^2``, at
-every 4th frame 0.9-1.6 px and ``1.2-2.0e-3 z^2``. Every test uses the model of
+correlation, and colour-to-depth misregistration adds to both (measured against ground
+truth by ``bench/calibrate_noise.py``; the figures in docs/report/core_decisions.md). Every test uses the model of
 :class:`jaxvo.config.Params`' ``pixel_sigma`` and ``depth_coeff`` (a real sensor's values,
 measured on the development frames); with ``noise_rate > 0`` the pipeline also calibrates
 both online from the residuals of the background under its own ego-motion
@@ -36,9 +34,14 @@ from typing import NamedTuple
 import jax
 import jax.numpy as jnp
 
-from jaxvo.core.robust import CHI2_1_MEDIAN, CHI2_2_MEDIAN, chi2_quantile, quantile_scale
-
-_FLOOR = 1e-12  # keeps divisions finite in masked-out lanes
+from jaxvo.core.geometry import tiny
+from jaxvo.core.robust import (
+    CHI2_1_MEDIAN,
+    CHI2_2_MEDIAN,
+    chi2_quantile,
+    enough_points,
+    quantile_scale,
+)
 
 
 class NoiseScale(NamedTuple):
@@ -96,7 +99,7 @@ def point_noise(pts_prev, pts_cur, focal, scale: NoiseScale, fb_error=None,
     """
     z0, z1 = pts_prev[2], pts_cur[2]
     norm = jnp.sqrt(pts_cur[0] * pts_cur[0] + pts_cur[1] * pts_cur[1] + pts_cur[2] * pts_cur[2])
-    ray = pts_cur / jnp.maximum(norm, _FLOOR)
+    ray = pts_cur / jnp.maximum(norm, tiny())
     px2 = scale.pixel_sigma ** 2
     if fb_error is not None:
         px2 = px2 + 0.25 * fb_error * fb_error
@@ -105,8 +108,8 @@ def point_noise(pts_prev, pts_cur, focal, scale: NoiseScale, fb_error=None,
     if depth_slope is not None:
         var_ray = var_ray + depth_slope * depth_slope * px2
     ok = (z0 > 0) & (z1 > 0)
-    return PointNoise(ray, jnp.where(ok, 1.0 / jnp.maximum(var_lat, _FLOOR), 0.0),
-                      jnp.where(ok, 1.0 / jnp.maximum(var_ray, _FLOOR), 0.0))
+    return PointNoise(ray, jnp.where(ok, 1.0 / jnp.maximum(var_lat, tiny()), 0.0),
+                      jnp.where(ok, 1.0 / jnp.maximum(var_ray, tiny()), 0.0))
 
 
 class Points(NamedTuple):
@@ -151,8 +154,7 @@ def frame_points(pts_prev, pts_cur, valid, params, *, focal, scale=None, fb_erro
 
 # Every function below works on coordinate planes: a vector quantity over many points is
 # three arrays, one per axis, never an array with an axis of 3 to reduce over, which XLA's
-# CPU backend vectorises about 14 times worse (64 motions x 1200 points: 0.84 against 0.06
-# ms).
+# CPU backend vectorises far worse (docs/report/core_decisions.md).
 
 
 def components(r, noise: PointNoise):
@@ -197,7 +199,7 @@ def residuals(T, src, dst, noise: PointNoise):
     return d2[0], e2[0]
 
 
-def update_noise(scale: NoiseScale, r, used, noise: PointNoise, rate, *,
+def update_noise(scale: NoiseScale, r, used, noise: PointNoise, params, *,
                  floor: NoiseScale = NOISE_FLOOR, ceiling: NoiseScale = NOISE_CEILING):
     """Calibrate the noise from the residuals ``r`` (3, n) of the points the ego-motion
     ``used`` (n,) bool under the motion just estimated; ``noise`` is those points'
@@ -208,24 +210,24 @@ def update_noise(scale: NoiseScale, r, used, noise: PointNoise, rate, *,
     freedom along the ray, 2 across). The points are those the ego-motion was fitted to:
     the background as the pipeline believes it (not yet known to move, not in a segment
     that moves unlike it), whatever their residuals, so that no inlier test cuts the
-    distribution short. Two sets did worse on the development split: the inliers of the
+    distribution short. Two sets did worse (docs/report/core_decisions.md): the inliers of the
     background segment (a real scene is not exactly rigid, and the model shrank to the
     spread within one segment until the background split into regional segments, each split
-    shrinking it further: 0.75 -> 0.22 px in 20 frames on 7-Scenes), and a quantile over
-    all valid points (objects covering half the view then set the noise of the background:
-    the model grew to 4 px or shrank to a synthetic box's 0.1 px, and on the ``three_boxes``
-    composite a box took the background, ATE 271 mm; with the background's points the
-    background held at all three seeds tried, ATE 26-32 mm). The scale moves towards the
-    measurement in log space at ``rate`` per frame and stays within ``floor`` and
-    ``ceiling`` (by default :data:`NOISE_FLOOR`, :data:`NOISE_CEILING`); at ``rate`` 0 (the default, ``Params.noise_rate``) it is left exactly as
-    given, outside those bounds too.
+    shrinking it further), and a quantile over all valid points (objects covering half the
+    view then set the noise of the background). The scale moves towards the
+    measurement in log space at ``rate = params.noise_rate`` per frame and stays within
+    ``floor`` and ``ceiling`` (by default :data:`NOISE_FLOOR`, :data:`NOISE_CEILING`); at
+    ``rate`` 0 it is left exactly as given, outside those bounds too. The pipeline calls it
+    only with ``Config.noise_calibration``.
 
-    Returns the new :class:`NoiseScale` (unchanged where fewer than 12 points are used).
+    Returns the new :class:`NoiseScale` (unchanged where the points are not
+    :func:`jaxvo.core.robust.enough_points`).
     """
+    rate = params.noise_rate
     lat2, ray2 = components(r, noise)
     m_lat = quantile_scale(lat2 * noise.w_lat, used, 0.5, CHI2_2_MEDIAN)
     m_ray = quantile_scale(ray2 * noise.w_ray, used, 0.5, CHI2_1_MEDIAN)
-    moves = (jnp.sum(used) >= 12) & (rate > 0)
+    moves = enough_points(used, params) & (rate > 0)
 
     def step(value, ratio2, low, high):
         # ratio2 is (measured / modelled)^2: move log(value) by rate * log(ratio)

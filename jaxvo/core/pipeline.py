@@ -5,9 +5,10 @@ One step reads top to bottom as the thesis's pipeline (Fig. 1.2), a chain of sta
 
   the frame's points and their noise, built once (:func:`jaxvo.core.noise.frame_points`)
   -> spatial segmentation (Algorithms 1, 2; :mod:`jaxvo.core.spatial`)
-  -> identifiers and the background (Algorithm 3; :func:`jaxvo.core.temporal.update_background`)
+  -> identifiers (Algorithm 3; :mod:`jaxvo.core.identifiers`) and the background
+     (:func:`jaxvo.core.background.update_background`)
   -> ego-motion from the background -> camera pose chain (:mod:`jaxvo.core.egomotion`)
-  -> moving evidence under the ego-motion (:func:`jaxvo.core.temporal.moving_evidence`)
+  -> moving evidence under the ego-motion (:func:`jaxvo.core.evidence.moving_evidence`)
   -> labels: the dual-mode grid model, compensated (:func:`jaxvo.core.temporal.update_temporal`)
   -> sensor noise (:mod:`jaxvo.core.noise`) -> sliding window (:mod:`jaxvo.core.window`).
 
@@ -27,32 +28,20 @@ import jax
 import jax.numpy as jnp
 
 from jaxvo.config import Config, Params
-from jaxvo.core.egomotion import EgoState, init_ego, predicted_motion, update_egomotion
-from jaxvo.core.geometry import full_precision, invert_pose
-from jaxvo.core.keyframe import (
-    KeyframeState,
-    init_keyframe,
-    join_points,
-    keyframe_index,
-    keyframe_points,
-    update_keyframe,
+from jaxvo.core.background import (
+    BackgroundOut,
+    BackgroundState,
+    init_background,
+    update_background,
 )
-from jaxvo.core.lm import pair_factor
+from jaxvo.core.egomotion import EgoState, init_ego, predicted_motion, update_egomotion
+from jaxvo.core.evidence import moving_evidence, moving_logodds, neighbourhood, reported_ids
+from jaxvo.core.geometry import full_precision
+from jaxvo.core.identifiers import identify, measured_labels
+from jaxvo.core.keyframe import KeyframeState, init_keyframe, keyframe_support, update_keyframe
 from jaxvo.core.noise import NoiseScale, frame_points, init_noise, transfer, update_noise
 from jaxvo.core.spatial import Segmentation, segment_points
-from jaxvo.core.temporal import (
-    BackgroundOut,
-    TemporalOut,
-    TemporalState,
-    belief_weights,
-    init_temporal,
-    measured_labels,
-    moving_evidence,
-    moving_logodds,
-    reported_ids,
-    update_background,
-    update_temporal,
-)
+from jaxvo.core.temporal import TemporalOut, TemporalState, init_temporal, update_temporal
 from jaxvo.core.window import WindowOut, WindowState, init_window, update_window
 from jaxvo.status import Status, first_failure
 
@@ -60,7 +49,8 @@ from jaxvo.status import Status, first_failure
 class PipelineState(NamedTuple):
     """What the odometry carries from one frame to the next: each stage's state."""
 
-    temporal: TemporalState  # dual-mode grid model, identifiers, evidence, label history
+    temporal: TemporalState  # identifiers, moving evidence, dual-mode grid model (on the grid)
+    background: BackgroundState  # each identifier's support as the background
     ego: EgoState  # the camera's pose and its last measured motion
     frame: jax.Array  # () int32, frame pairs processed so far
     noise: NoiseScale  # the sensor noise model (jaxvo.core.noise; calibrated when noise_rate > 0)
@@ -80,7 +70,7 @@ class StepOutput(NamedTuple):
     T_cur_prev: jax.Array  # (4, 4) float32, motion of the static background (carried: predicted)
     status: jax.Array  # () int32 Status code, OK or why the motion was carried
     # (n,) int32 identifiers: 0 unknown, 1 static, >= 2 the moving object (exactly where
-    # `moving`; max_ids + 1 moving, not yet named), jaxvo.core.temporal.reported_ids
+    # `moving`; max_ids + 1 moving, not yet named), jaxvo.core.evidence.reported_ids
     ids: jax.Array
     moving: jax.Array  # (n,) bool points reported as moving (evidence over time)
     dynamic: jax.Array  # (n,) bool cells of the plug-in mask: moving, and their unmeasured neighbours
@@ -106,8 +96,10 @@ def init_pipeline(*, cfg: Config, grid: tuple[int, int], T_w_c0=None,
     T0 = jnp.eye(4, dtype=jnp.float32) if T_w_c0 is None else jnp.asarray(T_w_c0, jnp.float32)
     window = init_window(cfg=cfg, grid=grid, T_w_c0=T0) if cfg.window else None
     keyframe = init_keyframe(T0, cfg=cfg, grid=grid) if cfg.keyframes else None
-    return PipelineState(init_temporal(cfg=cfg, grid=grid), init_ego(T0), jnp.int32(0),
-                         init_noise(Params() if params is None else params), window, keyframe)
+    return PipelineState(temporal=init_temporal(cfg=cfg, grid=grid),
+                         background=init_background(cfg=cfg), ego=init_ego(T0),
+                         frame=jnp.int32(0), noise=init_noise(Params() if params is None else params),
+                         window=window, keyframe=keyframe)
 
 
 @full_precision
@@ -117,8 +109,11 @@ def step(state: PipelineState, flow, key, params: Params, *, cfg: Config, grid,
 
     Args:
       state: carried :class:`PipelineState`.
-      flow: a ``GridFlow`` of device or host arrays (``pts_prev``, ``pts_cur``, ``uv_prev``,
-        ``uv_cur``, ``valid``, ``status``, ``focal``), see :mod:`jaxvo.host.flow`.
+      flow: a ``GridFlow`` of device or host arrays, see :mod:`jaxvo.host.flow`: the
+        points ``pts_prev``, ``pts_cur``, ``valid`` and the pair's ``status`` (the frame's
+        points); ``focal``, ``fb_error``, ``depth_slope`` (their noise); ``uv_prev``,
+        ``uv_cur`` (the displacement that carries the grid model forward); ``depth_seen``
+        (cells without depth keep their evidence). Every field is read.
       key: PRNG key of this frame (hypothesis sampling).
       params: numeric settings, possibly traced (vmappable).
       cfg: static settings; grid: static ``(rows, cols)``.
@@ -135,30 +130,20 @@ def step(state: PipelineState, flow, key, params: Params, *, cfg: Config, grid,
     labels = measured_labels(seg, pts.valid, cfg=cfg)
     # 2. identifiers (Algorithm 3) and the background: the segment whose motion explains
     # the most surface that earlier frames established as background
-    temporal, bg = update_background(state.temporal, seg, labels, pts,
-                                     predicted_motion(state.ego), state.ego.have_last,
-                                     params, cfg=cfg)
+    segment_ids = identify(state.temporal.identifiers, labels, params, cfg=cfg)
+    background, bg = update_background(
+        state.background, seg, pts, predicted_motion(state.ego), state.ego.have_last, params,
+        cfg=cfg, segment_ids=segment_ids, evidence=state.temporal.evidence,
+        initialised=state.temporal.identifiers.initialised)
     # 3. ego-motion from the best of the frame's candidate motions, its support grown over
     # the established background; with keyframes also on the keyframe's static points
     # tracked into this image (jaxvo.core.keyframe)
     ego_pts, ego_weights, belief = pts, bg.use, bg.belief
     use_kf = cfg.keyframes and keyframe is not None
     if use_kf:
-        kpts = keyframe_points(state.keyframe, keyframe, state.ego.T_w_c, params,
-                               focal=flow.focal, scale=state.noise,
-                               index=keyframe_index(grid, cfg.keyframe_stride))
-        # a keyframe point counts as the cell of the previous image it lay in: by what
-        # earlier frames say of that cell, and not where this frame's segment there moves
-        # unlike the background
-        prior = belief_weights(state.temporal.evidence, params)
-        moving_seg = pts.valid & (bg.belief > 0) & (bg.use == 0)
-        cell = keyframe.cell_prev[keyframe_index(grid, cfg.keyframe_stride)]
-        at = jnp.maximum(cell, 0)
-        k_belief = jnp.where(kpts.valid & (cell >= 0), prior[at], 0.0)
-        k_use = jnp.where(moving_seg[at], 0.0, k_belief)
-        ego_pts = join_points(pts, kpts)
-        ego_weights = jnp.concatenate([bg.use, k_use.astype(bg.use.dtype)])
-        belief = jnp.concatenate([belief, k_belief.astype(belief.dtype)])
+        ego_pts, ego_weights, belief = keyframe_support(
+            state.keyframe, keyframe, state.ego.T_w_c, pts, bg, state.temporal.evidence, params,
+            cfg=cfg, grid=grid, focal=flow.focal, scale=state.noise)
     candidates = jnp.concatenate([predicted_motion(state.ego)[None], seg.motions])
     ego, eo = update_egomotion(state.ego, ego_pts, ego_weights,
                                seg.motions[jnp.maximum(bg.background - 1, 0)],
@@ -170,12 +155,14 @@ def step(state: PipelineState, flow, key, params: Params, *, cfg: Config, grid,
                                        params, cfg=cfg, grid=grid)
     # 5. labels: the dual-mode grid model, compensated to the current image
     temporal, tout = update_temporal(
-        temporal, labels, flow.uv_cur - flow.uv_prev, pts.valid, params, cfg=cfg, grid=grid,
-        segment_ids=bg.segment_ids, explained=explained, evidence_delta=delta,
-        depth_seen=flow.depth_seen)
+        state.temporal, labels, flow.uv_cur - flow.uv_prev, pts.valid, params, cfg=cfg,
+        grid=grid, segment_ids=bg.segment_ids, explained=explained, evidence_delta=delta,
+        depth_seen=flow.depth_seen, permutation=bg.permutation)
     # 6. the sensor noise, from the residuals of the points the ego-motion was fitted to
-    noise = update_noise(state.noise, transfer(eo.T_cur_prev, pts.src) - pts.dst,
-                         (bg.use > 0) & eo.ok, pts.noise, params.noise_rate)
+    noise = state.noise
+    if cfg.noise_calibration:
+        noise = update_noise(noise, transfer(eo.T_cur_prev, pts.src) - pts.dst,
+                             (bg.use > 0) & eo.ok, pts.noise, params)
     # 7. the sliding-window refinement of the recent poses (jaxvo.core.window, cfg.window > 0)
     window, wout = state.window, None
     if cfg.window:
@@ -186,17 +173,17 @@ def step(state: PipelineState, flow, key, params: Params, *, cfg: Config, grid,
     # static on this image (its evidence is already carried onto this image's grid)
     kf_state, kout = state.keyframe, None
     if use_kf:
-        # the chain's motion from the keyframe to this camera, and this pair's information
-        T_cur_kf = eo.T_cur_prev @ invert_pose(state.ego.T_w_c) @ kf_state.T_w_kf[-1]
-        link = (T_cur_kf, *pair_factor(eo.T_cur_prev, pts, eo.used, pts.thr))
-        kf_state, kout = update_keyframe(kf_state, keyframe, ego.T_w_c,
-                                         temporal.evidence <= moving_logodds(params), link,
-                                         noise, params, cfg=cfg, grid=grid, focal=flow.focal)
+        kf_state, kout = update_keyframe(
+            kf_state, keyframe, ego.T_w_c, temporal.evidence <= moving_logodds(params),
+            (eo.T_cur_prev, state.ego.T_w_c, pts, eo.used), noise, params, cfg=cfg, grid=grid,
+            focal=flow.focal)
         ego = ego._replace(T_w_c=kout.T_w_c)
     out = _output(ego, eo, seg, bg, tout, noise, wout, pts.valid, params, cfg=cfg, grid=grid)
     if kout is not None:
         out = out._replace(keyframes=kout.count)
-    return PipelineState(temporal, ego, state.frame + 1, noise, window, kf_state), out
+    return PipelineState(temporal=temporal, background=background, ego=ego,
+                         frame=state.frame + 1, noise=noise, window=window,
+                         keyframe=kf_state), out
 
 
 def _output(ego: EgoState, eo, seg: Segmentation, bg: BackgroundOut, tout: TemporalOut,
@@ -233,17 +220,10 @@ def grow_moving(moving, open_cells, *, grid, steps: int):
     its measured neighbourhood: it is reported moving when it touches a moving cell.
     Measured cells and established background bound the growth.
     """
-    rows, cols = grid
-    m = moving.reshape(rows, cols)
-    o = open_cells.reshape(rows, cols)
     for _ in range(steps):
-        p = jnp.pad(m, 1)
-        near = jnp.zeros_like(m)
-        for dr in (0, 1, 2):
-            for dc in (0, 1, 2):
-                near = near | p[dr:dr + rows, dc:dc + cols]
-        m = m | (near & o)
-    return m.reshape(-1)
+        moving = moving | (jnp.any(neighbourhood(moving, False, grid=grid), axis=-1)
+                           & open_cells)
+    return moving
 
 
 def final_moving(state: PipelineState, params: Params):

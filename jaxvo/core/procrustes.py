@@ -19,14 +19,15 @@ import chex
 import jax.numpy as jnp
 from jax import lax
 
-from jaxvo.core.geometry import make_pose
+from jaxvo.core.geometry import make_pose, tiny
 
 # Squarings of the shifted Horn matrix: the power 2**20 ~ 1e6 drives the ratio of the
 # second to the first eigenvalue, 1 - 2 (s2 + s3) / (l1 + 1) with the singular values of the
 # normalised M, below float32 resolution for every set that passes the planarity check below.
 _SQUARINGS = 20
 # A set is degenerate (collinear) when the second eigenvalue of its scatter matrix is below
-# this fraction of the largest, i.e. its thinnest extent is under ~1 % of its longest.
+# this fraction of the largest, i.e. its thinnest extent is under about a hundredth of its
+# longest.
 _PLANARITY = 1e-4
 # Coincident points: total scatter below this (m^2) leaves the rotation undetermined.
 _MIN_SCATTER = 1e-10
@@ -56,7 +57,7 @@ def _square_normalised(a):
     on 4x4 operands (batched under vmap) costs far more than its 64 multiply-adds. Kept in a
     loop: unrolled, the squarings compile slowly and run no faster."""
     a = sum(a[:, k, None] * a[None, k, :] for k in range(4))
-    return a / jnp.maximum(jnp.trace(a), 1e-30)
+    return a / jnp.maximum(jnp.trace(a), tiny(a.dtype))
 
 
 def _spread_ok(c):
@@ -103,13 +104,13 @@ def _horn_rotation(s):
     # |M|_F = 1 the largest is l1 >= 0 and the smallest is >= -(l1 + 2 s3) with s3 <= 1/sqrt 3,
     # so a shift of 1 makes the wanted eigenvalue the unique one of largest magnitude.
     scale = jnp.sqrt(jnp.sum(s * s))
-    a = n / jnp.maximum(scale, 1e-30) + jnp.eye(4, dtype=s.dtype)
+    a = n / jnp.maximum(scale, tiny(s.dtype)) + jnp.eye(4, dtype=s.dtype)
     a = lax.fori_loop(0, _SQUARINGS, lambda _, a: _square_normalised(a), a)
     # a ~ v v^T now: its largest column is a multiple of v.
     j = jnp.argmax(jnp.sum(a * a, axis=0))
     q = a[:, j]
     qn = jnp.sqrt(jnp.sum(q * q))
-    good = qn > 1e-12
+    good = qn > tiny(s.dtype)
     q = jnp.where(good, q / jnp.where(good, qn, 1.0), jnp.array([1.0, 0, 0, 0], s.dtype))
     return _quat_to_rot(q)
 

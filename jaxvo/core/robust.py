@@ -15,7 +15,7 @@ from __future__ import annotations
 import jax
 import jax.numpy as jnp
 
-from jaxvo.core.geometry import masked_median, masked_quantile
+from jaxvo.core.geometry import masked_median, masked_quantile, tiny
 
 # The standard deviation of Gaussian residuals over their median absolute value:
 # 1 / Phi^-1(3/4).
@@ -26,7 +26,7 @@ CHI2_1_MEDIAN = 0.45494
 CHI2_2_MEDIAN = 1.38629
 # The lower quartile of the length of a 3-D standard normal vector, sqrt of chi-square
 # with 3 degrees of freedom's (scipy.stats.chi2.ppf(0.25, 3) ** 0.5; Wilson and Hilferty's
-# approximation, 1.1078, is 0.6 % high there).
+# approximation, 1.1078, is 6e-3 high there, relatively).
 CHI_3_Q25 = 1.10115
 # Named fractions of a set of points for :func:`explains`: a motion explains a segment
 # when it explains at least half of its points.
@@ -35,8 +35,9 @@ MOST = 0.5
 
 def chi2_quantile(dof, p):
     """The ``p`` quantile of chi-square with ``dof`` degrees of freedom, Wilson and Hilferty's
-    cube-root normal approximation (for 3 degrees of freedom within 0.6 % at p = 0.9, 0.3 %
-    at 0.99, 1.75 % at 0.999, 3.5 % at 0.9999; closer with more degrees of freedom;
+    cube-root normal approximation (for 3 degrees of freedom within a relative 6e-3 at
+    p = 0.9, 3e-3 at 0.99, 1.75e-2 at 0.999, 3.5e-2 at 0.9999; closer with more degrees of
+    freedom;
     ``p`` may be traced, so a study can sweep the confidence)."""
     k = jnp.asarray(dof, jnp.float32)
     z = jax.scipy.special.ndtri(jnp.asarray(p, jnp.float32))
@@ -57,10 +58,17 @@ def mad_scale(x, mask, times: float = 1.0):
     return times * MAD_SIGMA * masked_median(x, mask, precision_bits=12)
 
 
+def enough_points(mask, params):
+    """() bool whether the points of ``mask`` (n,) bool are enough to fit and judge the
+    camera's motion: at least ``params.min_static_points`` (the ego-motion's fit, the noise
+    calibration, the window's refinement of a pair)."""
+    return jnp.sum(mask) >= params.min_static_points
+
+
 def huber_weights(r, c, w):
     """Weights ``w`` times Huber's ``min(1, c / r)`` for residual sizes ``r >= 0`` and corner
     ``c``; 0 beyond three corners (``3 c``): such a point is an outlier, not a large error."""
-    return jnp.where(r < 3.0 * c, w * jnp.minimum(1.0, c / jnp.maximum(r, 1e-20)), 0.0)
+    return jnp.where(r < 3.0 * c, w * jnp.minimum(1.0, c / jnp.maximum(r, tiny())), 0.0)
 
 
 def cauchy(d2, c2):

@@ -55,9 +55,6 @@ from jaxvo.status import Status
 _FAR = 1e6
 # Grid offsets drawn around a seed, of which the first m - 1 valid ones are used.
 _NEIGHBOUR_DRAWS = 12
-# Two motions move a point to the same place when the gap between their images is within
-# this share of the inlier test (:func:`_same_motion`).
-_SAME_PLACE = 0.25
 
 
 class Segmentation(NamedTuple):
@@ -146,8 +143,9 @@ def _inverse_cdf(weights, u):
     a row's end).
 
     In two levels, a row by the cumulative row sums, then a cell by the cumulative sums
-    along it, each cumulative sum a product with a triangular matrix: 4 against 9 us for
-    ``jnp.cumsum`` and ``jnp.searchsorted`` over the 1200 cells here, on every search trip.
+    along it, each cumulative sum a product with a triangular matrix: about half the time
+    of ``jnp.cumsum`` and ``jnp.searchsorted``, on every search trip
+    (docs/report/core_decisions.md).
     """
     rows, cols = weights.shape
     row_sum = jnp.sum(weights, axis=1)
@@ -173,8 +171,8 @@ def _draw_samples(key, entropy, valid, *, cfg, grid):
     seed, and a sample that repeats a cell (also two equal draws) fails its check.
 
     Taking the first ``m - 1`` offsets as drawn, a sample needed all of them valid: with a
-    fifth of the grid valid (TUM walking, motion blur) one sample in 125 qualified, and most
-    trips found no hypothesis.
+    fifth of the grid valid (motion blur) one sample in 125 qualified, and most trips found
+    no hypothesis.
     """
     rows, cols = grid
     k, m = cfg.num_candidates, cfg.sample_size
@@ -319,7 +317,7 @@ def _assign(d2, inliers, keep, tie, *, by_fit=False):
     smallest: the point alone cannot tell the two motions apart) goes to the segment with
     the most inliers. Far points are noisy, so both an object's and the background's
     motion explain a far wall; by residual alone, noise handed a share of it to the object
-    in about half of the frames of ``fixed_camera_1``.
+    (docs/report/core_decisions.md).
 
     With ``by_fit``, a tie is first decided between each two segments over all the points
     tied between them: the one whose residuals there sum lower wins them (noise averages
@@ -328,7 +326,7 @@ def _assign(d2, inliers, keep, tie, *, by_fit=False):
     one with the most inliers. The joint cluster refinement uses it: a near object's
     motion that also explains the far wall within the wall's noise has the most inliers,
     and by size alone it took the wall from the wall's own motion and refitted to a motion
-    between the two (``fixed_camera_2``, frames 46-47). The final labelling keeps the size
+    between the two (docs/report/core_decisions.md). The final labelling keeps the size
     rule: on real frames under fast motion the background splits into regional fits, each
     a little better on its own region, and the size rule keeps their points together.
 
@@ -349,9 +347,10 @@ def _assign(d2, inliers, keep, tie, *, by_fit=False):
     return best, jnp.any(cand, axis=0)
 
 
-def _same_motion(motions_a, own_a, motions_b, pts: Points, eps):
+def _same_motion(motions_a, own_a, motions_b, pts: Points, params):
     """(A, B) bool: motion ``b`` moves more than ``1 - eps`` of ``a``'s own points to where
-    motion ``a`` does, within ``_SAME_PLACE`` of the inlier test: the same motion found twice.
+    motion ``a`` does, within ``params.same_place`` of the inlier test: the same motion found
+    twice (``eps = params.cluster_eps``).
 
     Comparing the motions where ``a``'s points are (not inlier-set overlap) keeps a small
     object whose motion differs from the camera's by less than the noise at depth.
@@ -362,7 +361,8 @@ def _same_motion(motions_a, own_a, motions_b, pts: Points, eps):
     a, b = motions_a.shape[0], motions_b.shape[0]
     diff = (motions_a[:, None] - motions_b[None, :]).reshape(a * b, 4, 4)
     gap = mahalanobis(transfer_many(diff, pts.src), pts.noise).reshape(a, b, -1)
-    return explains(gap <= _SAME_PLACE * pts.thr, own_a[:, None, :], 1.0 - eps, strict=True)
+    return explains(gap <= params.same_place * pts.thr, own_a[:, None, :],
+                    1.0 - params.cluster_eps, strict=True)
 
 
 def _leftover_segment(motions, d2_c, inl_c, keep, left, pts: Points, params):
@@ -371,8 +371,8 @@ def _leftover_segment(motions, d2_c, inl_c, keep, left, pts: Points, params):
 
     Joint refinement can lose a whole object: a hypothesis that explains a slow object and
     part of the background at once wins the near ties, and refitting pulls it onto the
-    background; the object's points are then inliers of no segment (fixed_camera_2, frames
-    49-54 with one key: 586 object points unlabelled). A fit on the leftover points, refined
+    background; the object's points are then inliers of no segment
+    (docs/report/core_decisions.md). A fit on the leftover points, refined
     once on its inliers among them, is kept in a free slot if it has more than
     ``min_segment_points`` inliers and is not a kept motion again (:func:`_same_motion`).
 
@@ -386,7 +386,7 @@ def _leftover_segment(motions, d2_c, inl_c, keep, left, pts: Points, params):
         motion, ok = fit_rigid_cols(pts.src, pts.dst, inl.astype(jnp.float32))
         d2 = _res(motion, pts)[0]
         inl = left & (d2 <= pts.thr) & ok
-    again = _same_motion(motion[None], inl[None], motions, pts, params.cluster_eps)[0]
+    again = _same_motion(motion[None], inl[None], motions, pts, params)[0]
     slot = jnp.argmin(keep)  # the first free slot
     add = ~jnp.all(keep) & (jnp.sum(inl) > params.min_segment_points) & ~jnp.any(keep & again)
     at = add & (jnp.arange(keep.shape[0]) == slot)
@@ -533,10 +533,10 @@ def _cluster(hyps: _Hypothesis, pts: Points, params, *, cfg):
     big_enough = active & (n_c > params.min_segment_points)
 
     # Merge: the same motion found twice (cluster k duplicates a larger kept cluster j) ...
-    same = _same_motion(motions, own_c, motions, pts, params.cluster_eps)  # (k, j)
+    same = _same_motion(motions, own_c, motions, pts, params)  # (k, j)
     # ... and k's motion explains most of j's own points: a near object's motion can move
     # the far wall's points to within the wall's wide noise of where the wall's motion
-    # does, but the wall's motion does not explain the object (fixed_camera_2)
+    # does, but the wall's motion does not explain the object (docs/report/core_decisions.md)
     same = same & explains(inl_c[:, None, :], own_c[None, :, :], 1.0 - params.cluster_eps,
                            strict=True)
     order = jnp.argsort(-n_c, stable=True)

@@ -10,8 +10,8 @@ the previous image of the pair, where its flow was measured. So image ``k`` take
 identifiers of step ``k`` for ``k = 0 .. T-1``. The last image ``T`` has no step of its own:
 it takes ``final_ids`` when given, the temporal label map of the final state, which the
 temporal stage has already compensated forward onto image ``T``'s grid
-(``final_state.temporal.ids`` of :func:`jaxvo.core.pipeline.run_scan`); without it, it takes the
-last available map (step ``T-1``, anchored one frame earlier), which the ``grow`` margin
+(``final_state.temporal.model.ids`` of :func:`jaxvo.core.pipeline.run_scan`); without it, it
+takes the last available map (step ``T-1``, anchored one frame earlier), which the ``grow`` margin
 covers for small motions.
 
 Dropped frames. A :class:`~jaxvo.odometry.SequenceResult` steps only the frames it kept:
@@ -55,7 +55,7 @@ def iter_dynamic_masks(
       height, width: image size, pixels.
       cell: grid cell size, pixels (``Config.cell`` of the run).
       final_ids: optional ``(n,)`` identifiers of the final state
-        (``final_state.temporal.ids``), compensated onto the last image; see the module
+        (``final_state.temporal.model.ids``), compensated onto the last image; see the module
         docstring for what the last image takes without it.
       grow: cells by which each moving cell is dilated (covers object borders between grid
         points); 0 keeps exactly the moving cells.

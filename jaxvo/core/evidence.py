@@ -1,0 +1,141 @@
+"""The moving evidence of every grid cell: a binary Bayes filter in log-odds (device side).
+
+Besides the identifiers, every cell carries the log-odds that it moves (``evidence`` of
+:class:`jaxvo.core.temporal.TemporalState`, (n,) float32, relative to the prior: 0 = no
+evidence either way; compensated with the grid model). Each frame adds the evidence of the
+cell's own motion under the ego-motion (:func:`moving_evidence`), which decays
+(:func:`update_evidence`), and a cell is reported moving once its posterior exceeds the
+confidence of the tests (:func:`moving_logodds`): the one notion of moving that every
+output follows (:func:`reported_ids`).
+"""
+
+from __future__ import annotations
+
+import jax.numpy as jnp
+
+from jaxvo.config import Config, Params
+from jaxvo.core.identifiers import STATIC_ID
+from jaxvo.core.noise import Points, residuals
+from jaxvo.core.robust import MOST, explains
+
+
+def moving_logodds(params: Params):
+    """The log-odds above which a cell is reported moving: its posterior exceeds the
+    confidence of the tests (``logit(confidence)``)."""
+    p = jnp.asarray(params.confidence, jnp.float32)
+    return jnp.log(p) - jnp.log1p(-p)
+
+
+def explained_segments(seg_labels, d2, valid, thr, *, cfg: Config):
+    """(S,) bool the segments most (:data:`jaxvo.core.robust.MOST`) of whose valid points the
+    motion behind ``d2`` (n,) explains within the inlier test ``thr``."""
+    member = (seg_labels[None, :] == jnp.arange(1, cfg.max_segments + 1)[:, None]) & valid
+    return explains((d2 <= thr)[None, :], member, MOST)
+
+
+def evidence_delta(seg_labels, d2_ego, d2_seg, explained, valid, params: Params, *,
+                   grid: tuple[int, int]):
+    """(n,) float32 this frame's log-likelihood ratio, moving over static, of every point.
+
+    Static: the point follows the ego-motion, its residual ``d2_ego`` chi-square with 3
+    degrees of freedom. Moving: it follows its own segment's motion, where that segment
+    moves unlike the background (not ``explained``): the Gaussian log-ratio
+    ``(d2_ego - d2_own) / 2``, which a slow object's points build up over frames though
+    each alone stays within the noise. A point outside such a segment is weighed by how
+    well the noise explains its residual: against residuals
+    ``k = params.evidence_effect`` times the noise, ``-3 log k + d2 (1 - 1/k^2) / 2``.
+    A large residual there counts as motion only where its neighbourhood agrees (spatial
+    coherence, :func:`neighbourhood_agreement`), so a mover that no segment separates (a
+    person: many small parts, none rigid) gains evidence over frames, while a lone large
+    residual (a depth edge, a mistracked point) stays an outlier: counted on its own, it
+    put cells of static real scenes in motion (docs/report/core_decisions.md). Every ratio is kept
+    within ``+-params.evidence_step``: one frame cannot shift the odds by more than that.
+    """
+    s = d2_seg.shape[0]
+    lab = jnp.clip(seg_labels - 1, 0, s - 1)
+    own = jnp.take_along_axis(d2_seg, lab[None, :], axis=0)[0]
+    in_moving = (seg_labels > 0) & ~explained[lab]
+    k2 = params.evidence_effect ** 2
+    ratio = -1.5 * jnp.log(k2) + 0.5 * d2_ego * (1.0 - 1.0 / k2)
+    agreed = jnp.minimum(ratio, jnp.maximum(neighbourhood_agreement(ratio, valid, grid=grid),
+                                            0.0))
+    residual = jnp.where(ratio > 0, agreed, ratio)
+    delta = jnp.where(in_moving, 0.5 * (d2_ego - own), residual)
+    delta = jnp.clip(delta, -params.evidence_step, params.evidence_step)
+    return jnp.where(valid, delta, 0.0).astype(jnp.float32)
+
+
+def neighbourhood(values, fill, *, grid: tuple[int, int]):
+    """(n, 9) each cell's 3 x 3 neighbourhood (itself included, row by row) of ``values``
+    (n,) on the row-major ``grid``; ``fill`` beyond the grid's edge. The one neighbourhood
+    of the grid that every stage reads (the evidence's agreement, the mask's growth)."""
+    rows, cols = grid
+    p = jnp.pad(values.reshape(rows, cols), 1, constant_values=fill)
+    return jnp.stack([p[dr:dr + rows, dc:dc + cols].reshape(-1)
+                      for dr in range(3) for dc in range(3)], axis=-1)
+
+
+def neighbourhood_agreement(values, valid, *, grid: tuple[int, int]):
+    """(n,) what the valid cells of each cell's 3 x 3 neighbourhood on the ``grid`` agree
+    on: the lower quartile of their ``values`` (n,), so that with 9 measured cells 7 must
+    reach it; -inf where fewer than 5 are measured (too few to agree). The median (5 of 9)
+    flagged static real frames as moving where the lower quartile did not, and the lower
+    quartile covered more of the people (docs/report/core_decisions.md).
+    """
+    near = neighbourhood(jnp.where(valid, values, jnp.inf), jnp.inf, grid=grid)  # (n, 9)
+    count = jnp.sum(jnp.isfinite(near), axis=-1)
+    median = jnp.take_along_axis(jnp.sort(near, axis=-1),
+                                 jnp.maximum(count - 1, 0)[:, None] // 4, axis=-1)[:, 0]
+    return jnp.where(count >= 5, median, -jnp.inf)
+
+
+def moving_evidence(seg_labels, pts: Points, T_cur_prev, d2_seg, ok, params: Params, *,
+                    cfg: Config, grid: tuple[int, int]):
+    """This frame's evidence of each point's own motion under the ego-motion ``T_cur_prev``:
+    ``(explained (S,) bool, delta (n,) float32)``, the segments the ego-motion explains
+    (:func:`explained_segments`) and every point's log-likelihood ratio
+    (:func:`evidence_delta`); none where the frame is not ``ok``."""
+    d2_ego = residuals(T_cur_prev, pts.src, pts.dst, pts.noise)[0]
+    explained = explained_segments(seg_labels, d2_ego, pts.valid, pts.thr, cfg=cfg)
+    delta = evidence_delta(seg_labels, d2_ego, d2_seg, explained, pts.valid & ok, params,
+                           grid=grid)
+    return explained & ok, delta
+
+
+def update_evidence(evidence, delta, measured, hidden, params: Params):
+    """One frame of the moving evidence of every cell: a binary Bayes filter in log-odds.
+
+    ``evidence`` is the log-odds that the cell moves, relative to the prior; each frame it
+    decays by ``params.evidence_decay`` (so old evidence fades and a cell can change its
+    mind) and a measured cell adds this frame's log-likelihood ratio ``delta``. A cell the
+    sensor cannot see (``hidden``: no depth reading, as an object nearer than the depth
+    range) keeps its evidence unchanged until it is seen again: nothing was learnt of it
+    (else an approaching object fades from the mask, docs/report/core_decisions.md). The sum is
+    kept within ``+-(logit(confidence) + params.evidence_margin)``, so that a cell can
+    pass the moving test at any confidence and a long history cannot outweigh a change
+    for longer than about ``bound / |delta|`` frames.
+
+    Args:
+      evidence: (n,) float32 compensated log-odds; delta: (n,) float32 this frame's
+        log-likelihood ratios (moving over static); measured, hidden: (n,) bool.
+    """
+    e = params.evidence_decay * evidence + jnp.where(measured, delta, 0.0)
+    e = jnp.where(hidden & ~measured, evidence, e)
+    bound = moving_logodds(params) + params.evidence_margin
+    return jnp.clip(e, -bound, bound).astype(jnp.float32)
+
+
+def reported_ids(ids, matched, moving, *, cfg: Config):
+    """(n,) int32 the identifiers every output reports: an object's identifier (>= 2)
+    exactly where the cell is reported moving (``moving`` (n,) bool, its evidence), so that
+    the identifiers, the masks, the overlays and the scores agree on what moves.
+
+    Which object a moving cell is: its temporal identifier ``ids`` (n,) where that names
+    an object, else this frame's matched measurement ``matched`` (n,), else ``max_ids + 1``
+    (moving, not yet named). A cell that is not moving reports the background (1) where
+    its identifier names an object (a region the object has left keeps the object's
+    identifier in the grid model until the model is updated there; a stopped object), else
+    its own identifier (0 unknown, 1 static).
+    """
+    name = jnp.where(ids >= 2, ids, jnp.where(matched >= 2, matched, cfg.max_ids + 1))
+    return jnp.where(moving, name, jnp.where(ids >= 2, STATIC_ID, ids)).astype(jnp.int32)
