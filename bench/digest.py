@@ -6,12 +6,11 @@ composites, static and people sequences) the streaming step runs over the case's
 flow (``bench_robustness.py``'s cache; built here when absent, without the peers) and the
 digest prints one line per run: the case, then the first 12 hex digits of the sha256 of the
 poses, of the identifiers, of the moving cells, of the plug-in mask cells, of the spatial
-labels, of the evidence, and of all of them with the statuses. ``--window N`` also runs the
-built-in scenes with the sliding-window refinement. Same lines before and after a change:
-the same bits.
+labels, of the evidence, and of all of them with the statuses. Same lines before and after
+a change: the same bits.
 
 Run: ``.venv/bin/python bench/digest.py [--split dev|val|fresh|all] [--only CASE ...]
-[--window N] [--cache results/cache] > digest.txt``
+[--cache results/cache] > digest.txt``
 """
 
 from __future__ import annotations
@@ -62,8 +61,6 @@ def main(argv=None) -> int:
     ap = argparse.ArgumentParser(description=__doc__.split("\n\n")[0])
     ap.add_argument("--split", choices=("dev", "val", "fresh", "all"), default="all")
     ap.add_argument("--only", nargs="*")
-    ap.add_argument("--window", type=int, default=0,
-                    help="also run the built-in scenes with this window (0: not)")
     ap.add_argument("--seed", type=int, default=0)
     ap.add_argument("--cache", type=Path, default=Path("results/cache"))
     args = ap.parse_args(argv)
@@ -76,13 +73,8 @@ def main(argv=None) -> int:
         if why:
             print(f"{case.name} skipped: {why}", flush=True)
             continue
-        runs = [("", Config())]
-        if args.window and case.kind == "synthetic":
-            runs.append((f"+window{args.window}", Config(window=args.window)))
-        data = None
-        for suffix, cfg in runs:
-            data = data if data is not None else cached_flow(case, args.cache, Config())
-            print(case.name + suffix, *digest(data, cfg, args.seed), flush=True)
+        data = cached_flow(case, args.cache, Config())
+        print(case.name, *digest(data, Config(), args.seed), flush=True)
     return 0
 
 

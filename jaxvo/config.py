@@ -87,12 +87,6 @@ class Config:
     # noise_rate turns it on
     noise_calibration: bool = False
 
-    # --- sliding-window refinement (jaxvo.core.window, our addition) ---
-    # frames whose poses are refined together, the oldest held fixed; a frame's pose is
-    # final when it leaves the window. 0: off, else at least 2
-    window: int = 0
-    window_iters: int = 3  # Levenberg-Marquardt iterations per frame
-
     # --- frame-to-keyframe tracking (jaxvo.core.keyframe, our addition) ---
     # the ego-motion also fits the keyframe's static grid points tracked into the current
     # image (jaxvo.host.keyframes.KeyframeTracker), so that drift accrues per keyframe
@@ -291,8 +285,8 @@ def check_config(
     The grid cell must be at least :data:`MIN_CELL` pixels (and leave 2 x 2 cells on the
     image, when its size is given); there must be at least one hypothesis, minimal samples
     of at least 3 points, and room for at least one segment; the keyframe window holds at
-    least one keyframe, its points every stride-th grid point; the refinement window is 0
-    (off) or at least 2 frames, with no negative iteration count.
+    least one keyframe, its points every stride-th grid point, with no negative iteration
+    count.
 
     Args:
       cfg: the settings.
@@ -322,17 +316,6 @@ def check_config(
             raise InputError(f"{name(field)} must be a whole number, got {value!r}") from None
         if whole < least:
             raise InputError(f"{name(field)} must be at least {least} {unit}, got {value}")
-    for field in ("window", "window_iters"):
-        value = getattr(cfg, field)
-        try:
-            whole = operator.index(value)
-        except TypeError:
-            raise InputError(f"{name(field)} must be a whole number, got {value!r}") from None
-        if whole < 0:
-            raise InputError(f"{name(field)} must not be negative, got {value}")
-    if cfg.window == 1:
-        raise InputError(f"{name('window')} must be 0 (off) or at least 2 frames (one fixed, "
-                         "one refined), got 1")
     if height is not None and width is not None and min(height, width) // cfg.cell < 2:
         raise InputError(
             f"{name('cell')} {cfg.cell} leaves fewer than 2 x 2 grid cells on the "

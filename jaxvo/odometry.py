@@ -26,7 +26,6 @@ import numpy as np
 
 from jaxvo.config import Config, Params, check_config, check_params, grid_shape, params_as_arrays
 from jaxvo.core.pipeline import StepOutput, init_pipeline, jit_step, run_scan
-from jaxvo.core.window import final_poses, window_trajectory
 from jaxvo.errors import InputError
 from jaxvo.host.camera import Intrinsics, as_intrinsics, check_intrinsics, depth_metres
 from jaxvo.host.flow import (
@@ -52,9 +51,6 @@ class FrameResult(NamedTuple):
     static: np.ndarray  # (n,) bool grid points used for the ego-motion
     output: StepOutput | None  # every per-step output (None on the first or a dropped frame)
     dropped: str | None = None  # why the frame was dropped (it has no pose), None if kept
-    # with Config.window: the frame that left the window with this step, as (timestamp,
-    # (4, 4) float64 final camera-to-world pose); None when none left
-    left: tuple[float, np.ndarray] | None = None
 
 
 class Odometry:
@@ -68,13 +64,6 @@ class Odometry:
     dropped: it gets no pose (``FrameResult.dropped`` says why; ``T_w_c`` repeats the last
     kept pose) and is left out of :attr:`trajectory`, and the next frame pairs with the last
     good one (:class:`jaxvo.host.flow.FrameChain`).
-
-    With ``cfg.window`` K > 0 the last K frames' poses are refined together
-    (:mod:`jaxvo.core.window`): ``FrameResult.T_w_c`` is then the newest frame's pose after one
-    refinement, and a frame's final pose comes out when it leaves the window, K frames
-    later (``FrameResult.left``). :attr:`trajectory` holds the immediate poses,
-    :attr:`refined_trajectory` the final ones and, for the frames still in the window,
-    their latest refined poses.
 
     Example::
 
@@ -145,8 +134,6 @@ class Odometry:
         self._pending = None  # a frame dispatched by submit() whose result is not out yet
         self.timestamps: list[float] = []
         self.poses: list[np.ndarray] = []
-        self._final: list[np.ndarray] = []  # final poses of the frames that left the window
-        self._window: tuple[np.ndarray, np.ndarray] | None = None  # last (frame_id, T_w_c)
         self.logger = None
         if logger is not None:
             self.attach(logger)
@@ -162,21 +149,9 @@ class Odometry:
     @property
     def trajectory(self) -> Trajectory:
         """Every pose so far (camera-to-world), dropped frames left out: each as it was
-        when its frame was processed (with ``cfg.window``, refined once)."""
+        when its frame was processed."""
         return Trajectory(np.asarray(self.timestamps, np.float64),
                           np.asarray(self.poses).reshape(-1, 4, 4))
-
-    @property
-    def refined_trajectory(self) -> Trajectory:
-        """With ``cfg.window``: every pose so far, final for the frames that left the
-        window and the latest refined for those still in it (the same as
-        :attr:`trajectory` without a window)."""
-        if self._window is None:
-            return self.trajectory
-        final = np.asarray(self._final).reshape(-1, 4, 4)
-        poses = final_poses(np.arange(len(final)), final, *self._window,
-                            np.asarray(self.poses).reshape(-1, 4, 4))
-        return Trajectory(np.asarray(self.timestamps, np.float64), np.asarray(poses, np.float64))
 
     def process(self, bgr: np.ndarray, depth: np.ndarray, timestamp: float | None = None):
         """Feed one frame and get its result.
@@ -285,17 +260,7 @@ class Odometry:
             return FrameResult(index, t, T, status, np.zeros(n, np.int32), np.zeros(n, bool),
                                None, dropped)
         out = jax.tree.map(np.asarray, out)
-        left = None
-        if out.window is not None:
-            # window frame f is the f-th pose of this trajectory (dropped frames never
-            # reach the device), so frames leave in the order they came
-            w = out.window
-            self._window = (w.frame_id, w.T_w_c.astype(np.float64))
-            if w.left_id >= 0:
-                self._final.append(w.T_w_left.astype(np.float64))
-                left = (self.timestamps[int(w.left_id)], self._final[-1])
-        return FrameResult(index, t, T, Status(int(out.status)), out.ids, out.static, out,
-                           left=left)
+        return FrameResult(index, t, T, Status(int(out.status)), out.ids, out.static, out)
 
 
 # A number of seconds at or above this is no time (3170 years); at or above NS_FROM it is
@@ -419,9 +384,6 @@ class SequenceResult(NamedTuple):
     frames: np.ndarray
     dropped: dict[int, str]  # index of each dropped frame -> why
     start_pose: str  # where the first pose came from, in words
-    # with Config.window: each frame's pose as the step gave it (``trajectory`` then holds
-    # the final poses, each from when its frame left the window); None without a window
-    immediate: Trajectory | None = None
     # the KeyframeFlow of every pair the scan consumed beside ``flows`` (cfg.keyframes)
     keyframes: object = None
 
@@ -453,9 +415,7 @@ def run_sequence(
     """Flow for every frame pair on the host, then one jit-compiled ``lax.scan``.
 
     Frames that cannot be used are dropped and the next frame pairs with the last good one
-    (:func:`jaxvo.host.flow.sequence_flows`); the trajectory holds the kept frames. With
-    ``cfg.window`` it holds each frame's final pose (when it left the window, or where the
-    window ended), and ``SequenceResult.immediate`` the poses as each step gave them.
+    (:func:`jaxvo.host.flow.sequence_flows`); the trajectory holds the kept frames.
 
     Args:
       seq: a sequence per docs/architecture.md (:func:`jaxvo.open_sequence`,
@@ -502,18 +462,13 @@ def run_sequence(
     scan_s = time.perf_counter() - t0
 
     poses = np.concatenate([T0[None], outs.T_w_c.astype(np.float64)])
-    immediate = None
-    if outs.window is not None:
-        immediate = Trajectory(stamps, poses)
-        poses = np.asarray(window_trajectory(outs.window), np.float64)
-        poses[0] = T0  # float64, as without the window
     return SequenceResult(Trajectory(stamps, poses), outs, chain.flows, flow_s, scan_s, grid,
-                          chain.frames, chain.dropped, start, immediate, chain.keyframes)
+                          chain.frames, chain.dropped, start, chain.keyframes)
 
 
 def _shape_settings(cfg: Config) -> str:
     """The settings that size a run's memory, for messages."""
-    return f"num_hypotheses {cfg.num_hypotheses}, window {cfg.window}, cell {cfg.cell}"
+    return f"num_hypotheses {cfg.num_hypotheses}, cell {cfg.cell}"
 
 
 def _as_sequence(seq):

@@ -155,6 +155,8 @@ def unwritable(tmp_path) -> Path:
         (["--max-diff", "-1"], ["--max-diff must be a number of seconds >= 0"]),
         (["--max-diff", "nan"], ["--max-diff", "nan"]),
         (["--frames", "1"], ["--frames must be at least 2"]),
+        # the consecutive-frame window is gone: its option says what replaced it
+        (["--window", "5"], ["--window was removed: --keyframes refines a window over"]),
     ],
 )
 def test_run_option_out_of_range_is_one_line_naming_it(base, tmp_path, capsys, args, needles):
@@ -955,7 +957,6 @@ def test_run_sequence_takes_a_folder_and_says_what_it_expects(base, base_seq):
 
 
 @pytest.mark.parametrize("args, needle", [
-    (["--window", "100000"], "--window 100000"),
     (["--hypotheses", "100000"], "--hypotheses 100000"),
 ])
 def test_run_that_cannot_fit_in_memory_is_refused_before_compiling(
@@ -979,7 +980,6 @@ def test_synth_and_demo_of_a_billion_frames_are_refused(tmp_path, capsys):
 
 @pytest.mark.parametrize("extra, needle", [
     ("[fixed]\nnum_hypotheses = 100000\n", "num_hypotheses 100000"),
-    ("[fixed]\nwindow = 100000\n", "window 100000"),
 ])
 def test_study_that_cannot_fit_in_memory_is_refused(tmp_path, capsys, extra, needle):
     spec = tmp_path / "s.toml"
@@ -996,11 +996,12 @@ def test_python_api_refuses_memory_it_cannot_have(base_seq):
     from jaxvo.odometry import run_sequence
 
     f = base_seq[0]
-    with pytest.raises(ValueError, match="Odometry with num_hypotheses 20, window 100000, cell "
-                                         "16 needs about .* TB of memory"):
-        Odometry(base_seq.intrinsics, cfg=Config(window=100000)).process(f.bgr, f.depth, 0.0)
+    with pytest.raises(ValueError, match="Odometry with num_hypotheses 100000, cell "
+                                         "16 needs about .* GB of memory"):
+        Odometry(base_seq.intrinsics, cfg=Config(num_hypotheses=100000)).process(f.bgr, f.depth,
+                                                                               0.0)
     with pytest.raises(InputError, match=f"run_sequence of {FRAMES} frames with num_hypotheses "
-                                         "100000, window 0, cell 16 needs about"):
+                                         "100000, cell 16 needs about"):
         run_sequence(base_seq, cfg=Config(num_hypotheses=100000))
 
 
@@ -1012,9 +1013,8 @@ def test_check_memory_gives_both_numbers():
     with pytest.raises(InputError, match=r"^x needs about 1.2 GB of memory; this machine has "
                                          r"1 GB available$"):
         check_memory(1.2e9, what="x", available=1e9)
-    # the estimate grows with what the settings hold: hypotheses squared, window squared
+    # the estimate grows with what the settings hold: hypotheses squared
     assert run_bytes(Config(num_hypotheses=2000), height=480, width=640) > need + 40e6
-    assert run_bytes(Config(window=2000), height=480, width=640) > need + 5e9
 
 
 # --- issue 29: a study's folder whose depth cannot be read ---------------------------------

@@ -120,8 +120,13 @@ BAD = [
     ("[fixed]\nevidence_decay = 2.0", "fixed.evidence_decay: the value must be in [0, 1], got 2"),
     ("[fixed]\npixel_sigma = 0.0", "fixed.pixel_sigma: the value must be in (0, inf), got 0"),
     ("[fixed]\nlam = nan", "fixed.lam: the value must be a finite number"),
-    ("[fixed]\nwindow = 1", "Config.window must be 0 (off) or at least 2 frames"),
-    ("[sweep]\nwindow = [3, -2]", "window = -2: Config.window must not be negative"),
+    # the consecutive-frame window is gone: a spec that sets it is told what replaced it
+    ("[fixed]\nwindow = 5", ("fixed.window: the consecutive-frame window was removed; the "
+                             "window over keyframes replaces it: keyframes = true, "
+                             "keyframe_window")),
+    ("[sweep]\nwindow_iters = [3]", ("sweep.window_iters: the consecutive-frame window was "
+                                     "removed; the window over keyframes replaces it: "
+                                     "keyframe_iters")),
     ("[distributed]\ncoordinator = 'nohost'", "distributed.coordinator: bad value"),
     # the sequences (a spec with its own [[sequences]] takes no default one)
     ("[[sequences]]\nscene = 'moon'", "sequences[0].scene: unknown scene 'moon'"),

@@ -17,7 +17,7 @@ import sys
 from pathlib import Path
 
 # command-line option -> the Config field it sets (named so in error messages)
-_CONFIG_OPTIONS = {"cell": "--cell", "num_hypotheses": "--hypotheses", "window": "--window"}
+_CONFIG_OPTIONS = {"cell": "--cell", "num_hypotheses": "--hypotheses"}
 
 EPILOG = """\
 examples:
@@ -42,12 +42,10 @@ camera: --camera or --intrinsics, else camera.txt, else ETH3D's calibration.txt 
 
 refused before any work: outputs over what the run reads (--masks SEQ_DIR/rgb) or over
   each other (two options, one folder), and settings that need more memory than the
-  machine has (--window, --hypotheses).
+  machine has (--hypotheses).
 
 output: the trajectory is camera-to-world in TUM format, one pose per frame kept, written
-  as it is computed; with --window K, each frame's pose is written when the frame leaves
-  the window of the K most recent frames, refined there, and the last K are written at the
-  end of the run (also after Ctrl-C). A frame that cannot be used (unreadable, or too few valid flow
+  as it is computed. A frame that cannot be used (unreadable, or too few valid flow
   vectors with the last good frame: black, saturated, noise) is dropped and gets no pose;
   the next frame pairs with the last good one. Masks and overlays are PNG files named by
   the frame's RGB timestamp (e.g. 1305031102.175304.png, as TUM names its images), one per
@@ -99,10 +97,8 @@ def add_arguments(p: argparse.ArgumentParser) -> None:
                    help="grid cell size in pixels, at least 4 (default 16)")
     p.add_argument("--hypotheses", type=int, default=20,
                    help="motion hypotheses per frame pair, H, at least 1 (default 20)")
-    p.add_argument("--window", type=int, default=0, metavar="K",
-                   help="refine the poses of the K most recent frames together against points "
-                   "tracked through them (0: off, the default; else at least 2): a frame's "
-                   "pose is final, and written, when it leaves the window, K frames later")
+    # the consecutive-frame window (issue 21) is gone: its option only says what replaced it
+    p.add_argument("--window", help=argparse.SUPPRESS)
     p.add_argument("--keyframes", action=argparse.BooleanOptionalAction, default=None,
                    help="also fit each frame's motion to the latest keyframe's static points, so "
                    "that drift accrues per keyframe, not per frame (default: Config.keyframes; "
@@ -169,7 +165,10 @@ def _check_options(args: argparse.Namespace):
     if args.depth_scale is not None:
         check_depth_scale_value(args.depth_scale, name="--depth-scale")
     check_seed(args.seed, name="--seed")
-    cfg = Config(cell=args.cell, num_hypotheses=args.hypotheses, window=args.window,
+    if args.window is not None:
+        raise InputError("--window was removed: --keyframes refines a window over the latest "
+                         "keyframes instead (Config.keyframe_window of them)")
+    cfg = Config(cell=args.cell, num_hypotheses=args.hypotheses,
                  keyframes=Config.keyframes if args.keyframes is None else args.keyframes)
     check_config(cfg, names=_CONFIG_OPTIONS)
     camera = args.camera
@@ -233,7 +232,7 @@ def _open(args: argparse.Namespace, cfg, camera):
 
 def _settings(args: argparse.Namespace) -> str:
     """The shape-setting options as given, for messages."""
-    return (f"--hypotheses {args.hypotheses}, --window {args.window}, --cell {args.cell}")
+    return f"--hypotheses {args.hypotheses}, --cell {args.cell}"
 
 
 def prepare(args: argparse.Namespace):
@@ -379,16 +378,11 @@ class _Recorder:
         self.finish(odo)
 
     def finish(self, odo) -> None:
-        """The last frame's result (also after an interruption), the poses still in the
-        window, and the last frame's dynamic mask."""
+        """The last frame's result (also after an interruption) and the last frame's
+        dynamic mask."""
         r = odo.flush()
         if r is not None:
             self.record(r)
-        if self.cfg.window:  # the frames still in the window, with their refined poses
-            final = odo.refined_trajectory
-            for t, T in zip(final.timestamps[self.written:], final.poses[self.written:]):
-                self.writer.write(t, T)
-                self.written += 1
         if (self.dynamic is not None and self.last_moving is not None
                 and self.anchor is not None):
             self.dynamic[self.anchor.index] = self.last_moving
@@ -406,12 +400,8 @@ class _Recorder:
         if r.dropped is not None:
             self.dropped[r.dropped] += 1
             return
-        if not self.cfg.window:
-            self.writer.write(r.timestamp, r.T_w_c)
-            self.written += 1
-        elif r.left is not None:  # the frame that left the window: its pose is final
-            self.writer.write(*r.left)
-            self.written += 1
+        self.writer.write(r.timestamp, r.T_w_c)
+        self.written += 1
         prev_frame, self.anchor = self.anchor, frame
         if r.output is None or prev_frame is None:
             return
@@ -486,7 +476,6 @@ def _summary(args, seq, n: int, start: str, rec: _Recorder, compiling, warnings,
         "camera": getattr(seq, "camera_source", "given"),
         "start_pose": start,
         "poses_written": rec.written,
-        "window": rec.cfg.window,
         "keyframes": rec.keyframes,  # 0: frame to frame only (Config.keyframes off)
         "trajectory": str(out),
         "frames_per_second": round(fps, 2),
@@ -540,9 +529,6 @@ def _print_summary(summary: dict, n: int, interrupted: bool) -> None:
           f"writing included (first pair {summary['first_frame_pair_seconds']} s, {how})")
     print(f"  camera     {summary['camera']}")
     print(f"  start pose {summary['start_pose']}")
-    if summary["window"]:
-        print(f"  window     {summary['window']} frames refined together; each pose written "
-              "when its frame left the window, the last ones at the end")
     if summary["keyframes"]:
         print(f"  keyframes  {summary['keyframes']} taken (each frame's motion also fitted to "
               "the latest keyframe's static points)")

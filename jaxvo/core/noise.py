@@ -116,7 +116,7 @@ class Points(NamedTuple):
     """One frame pair's points as every stage reads them: columns, noise, validity, tests.
 
     Built once per frame (:func:`frame_points`) and handed to the spatial segmentation, the
-    background choice, the ego-motion, the noise calibration and the window.
+    background choice, the ego-motion, the noise calibration and the keyframes.
     """
 
     src: jax.Array  # (3, n) float32 previous points, metres (0 where invalid)

@@ -10,7 +10,8 @@ One step reads top to bottom as the thesis's pipeline (Fig. 1.2), a chain of sta
   -> ego-motion from the background -> camera pose chain (:mod:`jaxvo.core.egomotion`)
   -> moving evidence under the ego-motion (:func:`jaxvo.core.evidence.moving_evidence`)
   -> labels: the dual-mode grid model, compensated (:func:`jaxvo.core.temporal.update_temporal`)
-  -> sensor noise (:mod:`jaxvo.core.noise`) -> sliding window (:mod:`jaxvo.core.window`).
+  -> sensor noise (:mod:`jaxvo.core.noise`)
+  -> keyframes and their local window (:mod:`jaxvo.core.keyframe`, ``cfg.keyframes``).
 
 When a stage fails the frame is skipped: the pose is carried over and the status records
 why (Fig. 1.2). The step is a pure function of ``(state, flow, key)``, so the same code runs
@@ -42,7 +43,6 @@ from jaxvo.core.keyframe import KeyframeState, init_keyframe, keyframe_support, 
 from jaxvo.core.noise import NoiseScale, frame_points, init_noise, transfer, update_noise
 from jaxvo.core.spatial import Segmentation, segment_points
 from jaxvo.core.temporal import TemporalOut, TemporalState, init_temporal, update_temporal
-from jaxvo.core.window import WindowOut, WindowState, init_window, update_window
 from jaxvo.status import Status, first_failure
 
 
@@ -54,7 +54,6 @@ class PipelineState(NamedTuple):
     ego: EgoState  # the camera's pose and its last measured motion
     frame: jax.Array  # () int32, frame pairs processed so far
     noise: NoiseScale  # the sensor noise model (jaxvo.core.noise; calibrated when noise_rate > 0)
-    window: WindowState | None = None  # the last cfg.window frames (jaxvo.core.window), None: off
     keyframe: KeyframeState | None = None  # the latest keyframe (cfg.keyframes), None: off
 
     @property
@@ -83,9 +82,6 @@ class StepOutput(NamedTuple):
     background: jax.Array  # () int32 spatial label of the background segment, 0 none
     reacquired: jax.Array  # () bool the background took its identifier back this frame
     noise: NoiseScale  # the sensor noise model after this frame
-    # with cfg.window: the window's refined poses and the pose of the frame that left it
-    # (jaxvo.core.window.WindowOut); T_w_c above is then the window's newest pose
-    window: WindowOut | None = None
     keyframes: jax.Array | None = None  # () int32 keyframes taken so far (cfg.keyframes)
 
 
@@ -94,12 +90,11 @@ def init_pipeline(*, cfg: Config, grid: tuple[int, int], T_w_c0=None,
     """Start state: empty grid model, the first camera pose (identity by default) and the
     starting sensor noise of ``params`` (default :class:`Params`)."""
     T0 = jnp.eye(4, dtype=jnp.float32) if T_w_c0 is None else jnp.asarray(T_w_c0, jnp.float32)
-    window = init_window(cfg=cfg, grid=grid, T_w_c0=T0) if cfg.window else None
     keyframe = init_keyframe(T0, cfg=cfg, grid=grid) if cfg.keyframes else None
     return PipelineState(temporal=init_temporal(cfg=cfg, grid=grid),
                          background=init_background(cfg=cfg), ego=init_ego(T0),
                          frame=jnp.int32(0), noise=init_noise(Params() if params is None else params),
-                         window=window, keyframe=keyframe)
+                         keyframe=keyframe)
 
 
 @full_precision
@@ -163,13 +158,7 @@ def step(state: PipelineState, flow, key, params: Params, *, cfg: Config, grid,
     if cfg.noise_calibration:
         noise = update_noise(noise, transfer(eo.T_cur_prev, pts.src) - pts.dst,
                              (bg.use > 0) & eo.ok, pts.noise, params)
-    # 7. the sliding-window refinement of the recent poses (jaxvo.core.window, cfg.window > 0)
-    window, wout = state.window, None
-    if cfg.window:
-        window, wout = update_window(state.window, flow, pts, eo.T_cur_prev, eo.used, noise,
-                                     params, cfg=cfg, grid=grid)
-        ego = ego._replace(T_w_c=wout.T_w_c[-1])
-    # 8. a new keyframe where the host says so, with the cells the temporal model holds
+    # 7. a new keyframe where the host says so, with the cells the temporal model holds
     # static on this image (its evidence is already carried onto this image's grid)
     kf_state, kout = state.keyframe, None
     if use_kf:
@@ -178,16 +167,15 @@ def step(state: PipelineState, flow, key, params: Params, *, cfg: Config, grid,
             (eo.T_cur_prev, state.ego.T_w_c, pts, eo.used), noise, params, cfg=cfg, grid=grid,
             focal=flow.focal)
         ego = ego._replace(T_w_c=kout.T_w_c)
-    out = _output(ego, eo, seg, bg, tout, noise, wout, pts.valid, params, cfg=cfg, grid=grid)
+    out = _output(ego, eo, seg, bg, tout, noise, pts.valid, params, cfg=cfg, grid=grid)
     if kout is not None:
         out = out._replace(keyframes=kout.count)
     return PipelineState(temporal=temporal, background=background, ego=ego,
-                         frame=state.frame + 1, noise=noise, window=window,
-                         keyframe=kf_state), out
+                         frame=state.frame + 1, noise=noise, keyframe=kf_state), out
 
 
 def _output(ego: EgoState, eo, seg: Segmentation, bg: BackgroundOut, tout: TemporalOut,
-            noise, wout, valid, params: Params, *, cfg: Config, grid) -> StepOutput:
+            noise, valid, params: Params, *, cfg: Config, grid) -> StepOutput:
     """The step's :class:`StepOutput` from its stages' outputs: one notion of moving, the
     evidence (``moving``), which the identifiers and the mask cells follow."""
     moving = tout.evidence > moving_logodds(params)
@@ -208,7 +196,6 @@ def _output(ego: EgoState, eo, seg: Segmentation, bg: BackgroundOut, tout: Tempo
         background=jnp.where(eo.ok, bg.background, 0),
         reacquired=bg.reacquired & eo.ok,
         noise=noise,
-        window=wout,
     )
 
 

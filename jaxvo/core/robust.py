@@ -3,7 +3,7 @@
 * A robust scale: a quantile of residual sizes over the matching quantile of pure noise
   (:func:`quantile_scale`), or the median absolute deviation (:func:`mad_scale`).
 * Robust weights: Huber's (:func:`huber_weights`, the ego-motion's re-weighting) and
-  Cauchy's loss with its weights (:func:`cauchy`, the window's refinement).
+  Cauchy's loss with its weights (:func:`cauchy`, the keyframe window's refinement).
 * Chi-square quantiles: :func:`chi2_quantile` for a confidence that may be traced (a study
   sweeps it), and the constants the scales above compare with.
 * "A motion explains a set of points" (:func:`explains`): the share of the set's points

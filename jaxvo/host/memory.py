@@ -1,7 +1,7 @@
 """The memory a run will need, estimated before any work, and the refusal of one that
 cannot fit (host side).
 
-A setting such as ``--window 100000`` or ``--hypotheses 100000`` used to compile for 20 s
+A setting such as ``--hypotheses 100000`` used to compile for 20 s
 and then die with an out-of-memory traceback; a study scene of 10^9 frames or ``jaxvo
 synth --frames 1000000000`` likewise. :func:`run_bytes` estimates the peak from the
 settings alone, and :func:`check_memory` refuses, in one line giving both numbers, what the
@@ -15,22 +15,18 @@ from jaxvo.errors import InputError
 # Calibration (2 cores of AMD EPYC, JAX 0.10.2 on the CPU). The per-frame step's buffers,
 # from XLA's buffer assignment of jit_step (temporaries + arguments + outputs,
 # `compiled.memory_analysis()`), 640x480:
-#   H 20 K 0: 2.05 MB   H 200: 3.03 MB   H 800: 11.15 MB   (n = 1200 grid points)
-#   K 20: 2.79 MB   K 80: 11.64 MB (H 20);   cell 8 (n = 4800): 8.17 MB (H 20, K 0)
-# are fit within 1 % by per-point, hypothesis x point, H^2 and K x point, K^2 terms (the
-# hypotheses' pairwise inlier overlaps and DBSCAN distances are (H, H), the window's
-# Gauss-Newton system (6K, 6K), its tracks (K, n)), with 10.4 bytes per H^2 and 1375 per
-# K^2. The process's peak resident memory grows faster than the buffers (compiling, and
-# constants such as the window's (K, K) shift folded into the program): `jaxvo run` on 4
-# synthetic frames peaked at 869.6 MiB with the defaults, 1126.4 MiB with H 4000 and
-# 1214.7 MiB with K 300, so the squared terms below are those peaks' (1.5 and 2.9 times
-# the buffers'): the estimate is of what the process takes. Checked on a size it was not
-# fit to: H 8000, estimated 1860 MiB, peaked at 1912 MiB (3 % more).
+#   H 20: 2.05 MB   H 200: 3.03 MB   H 800: 11.15 MB   (n = 1200 grid points)
+#   cell 8 (n = 4800): 8.17 MB (H 20)
+# are fit within 1 % by per-point, hypothesis x point and H^2 terms (the hypotheses'
+# pairwise inlier overlaps and DBSCAN distances are (H, H)), with 10.4 bytes per H^2. The
+# process's peak resident memory grows faster than the buffers (compiling): `jaxvo run` on
+# 4 synthetic frames peaked at 869.6 MiB with the defaults and 1126.4 MiB with H 4000, so
+# the squared term below is that peak's (1.5 times the buffers'): the estimate is of what
+# the process takes. Checked on a size it was not fit to: H 8000, estimated 1860 MiB,
+# peaked at 1912 MiB (3 % more).
 _STEP_PER_POINT = 1.65e3  # bytes per grid point (flow, state, per-point stages)
 _STEP_PER_HYP_POINT = 2.6  # bytes per hypothesis and grid point (inlier sets)
 _STEP_PER_HYP2 = 16.0  # bytes per hypothesis squared (overlaps, distances)
-_STEP_PER_WINDOW_POINT = 8.3  # bytes per window frame and grid point (tracks)
-_STEP_PER_WINDOW2 = 3990.0  # bytes per window frame squared (the (6K, 6K) system)
 # Per frame pair kept for a whole-sequence scan or a study: the grid flow (41 bytes a
 # point: two (n, 3) and two (n, 2) float32, a bool) and the stacked step outputs (about
 # 23 bytes a point: identifiers, labels, moving and static flags, evidence).
@@ -55,7 +51,7 @@ def run_bytes(cfg, *, height: int, width: int, frames: int = 0, configs: int = 1
     """Peak memory of a run, bytes (estimate from the settings alone).
 
     Args:
-      cfg: the :class:`~jaxvo.config.Config` (cell, ``num_hypotheses``, ``window``).
+      cfg: the :class:`~jaxvo.config.Config` (cell, ``num_hypotheses``).
       height, width: the image size, pixels.
       frames: frames whose flow and step outputs are held at once (a whole-sequence scan,
         a study); 0 for the streaming ``jaxvo run``, which holds none.
@@ -63,12 +59,11 @@ def run_bytes(cfg, *, height: int, width: int, frames: int = 0, configs: int = 1
       host_bytes: more bytes held on the host (a synthetic scene's trajectories,
         :data:`SYNTH_BYTES_PER_FRAME` a frame; frames kept in memory).
     Returns:
-      bytes, float (it may exceed any machine's memory: 1e13 for ``--window 100000``).
+      bytes, float (it may exceed any machine's memory: 1.6e11 for ``--hypotheses 100000``).
     """
     n = (height // cfg.cell) * (width // cfg.cell)
-    H, K = float(cfg.num_hypotheses), float(cfg.window)
-    step = (_STEP_PER_POINT * n + _STEP_PER_HYP_POINT * H * n + _STEP_PER_HYP2 * H * H
-            + _STEP_PER_WINDOW_POINT * K * n + _STEP_PER_WINDOW2 * K * K)
+    H = float(cfg.num_hypotheses)
+    step = _STEP_PER_POINT * n + _STEP_PER_HYP_POINT * H * n + _STEP_PER_HYP2 * H * H
     per_frame = (_FLOW_PER_POINT + configs * _OUTPUT_PER_POINT) * n
     return PROCESS_BYTES + configs * step + float(frames) * per_frame + float(host_bytes)
 

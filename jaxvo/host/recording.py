@@ -22,8 +22,7 @@ logs, on one timeline per frame timestamp (``time``, and ``frame``, the frame's 
 ==============================  ==========================================================
 
 A pair's labels lie on the image it starts at (as ``--masks`` files are named), so they are
-logged at that image's time, one frame after the pose. With ``Config.window`` the poses are
-the immediate ones (each refined once), as :attr:`Odometry.trajectory` holds them.
+logged at that image's time, one frame after the pose.
 """
 
 from __future__ import annotations

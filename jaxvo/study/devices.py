@@ -114,15 +114,11 @@ def _study_program(cfg: Config, grid: tuple[int, int]):
     import jax
 
     from jaxvo.core.pipeline import run_study
-    from jaxvo.core.window import window_trajectory
 
     def one_device(flows, T_w_c0, seeds, params):
         keys = jax.vmap(jax.random.key)(seeds)
         out = run_study(flows, keys, params, T_w_c0, cfg=cfg, grid=grid)
-        T_w_c = out.T_w_c
-        if cfg.window:  # each frame's final pose, from when it left the window
-            T_w_c = jax.vmap(window_trajectory)(out.window)[:, 1:]
-        return T_w_c, out.moving, out.status
+        return out.T_w_c, out.moving, out.status
 
     return jax.jit(one_device)
 

@@ -336,7 +336,7 @@ def check_study(spec: StudySpec, out_dir: str | Path, flow_cache: str | Path,
                 batch: int) -> None:
     """Refuse, before any work, a study that cannot run: a sequence folder none of whose
     frames can be read (depth as JPEG, 8-bit PNGs), runs that need more memory than the
-    machine has (a scene of 10^9 frames, ``num_hypotheses`` or ``window`` of 100000), or
+    machine has (a scene of 10^9 frames, ``num_hypotheses`` of 100000), or
     results and flows written over what the study reads (its spec, a sequence's files).
 
     Args:
@@ -380,7 +380,7 @@ def check_study(spec: StudySpec, out_dir: str | Path, flow_cache: str | Path,
             check_memory(run_bytes(cfg, height=height, width=width, frames=frames, configs=side,
                                    host_bytes=rendered_bytes),
                          what=f"sequence {s.label!r} ({frames} frames) with num_hypotheses "
-                              f"{cfg.num_hypotheses}, window {cfg.window}, {side} "
+                              f"{cfg.num_hypotheses}, {side} "
                               "configurations a call")
     check_outputs(reads, folders={"--out": Path(out_dir), "--flow-cache": Path(flow_cache)})
 

@@ -77,6 +77,9 @@ _TOP_KEYS = ("name", "seeds", "metrics", "batch", "sequences", "fixed", "sweep",
              "points", "distributed")
 _SEQUENCE_KEYS = ("name", "scene", "path", "composite", "frames", "seed", "step", "camera")
 _DISTRIBUTED_KEYS = ("coordinator", "num_processes", "process_id")
+# settings that are gone, with what replaced them: the consecutive-frame window of issue 21
+# gave way to the local window over keyframes (jaxvo.core.keyframe)
+_REPLACED = {"window": "keyframes = true, keyframe_window", "window_iters": "keyframe_iters"}
 
 
 class SequenceSpec(NamedTuple):
@@ -325,6 +328,9 @@ def _check_value(key: str, value, bad, *, at: str):
         if not isinstance(value, allowed):
             raise bad(at, f"a Config value of type {fields[key].type} cannot be {value!r}")
         return value
+    if key in _REPLACED:
+        raise bad(at, "the consecutive-frame window was removed; the window over keyframes "
+                      f"replaces it: {_REPLACED[key]}")
     raise bad(at, f"unknown setting; Params has {', '.join(Params._fields)}; Config has "
                   f"{', '.join(fields)}")
 
@@ -388,7 +394,7 @@ def _parse_configs(data, bad):
     for c in configs:
         by_key.setdefault(tuple(repr(c[k]) for k in settings), c)
     unique = list(by_key.values())
-    # Config values no run can use (a window of 1 frame, ...), each combination checked once
+    # Config values no run can use (a cell of 2 pixels, ...), each combination checked once
     checked: set[tuple] = set()
     for c in unique:
         key = tuple(repr(c[k]) for k in cfg_names)
