@@ -100,9 +100,10 @@ def add_arguments(p: argparse.ArgumentParser) -> None:
     # the consecutive-frame window (issue 21) is gone: its option only says what replaced it
     p.add_argument("--window", help=argparse.SUPPRESS)
     p.add_argument("--keyframes", action=argparse.BooleanOptionalAction, default=None,
-                   help="also fit each frame's motion to the latest keyframe's static points, so "
-                   "that drift accrues per keyframe, not per frame (default: Config.keyframes; "
-                   "the summary says how many keyframes were taken)")
+                   help="also fit each frame's motion to the latest keyframe's static points, and "
+                   "refine the last keyframes' poses and points together whenever a keyframe is "
+                   "taken, so that drift accrues per keyframe, not per frame (default: "
+                   "Config.keyframes, off; the summary says how many keyframes were taken)")
     p.add_argument("--start-pose", choices=("gt", "identity"),
                    help="first pose of the trajectory: 'gt' the ground-truth pose of the first "
                    "frame (groundtruth.txt, within --max-diff), or 'identity' (default: gt where "
