@@ -1013,8 +1013,12 @@ def test_check_memory_gives_both_numbers():
     with pytest.raises(InputError, match=r"^x needs about 1.2 GB of memory; this machine has "
                                          r"1 GB available$"):
         check_memory(1.2e9, what="x", available=1e9)
-    # the estimate grows with what the settings hold: hypotheses squared
+    # the estimate grows with what the settings hold: hypotheses squared, keyframes squared
     assert run_bytes(Config(num_hypotheses=2000), height=480, width=640) > need + 40e6
+    kf = run_bytes(Config(keyframes=True), height=480, width=640)
+    assert need < kf < need + 10e6  # the default window of 4 keyframes costs little
+    assert run_bytes(Config(keyframes=True, keyframe_window=10000), height=480,
+                     width=640) > 1e13
 
 
 # --- issue 29: a study's folder whose depth cannot be read ---------------------------------

@@ -27,6 +27,12 @@ from jaxvo.errors import InputError
 _STEP_PER_POINT = 1.65e3  # bytes per grid point (flow, state, per-point stages)
 _STEP_PER_HYP_POINT = 2.6  # bytes per hypothesis and grid point (inlier sets)
 _STEP_PER_HYP2 = 16.0  # bytes per hypothesis squared (overlaps, distances)
+# The keyframe window (cfg.keyframes): each point of each of K keyframes is read by every
+# later one and the refinement's Jacobian blocks are per reading, so the step's buffers grow
+# as K^2 m (m points a keyframe). Measured on jit_step, 640x480 (m = 300): K 1, 4, 8, 16 ->
+# 2.09, 2.39, 8.13, 30.79 MB, 375 bytes per K^2 m at K 16; times 1.5 for the process's
+# peak, as above.
+_STEP_PER_KF2_POINT = 560.0
 # Per frame pair kept for a whole-sequence scan or a study: the grid flow (41 bytes a
 # point: two (n, 3) and two (n, 2) float32, a bool) and the stacked step outputs (about
 # 23 bytes a point: identifiers, labels, moving and static flags, evidence).
@@ -51,7 +57,7 @@ def run_bytes(cfg, *, height: int, width: int, frames: int = 0, configs: int = 1
     """Peak memory of a run, bytes (estimate from the settings alone).
 
     Args:
-      cfg: the :class:`~jaxvo.config.Config` (cell, ``num_hypotheses``).
+      cfg: the :class:`~jaxvo.config.Config` (cell, ``num_hypotheses``, the keyframe window).
       height, width: the image size, pixels.
       frames: frames whose flow and step outputs are held at once (a whole-sequence scan,
         a study); 0 for the streaming ``jaxvo run``, which holds none.
@@ -64,6 +70,11 @@ def run_bytes(cfg, *, height: int, width: int, frames: int = 0, configs: int = 1
     n = (height // cfg.cell) * (width // cfg.cell)
     H = float(cfg.num_hypotheses)
     step = _STEP_PER_POINT * n + _STEP_PER_HYP_POINT * H * n + _STEP_PER_HYP2 * H * H
+    if cfg.keyframes:
+        rows, cols = height // cfg.cell, width // cfg.cell
+        s = cfg.keyframe_stride
+        m = -(-rows // s) * -(-cols // s)
+        step += _STEP_PER_KF2_POINT * float(cfg.keyframe_window) ** 2 * m
     per_frame = (_FLOW_PER_POINT + configs * _OUTPUT_PER_POINT) * n
     return PROCESS_BYTES + configs * step + float(frames) * per_frame + float(host_bytes)
 
