@@ -120,7 +120,6 @@ def test_a_folder_that_cannot_be_written_is_an_error_if_given_else_a_warning(tmp
 
 
 def test_a_compile_is_said_with_its_time_and_a_load_says_it_loads(tmp_path):
-    off = start_child("off")  # beside the first: it shares nothing with it
     notes, err = run_child(str(tmp_path))
     assert [n["from_cache"] for n in notes] == [False]
     assert ("jaxvo: preparing a test program (compiled once per machine and cached) ... "
@@ -135,7 +134,7 @@ def test_a_compile_is_said_with_its_time_and_a_load_says_it_loads(tmp_path):
     assert all("loaded from the compile cache in" in ln for ln in err.splitlines()
                if "a test program" in ln)
 
-    notes, err = finish(off)
+    notes, err = run_child("off")
     assert [n["from_cache"] for n in notes] == [False]
     assert "compiling a test program (the compile cache is off) ... " in err
 
