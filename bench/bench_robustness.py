@@ -70,10 +70,13 @@ def frames_hash() -> str:
     import jaxvo.host.frames
     import jaxvo.host.io
     import jaxvo.synth.render
+    import jaxvo.synth.scenario
     import jaxvo.synth.scenes
+    import jaxvo.synth.sequence
 
     h = hashlib.sha1()
-    for mod in (jaxvo.host.frames, jaxvo.host.io, jaxvo.synth.render, jaxvo.synth.scenes):
+    for mod in (jaxvo.host.frames, jaxvo.host.io, jaxvo.synth.render, jaxvo.synth.scenario,
+                jaxvo.synth.sequence, jaxvo.synth.scenes):
         h.update(inspect.getsource(mod).encode())
     return h.hexdigest()[:16]
 

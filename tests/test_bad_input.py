@@ -551,8 +551,11 @@ def _run_until_compiling(seq: Path, out: Path, env: dict) -> subprocess.Popen:
     """``jaxvo run`` in a child, returned 1 s into XLA's compile of the per-frame step (an
     interrupt 0.3-3 s in crashed 8 of 8 tries before; one at its very start did not)."""
     code = "import sys; from jaxvo.cli.main import main; sys.exit(main())"
+    # a smaller step (2 hypotheses, 32-pixel cells) compiles in about 5 s here, not 8: still
+    # seconds past the interrupt, which lands 1 s into the compile
     proc = subprocess.Popen(
-        [sys.executable, "-c", code, "run", str(seq), "--out", str(out), "-q"],
+        [sys.executable, "-c", code, "run", str(seq), "--out", str(out), "-q",
+         "--hypotheses", "2", "--cell", "32"],
         stdout=subprocess.PIPE, stderr=subprocess.PIPE, text=True, env=env,
     )
     for line in proc.stderr:  # JAX_LOG_COMPILES: lowered, XLA's compile is about to start

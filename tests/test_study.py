@@ -560,7 +560,9 @@ def test_lengths_read_in_millimetres(metric, label, scale):
 def test_a_dropped_frame_scores_as_jaxvo_run_scores_it(tmp_path):
     """A black frame in the middle of a folder is dropped and the next frame pairs with the
     last good one; the study's timestamps, start pose and scores must be those of the
-    frames kept, as in ``run_sequence`` (all of them shifted one frame before)."""
+    frames kept, as in ``run_sequence`` (all of them shifted one frame before). Nine
+    frames, one dropped, in calls of one configuration: the tiny study's 7 pairs, batch
+    and Config, so the study runs the program the tiny study compiled."""
     import cv2
 
     from jaxvo.host.io import open_sequence
@@ -568,12 +570,13 @@ def test_a_dropped_frame_scores_as_jaxvo_run_scores_it(tmp_path):
     from jaxvo.synth.scenes import make_sequence, write_sequence
 
     folder = tmp_path / "seq"
-    write_sequence(make_sequence("handheld_slow", frames=8, seed=0), folder)
+    write_sequence(make_sequence("handheld_slow", frames=9, seed=0), folder)
     black = sorted((folder / "rgb").iterdir())[4]
     cv2.imwrite(str(black), np.zeros((480, 640, 3), np.uint8))
     spec = study.load_spec(spec_of(f"""
 name = "dropped"
 seeds = [0]
+batch = 1
 [[sequences]]
 path = "{folder}"
 [fixed]
@@ -585,7 +588,7 @@ num_hypotheses = 4
     assert cached
 
     ref = run_sequence(open_sequence(folder), cfg=Config(cell=32, num_hypotheses=4))
-    assert list(ref.dropped) == [4] and list(ref.frames) == [0, 1, 2, 3, 5, 6, 7]
+    assert list(ref.dropped) == [4] and list(ref.frames) == [0, 1, 2, 3, 5, 6, 7, 8]
     np.testing.assert_array_equal(data.timestamps, ref.trajectory.timestamps)
     np.testing.assert_array_equal(data.T_w_c0, ref.trajectory.poses[0])
     assert data.flows.valid.shape[0] == len(ref.frames) - 1

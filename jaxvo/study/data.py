@@ -110,12 +110,14 @@ def code_hash() -> str:
     import jaxvo.host.io
     import jaxvo.host.patches
     import jaxvo.synth.render
+    import jaxvo.synth.scenario
     import jaxvo.synth.scenes
+    import jaxvo.synth.sequence
 
     h = hashlib.sha256()
-    for mod in (jaxvo.host.flow, jaxvo.host.depth, jaxvo.host.patches,
-                jaxvo.host.frames, jaxvo.host.io,
-                jaxvo.synth.render, jaxvo.synth.scenes):
+    for mod in (jaxvo.host.flow, jaxvo.host.depth, jaxvo.host.patches, jaxvo.host.frames,
+                jaxvo.host.io, jaxvo.synth.render, jaxvo.synth.scenario, jaxvo.synth.sequence,
+                jaxvo.synth.scenes):
         h.update(inspect.getsource(mod).encode())
     h.update(inspect.getsource(sequence_data).encode())  # what it stores beside the flow
     return h.hexdigest()[:16]

@@ -6,7 +6,7 @@ centre, slab intersection with every box, nearest hit wins (an exact z-buffer); 
 is a texture coordinate into an atlas image per pixel, looked up on the host. Depth is the hit's z in the camera frame (the ray
 direction is ``K^-1 [u, v, 1]``, so the ray parameter is the depth itself).
 
-No cv2 here: the host side (``jaxvo.synth.scenes``) builds the scene arrays, the atlas and the
+No cv2 here: the host side (``jaxvo.synth.sequence``) builds the scene arrays, the atlas and the
 poses, remaps the atlas, and hands the colour back to ``finish_frame`` / ``composite_frame``
 for shading and the sensor model.
 """
