@@ -6,6 +6,7 @@ from __future__ import annotations
 
 import dataclasses
 
+import jax
 import jax.numpy as jnp
 import numpy as np
 import pytest
@@ -134,6 +135,9 @@ def _window(rng, K: int, m: int):
     return T, state, pose
 
 
+_refine = jax.jit(refine, static_argnums=2)
+
+
 def test_window_refinement_finds_the_poses_the_readings_agree_on():
     """Exact readings, every pose but the oldest moved by about 1 cm and 0.6 degrees: the
     refinement brings each back to 1e-4 m and the depths to 1e-4 (float32)."""
@@ -145,7 +149,7 @@ def test_window_refinement_finds_the_poses_the_readings_agree_on():
     for k in range(1, K):
         moved[k] = pose(rng.normal(0, 0.01, 3), rng.normal(0, 0.01, 3)) @ T[k]
     assert np.abs(moved[:, :3, 3] - T[:, :3, 3]).max() > 5e-3
-    refined, s = refine(jnp.asarray(moved, jnp.float32), pb, 8)
+    refined, s = _refine(jnp.asarray(moved, jnp.float32), pb, 8)
     np.testing.assert_allclose(np.asarray(refined)[:, :3, 3], T[:, :3, 3], atol=1e-4)
     np.testing.assert_allclose(np.asarray(refined)[:, :3, :3], T[:, :3, :3], atol=1e-4)
     assert float(jnp.abs(s).max()) < 1e-4
@@ -156,7 +160,7 @@ def test_chain_factor_alone_holds_each_keyframe_where_the_chain_put_it():
     whole cost, and the refinement puts every keyframe where the chain says, relative to
     the fixed oldest one."""
     rng = np.random.default_rng(3)
-    K, m = 3, 10
+    K, m = 4, 60  # the shapes of the test above: the same compiled refinement
     T, state, pose = _window(rng, K, m)
     link = np.stack([np.eye(4)] + [np.linalg.inv(T[k]) @ T[k - 1] for k in range(1, K)])
     state = state._replace(seen=jnp.zeros_like(state.seen),
@@ -166,7 +170,7 @@ def test_chain_factor_alone_holds_each_keyframe_where_the_chain_put_it():
     for k in range(1, K):
         moved[k] = pose(rng.normal(0, 0.01, 3), rng.normal(0, 0.02, 3)) @ T[k]
     pb = _problem(state, 525.0, init_noise(Params()), Params())
-    refined, _ = refine(jnp.asarray(moved, jnp.float32), pb, 8)
+    refined, _ = _refine(jnp.asarray(moved, jnp.float32), pb, 8)
     np.testing.assert_allclose(np.asarray(refined)[:, :3, 3], T[:, :3, 3], atol=1e-4)
 
 
