@@ -37,6 +37,19 @@ def test_run_writes_every_pose_masks_and_a_summary(seq_dir, tmp_path, capsys):
     assert pngs and set(np.unique(cv2.imread(str(pngs[0]), cv2.IMREAD_UNCHANGED))) <= {0, 255}
 
 
+@pytest.mark.slow
+def test_run_with_keyframes_writes_every_pose_and_counts_the_keyframes(seq_dir, tmp_path,
+                                                                       capsys):
+    """`--keyframes`: the keyframe window runs end to end through the command; the summary
+    counts the keyframes and the run is as precise as without (measured 0.09 mm)."""
+    traj = tmp_path / "traj.txt"
+    rc = main(["run", str(seq_dir), "--out", str(traj), "--keyframes", "-q", "--json"])
+    summary = json.loads(capsys.readouterr().out)
+    assert rc == 0 and len(read_trajectory(traj)) == 8
+    assert summary["keyframes"] >= 1
+    assert 0.0 <= summary["ate_rmse_m"] < 0.0003
+
+
 def test_a_fixed_camera_is_scored_without_alignment(tmp_path, capsys):
     """A camera that never moves defines no alignment: the summary scores the poses as they
     are (from the true first pose) instead of advising an option jaxvo run does not have."""

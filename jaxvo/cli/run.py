@@ -532,7 +532,8 @@ def _print_summary(summary: dict, n: int, interrupted: bool) -> None:
     print(f"  start pose {summary['start_pose']}")
     if summary["keyframes"]:
         print(f"  keyframes  {summary['keyframes']} taken (each frame's motion also fitted to "
-              "the latest keyframe's static points)")
+              "the latest keyframe's static points; the last keyframes refined together as "
+              "each was taken)")
     listed = summary["frames_listed"]
     print(f"  frames     {n} processed" + (f" of {listed} listed" if listed != n else ""))
     for label, counts, unit in (("dropped", summary["dropped"], "frames"),
