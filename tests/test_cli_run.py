@@ -94,7 +94,8 @@ def test_demo_unknown_scenario_lists_the_valid_ones(capsys):
     assert "fixed_camera_1" in capsys.readouterr().err
 
 
-def test_all_invalid_depth_skips_every_pair_with_its_reason(seq_dir, tmp_path, capsys):
+@pytest.mark.parametrize("extra", [[], pytest.param(["--keyframes"], marks=pytest.mark.slow)])
+def test_all_invalid_depth_skips_every_pair_with_its_reason(seq_dir, tmp_path, capsys, extra):
     blank = tmp_path / "blank"
     blank.mkdir()
     for f in seq_dir.iterdir():
@@ -106,7 +107,7 @@ def test_all_invalid_depth_skips_every_pair_with_its_reason(seq_dir, tmp_path, c
             (blank / f.name).symlink_to(f, target_is_directory=True)
         else:
             (blank / f.name).write_text(f.read_text())
-    rc = main(["run", str(blank), "--out", str(tmp_path / "t.txt"), "-q", "--json"])
+    rc = main(["run", str(blank), "--out", str(tmp_path / "t.txt"), "-q", "--json", *extra])
     summary = json.loads(capsys.readouterr().out)
     assert rc == 1  # ran, but no frame pair could be used
     assert summary["poses_written"] == 8  # every pose still written (carried)

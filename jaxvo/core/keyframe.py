@@ -91,7 +91,6 @@ class KeyframeOut(NamedTuple):
 
     T_w_c: jax.Array  # (4, 4) float32 the current camera's pose after the window's refinement
     count: jax.Array  # () int32 keyframes taken so far: the latest keyframe's number
-    readings: jax.Array  # () int32 readings of points in later keyframes the window holds
 
 
 def init_keyframe(T_w_c0, *, cfg: Config, grid: tuple[int, int]) -> KeyframeState:
@@ -177,7 +176,8 @@ class _Problem(NamedTuple):
     ray: jax.Array  # (K, K, m, 3) unit ray of each reading
     w_lat: jax.Array  # (K, K, m) 1/m^2 information across the ray (0: no reading)
     w_ray: jax.Array  # (K, K, m) 1/m^2 information along it
-    w_own: jax.Array  # (K, m) 1/m^2 information of the point's own depth reading
+    w_own: jax.Array  # (K, m) information of the point's own depth reading on its s (its
+    # relative depth change): 1 / (sigma_z / z)^2
     free: jax.Array  # (K,) bool slots whose pose is refined
     c2: jax.Array  # () Cauchy scale, squared normalised residual (3 degrees of freedom)
     link_T: jax.Array  # (K, 4, 4) the chain's T_k_(k-1)
@@ -212,7 +212,7 @@ def _d2(r, pb: _Problem):
 def window_cost(T, s, pb: _Problem):
     """The window's robust cost at poses ``T`` (K, 4, 4) and depth changes ``s`` (K, m)."""
     r, _ = _residuals(T, s, pb)
-    own = pb.w_own * jnp.sum(pb.point * pb.point, axis=-1) * s * s
+    own = pb.w_own * s * s
     delta, _ = link_terms(T, pb.link_T)
     link = jnp.sum(delta * pb.link_g[1:]) \
         + 0.5 * jnp.einsum("ka,kab,kb->", delta, pb.link_H[1:], delta)
@@ -239,25 +239,22 @@ def normal_equations(T, s, pb: _Problem):
     u = jnp.einsum("jab,jimb->jima", R, pb.ray)  # rays in world axes
     wl, wr = w * pb.w_lat, w * pb.w_ray
 
-    def metric(v):  # M v for (K, K, m, 3) vectors
-        along = jnp.sum(v * u, axis=-1, keepdims=True)
-        return wl[..., None] * (v - along * u) + wr[..., None] * along * u
-
+    # each reading's metric in world axes, M = w_lat (I - u u^T) + w_ray u u^T
+    M = wl[..., None, None] * jnp.eye(3) + (wr - wl)[..., None, None] * (
+        u[..., :, None] * u[..., None, :])
     e = jnp.einsum("iab,imb->ima", R, pb.point)[None]  # (1, K_i, m, 3)
     Xb = jnp.broadcast_to(X[None], r.shape)
-    # A^T v = (X x v, v) for the 6 rows (omega, nu)
-    def At(v):
+
+    def At(v):  # A^T v = (X x v, v) for the 6 rows (omega, nu)
         return jnp.concatenate([jnp.cross(Xb, v), v], axis=-1)
 
-    Mr, Me = metric(rw), metric(jnp.broadcast_to(e, r.shape))
+    Mr = jnp.einsum("...ab,...b->...a", M, rw)
+    Me = jnp.einsum("...ab,...b->...a", M, jnp.broadcast_to(e, r.shape))
     g_obs = At(Mr)  # (K_j, K_i, m, 6)
     c_obs = At(Me)  # d/dxi_i of the coupling with the point
-    # A^T M A, per reading, summed over the points of each (j, i)
-    cols = [metric(jnp.broadcast_to(jnp.eye(3)[k], r.shape)) for k in range(3)]
-    # M A: column for omega_k is M (e_k x X)... written as A^T M A = [[-[X]x M [X]x ...]]
-    MA_nu = jnp.stack(cols, axis=-1)  # (.., 3, 3) = M
+    # A^T M A per reading, summed over the points of each (j, i)
     skX = skew(Xb)  # [X]x
-    MA_om = -MA_nu @ skX  # M (-[X]x)
+    MA_om, MA_nu = -M @ skX, M
     MA = jnp.concatenate([MA_om, MA_nu], axis=-1)  # (.., 3, 6)
     AtMA = jnp.concatenate([skX @ MA, MA], axis=-2)  # A^T = [[ [X]x ], [I]] (6, 3)
     B = jnp.sum(AtMA, axis=2)  # (K_j, K_i, 6, 6)
@@ -268,10 +265,9 @@ def normal_equations(T, s, pb: _Problem):
     g = jnp.sum(g_obs, axis=(0, 2)) - jnp.sum(g_obs, axis=(1, 2))  # (K, 6)
     # the cross block: pose a with point (i, p): delta(a, i) sum_j c[j, i, p] - c[a, i, p]
     cross = eye[:, :, None, None] * jnp.sum(c_obs, axis=0)[None] - c_obs  # (K_a, K_i, m, 6)
-    own2 = pb.w_own * jnp.sum(pb.point * pb.point, axis=-1)  # (K, m)
-    own_value, w_own = cauchy(own2 * s * s, pb.c2)
-    d_s = jnp.sum(jnp.sum(e * Me, axis=-1), axis=0) + w_own * own2
-    g_s = jnp.sum(jnp.sum(e * Mr, axis=-1), axis=0) + w_own * own2 * s
+    own_value, w_own = cauchy(pb.w_own * s * s, pb.c2)
+    d_s = jnp.sum(jnp.sum(e * Me, axis=-1), axis=0) + w_own * pb.w_own
+    g_s = jnp.sum(jnp.sum(e * Mr, axis=-1), axis=0) + w_own * pb.w_own * s
     H_link, g_link, value_link = link_equations(T, pb.link_T, pb.link_H, pb.link_g)
     H, g, value = H + H_link, g + g_link, value + value_link
     free = jnp.repeat(pb.free, 6)
@@ -347,6 +343,13 @@ def _problem(st: KeyframeState, focal, scale: NoiseScale, params: Params) -> _Pr
     zp = st.point[..., 2]
     fixed = jnp.argmax(st.taken)
     both = st.taken & jnp.concatenate([jnp.zeros((1,), bool), st.taken[:-1]])
+    # a pose is refined only where something measures it: enough readings it takes or
+    # offers, or the chain to a neighbour (a keyframe of skipped pairs has neither)
+    reads = jnp.sum(seen, axis=(1, 2)) + jnp.sum(seen, axis=(0, 2))
+    linked = both & (jnp.trace(st.link_H, axis1=1, axis2=2) > 0)
+    chained = linked | jnp.concatenate([linked[1:], jnp.zeros((1,), bool)])
+    measured = (reads >= params.min_static_points) | chained
+    free = st.taken & (jnp.arange(K) != fixed) & measured
     return _Problem(
         point=st.point,
         obs=st.obs,
@@ -354,10 +357,8 @@ def _problem(st: KeyframeState, focal, scale: NoiseScale, params: Params) -> _Pr
         w_lat=jnp.where(seen, focal * focal / jnp.maximum((scale.pixel_sigma * z) ** 2, tiny()),
                         0.0),
         w_ray=jnp.where(seen, 1.0 / jnp.maximum((scale.depth_coeff * z * z) ** 2, tiny()), 0.0),
-        w_own=jnp.where(st.static, 1.0 / jnp.maximum((scale.depth_coeff * zp * zp) ** 2, tiny())
-                        / jnp.maximum(jnp.sum(st.point * st.point, axis=-1) / (zp * zp + tiny()),
-                                      tiny()), 0.0),
-        free=st.taken & (jnp.arange(K) != fixed),
+        w_own=jnp.where(st.static, 1.0 / jnp.maximum((scale.depth_coeff * zp) ** 2, tiny()), 0.0),
+        free=free,
         c2=chi2_quantile(3, params.confidence),
         link_T=st.link_T,
         link_H=jnp.where(both[:, None, None], st.link_H, 0.0),
@@ -434,9 +435,9 @@ def update_keyframe(state: KeyframeState, kf, T_w_c, static, pair, noise: NoiseS
             return st
         fixed = jnp.argmax(st.taken)
         T_ref = st.T_w_kf[fixed]
-        T_local, s = refine(invert_pose(T_ref)[None] @ st.T_w_kf,
-                            _problem(st, focal, noise, params), cfg.keyframe_iters)
-        T_new = jnp.where(st.taken[:, None, None], orthonormal(T_ref[None] @ T_local),
+        pb = _problem(st, focal, noise, params)
+        T_local, s = refine(invert_pose(T_ref)[None] @ st.T_w_kf, pb, cfg.keyframe_iters)
+        T_new = jnp.where(pb.free[:, None, None], orthonormal(T_ref[None] @ T_local),
                           st.T_w_kf)
         return st._replace(T_w_kf=T_new, point=st.point * (1.0 + s)[..., None])
 
@@ -444,6 +445,5 @@ def update_keyframe(state: KeyframeState, kf, T_w_c, static, pair, noise: NoiseS
                          state)
     new = jax.lax.cond(kf.renew, take, lambda st: st, state)
     T_out = jnp.where(kf.renew, new.T_w_kf[-1], T_w_c)
-    readings = jnp.sum(new.seen & new.taken[:, None, None] & new.static[None])
-    return new, KeyframeOut(T_out, new.count, readings.astype(jnp.int32))
+    return new, KeyframeOut(T_out, new.count)
 
