@@ -41,9 +41,8 @@ class KeyframeFlow(NamedTuple):
     valid: np.ndarray  # (n,) bool, passed LK, similarity and depth checks
     renew: np.ndarray  # () bool, the current frame becomes the keyframe after this pair
     # where renew: each window keyframe's points (slot 0 the oldest, W - 1 the latest) in
-    # its own camera and in the current one, and which passed the checks; W is
-    # cfg.keyframe_window - 1; all False where the keyframe is kept
-    win_kf: np.ndarray  # (W, n, 3) float32 metres
+    # the current camera (the device holds them in their own), and which passed the checks;
+    # W is cfg.keyframe_window - 1; all False where the keyframe is kept
     win_cur: np.ndarray  # (W, n, 3) float32 metres
     win_valid: np.ndarray  # (W, n) bool
     new_kf: np.ndarray  # (n, 3) float32 metres, where renew: the new keyframe's points
@@ -94,14 +93,19 @@ class KeyframeTracker:
         self._keys = (self._keys + [_Keyframe(self.t.last, self._sub)])[-(self._window + 1):]
         self._ref, self._age = 0, 0
 
-    def _predict(self, flow, uv: np.ndarray) -> np.ndarray:
-        """Positions ``uv`` (m, 2) in the pair's previous image moved by the pair's flow:
-        its displacement, bilinear on the grid (cells without a valid track take the
-        median)."""
+    def _displacement(self, flow) -> np.ndarray:
+        """The pair's flow displacement on the grid (rows, cols, 2); cells without a valid
+        track take the median."""
         rows, cols = self.t.grid
         d = (flow.uv_cur - flow.uv_prev).reshape(rows, cols, 2).copy()
         v = np.asarray(flow.valid).reshape(rows, cols)
         d[~v] = np.median(d[v], axis=0) if v.any() else 0.0
+        return d
+
+    def _predict(self, d: np.ndarray, uv: np.ndarray) -> np.ndarray:
+        """Positions ``uv`` (m, 2) in the pair's previous image moved by the pair's
+        displacement ``d`` (:meth:`_displacement`), bilinear on the grid."""
+        rows, cols = self.t.grid
         uv0, cell = self.t.uv_grid[0], self.t.cfg.cell
         gx = np.clip((uv[:, 0] - uv0[0]) / cell, 0, max(cols - 1.001, 0))
         gy = np.clip((uv[:, 1] - uv0[1]) / cell, 0, max(rows - 1.001, 0))
@@ -143,8 +147,9 @@ class KeyframeTracker:
         cfg, n, W = self.t.cfg, self.t.n, self._window
         cell_prev = np.full(n, -1, np.int32)
         cell_prev[self._keys[-1].idx] = self._cell(self._keys[-1].track)
+        d = self._displacement(flow)
         for key in self._keys:
-            key.track = self._predict(flow, key.track)
+            key.track = self._predict(d, key.track)
         latest = self._keys[-1]
         pts_kf, pts_cur, valid, ok, found = self._find(latest, depth, levels=1)
         latest.track = np.where(ok[:, None], found, latest.track).astype(np.float32)
@@ -153,7 +158,6 @@ class KeyframeTracker:
         if self._age == 1:
             self._ref = count
         renew = count < cfg.keyframe_overlap * self._ref or count < max(cfg.sample_size, 3)
-        win_kf = np.zeros((W, n, 3), np.float32)
         win_cur = np.zeros((W, n, 3), np.float32)
         win_valid = np.zeros((W, n), bool)
         new_kf = np.zeros((n, 3), np.float32)
@@ -163,15 +167,15 @@ class KeyframeTracker:
             keys = self._keys[-W:] if W else []
             for w, key in enumerate(keys, start=W - len(keys)):
                 if key is latest:
-                    win_kf[w], win_cur[w], win_valid[w] = pts_kf, pts_cur, valid
+                    win_cur[w], win_valid[w] = pts_cur, valid
                 else:
-                    win_kf[w], win_cur[w], win_valid[w], _, _ = self._find(key, depth, levels=2)
+                    _, win_cur[w], win_valid[w], _, _ = self._find(key, depth, levels=2)
             cur = self.t.last
             use = cur.z_grid_ok & self._sub
             new_kf[use] = backproject(cur.uv[use], cur.z_grid[use], self.t.K)
             self._renew()
-        return KeyframeFlow(pts_kf, pts_cur, valid, np.bool_(renew), win_kf, win_cur,
-                            win_valid, new_kf, cell_prev)
+        return KeyframeFlow(pts_kf, pts_cur, valid, np.bool_(renew), win_cur, win_valid, new_kf,
+                            cell_prev)
 
     def _cell(self, uv: np.ndarray) -> np.ndarray:
         """(m,) int32 the grid cell holding each position ``uv`` (m, 2), -1 off the grid."""
@@ -190,5 +194,5 @@ def invalid_keyframe_flow(n: int, window: int) -> KeyframeFlow:
     W = max(int(window) - 1, 0)
     z = np.zeros((n, 3), np.float32)
     return KeyframeFlow(z, z.copy(), np.zeros(n, bool), np.bool_(True),
-                        np.zeros((W, n, 3), np.float32), np.zeros((W, n, 3), np.float32),
-                        np.zeros((W, n), bool), z.copy(), np.full(n, -1, np.int32))
+                        np.zeros((W, n, 3), np.float32), np.zeros((W, n), bool), z.copy(),
+                        np.full(n, -1, np.int32))
