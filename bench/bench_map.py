@@ -38,7 +38,7 @@ import numpy as np
 
 sys.path.insert(0, str(Path(__file__).resolve().parent))
 from _common import TUM_WALKING, load_average, log, machine_line, markdown_table
-from people_masks import people_masks
+from people_masks import people_clip
 
 from jaxvo.config import Config
 from jaxvo.host.io import InMemorySequence, data_root, open_sequence
@@ -202,12 +202,10 @@ def main(argv=None) -> int:
                     help="write seed 0's map picture (the defaults) here")
     ap.add_argument("--out", default="results", help="folder for map.md / map.json")
     args = ap.parse_args(argv)
-    folder = data_root() / TUM_WALKING
-    if not folder.is_dir():
-        print(f"bench_map: skipped, the TUM clip is not at {folder}")
+    clip = people_clip("bench_map")
+    if clip is None:
         return 0
-    seq = open_sequence(folder)
-    people = people_masks(folder)
+    seq, people = clip
     seq = InMemorySequence(seq) if args.seeds else seq
     rows = []
     for s in range(args.seeds):

@@ -23,10 +23,10 @@ import numpy as np
 
 sys.path.insert(0, str(Path(__file__).resolve().parent))
 from _common import TUM_WALKING, log, machine_line
-from people_masks import people_masks
+from people_masks import people_clip
 
 from jaxvo.evaluation.metrics import ate
-from jaxvo.host.io import InMemorySequence, data_root, open_sequence
+from jaxvo.host.io import InMemorySequence
 from jaxvo.odometry import run_sequence
 
 
@@ -47,12 +47,10 @@ def main(argv=None) -> int:
     ap.add_argument("--seeds", type=int, default=5, help="seeded runs of each (default 5)")
     ap.add_argument("--out", default="results", help="folder for people.md / people.json")
     args = ap.parse_args(argv)
-    folder = data_root() / TUM_WALKING
-    if not folder.is_dir():
-        print(f"bench_people: skipped, the TUM clip is not at {folder}")
+    clip = people_clip("bench_people")
+    if clip is None:
         return 0
-    seq = InMemorySequence(open_sequence(folder))
-    people = people_masks(folder)
+    seq, people = InMemorySequence(clip[0]), clip[1]
     masked = without_people(seq, people)
     log(f"reference: jaxvo without the people's depth, {args.seeds} seeds")
     refs = [run_sequence(masked, seed=s).trajectory for s in range(args.seeds)]

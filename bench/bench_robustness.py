@@ -22,6 +22,7 @@ import argparse
 import dataclasses
 import datetime
 import hashlib
+import inspect
 import json
 import sys
 import time
@@ -36,6 +37,7 @@ import orbslam3_peer
 from _common import log, machine, markdown_table
 from splits import Case, cases, runnable
 
+import jaxvo.host.keyframes
 from jaxvo.config import Config, Params, grid_shape, params_as_arrays
 from jaxvo.core.pipeline import final_moving, init_pipeline, jit_step
 from jaxvo.evaluation.metrics import SegmentationScores
@@ -65,8 +67,6 @@ def _flow_key(cfg: Config) -> str:
 def frames_hash() -> str:
     """A short hash of the code that makes a case's frames (not its flow): what the peers'
     runs and the grid truth depend on, so that a change to the tracker re-runs neither."""
-    import inspect
-
     import jaxvo.host.frames
     import jaxvo.host.io
     import jaxvo.synth.render
@@ -109,10 +109,6 @@ def flow_path(case: Case, cache: Path, cfg: Config) -> Path:
     when it holds the keyframe flow too (``cfg.keyframes``)."""
     if not cfg.keyframes:
         return cache / f"{case.name}__{_flow_key(cfg)}.npz"
-    import inspect
-
-    import jaxvo.host.keyframes
-
     fields = {f.name: getattr(cfg, f.name) for f in dataclasses.fields(cfg)
               if f.name.startswith("keyframe")}
     kf = hashlib.sha1(json.dumps([fields, inspect.getsource(jaxvo.host.keyframes)],

@@ -121,6 +121,19 @@ def people_masks(seq_dir: str | Path, annotation: dict | None = None) -> dict[in
     return masks
 
 
+def people_clip(bench: str):
+    """The TUM walking clip (:data:`SEQUENCE` under the data root) as ``(sequence, people
+    masks)``, the frames read lazily; None, after a line saying ``bench`` skipped, where the
+    clip is absent."""
+    from jaxvo.host.io import data_root, open_sequence
+
+    folder = data_root() / SEQUENCE
+    if not folder.is_dir():
+        print(f"{bench}: skipped, the TUM clip is not at {folder}")
+        return None
+    return open_sequence(folder), people_masks(folder)
+
+
 def overlay(bgr: np.ndarray, mask: np.ndarray, label: str = "") -> np.ndarray:
     """``bgr`` with ``mask`` tinted magenta and its outline drawn, for review by eye."""
     out = bgr.copy()
