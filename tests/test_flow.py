@@ -20,12 +20,11 @@ from jaxvo.host.flow import (
     flows_for_sequence,
     grid_flow,
     min_valid_flow,
-    patch_correlation,
     refine_depth,
-    sample_patches,
     sequence_flows,
 )
 from jaxvo.host.io import data_root
+from jaxvo.host.patches import patch_correlation, sample_patches
 from jaxvo.status import Status
 
 H, W = 480, 640
@@ -171,43 +170,6 @@ def test_similarity_rejects_changed_patch(tex0):
     assert a.valid[changed].mean() > 0.3  # what the other checks let through
     assert b.valid[changed].mean() < 0.1
     assert b.valid[others].mean() > 0.95
-
-
-def test_patch_correlation_matches_numpy_corrcoef():
-    rng = np.random.default_rng(3)
-    a = rng.standard_normal((20, 49)).astype(np.float32)
-    b = (0.5 * a + rng.standard_normal((20, 49))).astype(np.float32)
-    ref = [np.corrcoef(x, y)[0, 1] for x, y in zip(a.astype(np.float64), b.astype(np.float64))]
-    np.testing.assert_allclose(patch_correlation(a, b), ref, atol=1e-5)  # tolerance: float32
-    flat = np.full((1, 49), 7.0, np.float32)
-    assert patch_correlation(flat, a[:1])[0] == 0.0  # flat patch: no evidence, no NaN
-
-
-def test_sample_patches_is_bilinear():
-    rng = np.random.default_rng(4)
-    g = rng.integers(0, 256, (40, 50)).astype(np.uint8)
-    uv = np.array([[10.25, 12.5], [30.0, 20.75]], np.float32)
-    p = sample_patches(g, uv, 3)
-    # reference: explicit bilinear interpolation at the 3x3 offsets, tolerance 0.1 grey level
-    # (OpenCV interpolates with 5-bit fixed-point weights on uint8 inputs converted to float)
-    ref = []
-    for x, y in uv.astype(np.float64):
-        row = []
-        for dy in (-1, 0, 1):
-            for dx in (-1, 0, 1):
-                xx, yy = x + dx, y + dy
-                x0, y0 = int(np.floor(xx)), int(np.floor(yy))
-                ax, ay = xx - x0, yy - y0
-                gf = g.astype(np.float64)
-                row.append(
-                    (1 - ay) * ((1 - ax) * gf[y0, x0] + ax * gf[y0, x0 + 1])
-                    + ay * ((1 - ax) * gf[y0 + 1, x0] + ax * gf[y0 + 1, x0 + 1])
-                )
-        ref.append(row)
-    np.testing.assert_allclose(p, ref, atol=0.1 * 255 / 32)
-
-
-# ----------------------------------------------------------------------------- depth
 
 
 def test_refine_fills_isolated_hole_and_drops_flying_pixel():

@@ -66,12 +66,7 @@ from jaxvo.host.depth import (  # noqa: F401  (bilinear_depth, refine_depth: the
     smooth_depth,
 )
 from jaxvo.host.keyframes import KeyframeFlow, KeyframeTracker, invalid_keyframe_flow
-from jaxvo.host.patches import (  # noqa: F401  (sample_patches, patch_correlation: its API)
-    lk_converged,
-    patch_correlation,
-    sample_patches,
-    similar,
-)
+from jaxvo.host.patches import lk_converged, similar
 from jaxvo.host.prefetch import READ_AHEAD, read_ahead
 from jaxvo.status import Status
 
