@@ -99,9 +99,12 @@ class Config:
     # 17.18, 19.91 mm against 15.82-16.86, 18.41-19.21, 19.91-20.41 mm at every 1st, 2nd, 4th frame)
     keyframe_stride: int = 2
     # the local window: the latest keyframes whose poses and points are refined together
-    # each time a keyframe is taken (jaxvo.core.keyframe); 1: the latest keyframe alone
+    # each time a keyframe is taken (jaxvo.core.keyframe); 1: the latest keyframe alone.
+    # 4: 6 (with more frequent keyframes) was no better on the development frames
     keyframe_window: int = 4
-    keyframe_iters: int = 5  # Levenberg-Marquardt iterations of the window's refinement
+    # Levenberg-Marquardt iterations of the window's refinement; not tuned (10 gave the
+    # same ATE in the one check made, docs/report/keyframes.md has the window's figures)
+    keyframe_iters: int = 5
 
 
 class Params(NamedTuple):
