@@ -426,10 +426,10 @@ def update_keyframe(state: KeyframeState, kf, T_w_c, static, pair, noise: NoiseS
     """
     index = keyframe_index(grid, cfg.keyframe_stride)
     T_cur_prev, T_w_prev, pts, used = pair
-    T_cur_kf = T_cur_prev @ invert_pose(T_w_prev) @ state.T_w_kf[-1]
-    link = (T_cur_kf, *pair_factor(T_cur_prev, pts, used, pts.thr))
 
-    def take(st):
+    def take(st):  # on keyframe frames only (lax.cond): the pair's factor is built here
+        T_cur_kf = T_cur_prev @ invert_pose(T_w_prev) @ st.T_w_kf[-1]
+        link = (T_cur_kf, *pair_factor(T_cur_prev, pts, used, pts.thr))
         st = _take(st, kf, T_w_c, static, index, link)
         if cfg.keyframe_window < 2 or not cfg.keyframe_iters:
             return st
