@@ -18,6 +18,27 @@ TUM_WALKING = "tum_fr3_walking_halfsphere_50"
 REAL_SEQUENCES = (TUM_WALKING, SEVEN_SCENES)
 
 
+def with_groundtruth(seq: InMemorySequence, truth: Path, max_diff: float = 0.02) -> InMemorySequence:
+    """``seq`` with the ground truth of each frame taken from the trajectory file ``truth``
+    (the pose nearest in time, within ``max_diff`` seconds), when the file is there: TUM's
+    motion capture, kept apart from the clip's folder (the data root's ``ground_truth/``).
+    A frame without a pose that near leaves the sequence without ground truth."""
+    from jaxvo.host.io import Trajectory, pose_at, read_trajectory
+
+    if not truth.is_file():
+        return seq
+    gt = read_trajectory(truth)
+    poses = [pose_at(gt, float(t), max_diff=max_diff) for t in seq.timestamps]
+    if all(p is not None for p in poses):
+        seq.groundtruth = Trajectory(np.asarray(seq.timestamps, np.float64), np.stack(poses))
+    return seq
+
+
+def tum_walking_truth() -> Path:
+    """TUM's ground truth of the walking clip under the data root."""
+    return data_root() / "ground_truth" / f"{TUM_WALKING}.txt"
+
+
 def real_present(names=REAL_SEQUENCES) -> list[str]:
     """Those of ``names`` found as TUM-layout folders under the data root."""
     return [n for n in names if (data_root() / n / "associations.txt").is_file()]

@@ -61,14 +61,15 @@ def _seeds_step(states, flow, keys, params, kf=None, *, cfg: Config, grid):
     return jax.vmap(one, axis_name="seeds")(states, keys)
 
 
-def run_seeds(flows: dict, T0, params: Params, cfg: Config, seeds: int):
+def run_seeds(flows: dict, T0, params: Params, cfg: Config, seeds: int, first_seed: int = 0):
     """Trajectories (one per seed, float64 poses) and the stacked outputs (S, T, ...) of the
-    seeds 0 .. seeds-1 over the cached ``flows`` (``flow_<field>`` arrays)."""
+    seeds ``first_seed`` .. ``first_seed + seeds - 1`` over the cached ``flows``
+    (``flow_<field>`` arrays)."""
     h, w = (int(x) for x in flows["size"])
     grid = grid_shape(h, w, cfg.cell)
     state = init_pipeline(cfg=cfg, grid=grid, T_w_c0=T0, params=params)
     states = jax.tree.map(lambda x: jnp.broadcast_to(x, (seeds,) + jnp.shape(x)), state)
-    keys = jnp.stack([jax.random.key(s) for s in range(seeds)])
+    keys = jnp.stack([jax.random.key(first_seed + s) for s in range(seeds)])
     p = params_as_arrays(params)
     flow_all = GridFlow(*(flows[f"flow_{k}"] for k in GridFlow._fields))
     kf_all = (KeyframeFlow(*(flows[f"kf_{k}"] for k in KeyframeFlow._fields))

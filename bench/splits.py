@@ -12,7 +12,7 @@ frames 150-299 and the TUM walking clip, which no development case reads.
 | dev | ``static_dev_every<k>`` | 7-Scenes frames 0-149 at every k-th frame: nothing moves |
 | val | ``comp_<scenario>_val`` | boxes composited into 7-Scenes frames 150-299, seed 1 |
 | val | ``static_val_every<k>`` | 7-Scenes frames 150-299 at every k-th frame |
-| val | ``tum_walking`` | the TUM fr3 walking clip: two people, no ground truth |
+| val | ``tum_walking`` | the TUM fr3 walking clip: two people, TUM's ground truth (kept apart in the data root's ``ground_truth/``) |
 | fresh | ``comp_<scenario>_fresh``, ``synth_<scenario>_fresh`` | the composites on frames 150-299 and the synthetic scenes at seed 3: run once, after the last change, to check the validation split was not tuned on by looking at it |
 
 The composites' scenarios are the failure cases of issue 18: three boxes covering about half
@@ -26,7 +26,7 @@ from __future__ import annotations
 from collections.abc import Callable
 from typing import NamedTuple
 
-from _common import SEVEN_SCENES, TUM_WALKING
+from _common import SEVEN_SCENES, TUM_WALKING, tum_walking_truth, with_groundtruth
 
 from jaxvo.host.io import InMemorySequence, data_root, open_sequence
 from jaxvo.synth.scenes import composite_sequence, make_sequence
@@ -69,8 +69,8 @@ def cases() -> list[Case]:
                      _composite(s, start, seed)) for s in COMPOSITES]
         out += [Case(f"static_{split}_every{k}", split, "static", SEVEN_SCENES, _static(start, k))
                 for k in (1, 2, 4)]
-    out.append(Case("tum_walking", "val", "people", TUM_WALKING,
-                    lambda: InMemorySequence(open_sequence(data_root() / TUM_WALKING))))
+    out.append(Case("tum_walking", "val", "people", TUM_WALKING, lambda: with_groundtruth(
+        InMemorySequence(open_sequence(data_root() / TUM_WALKING)), tum_walking_truth())))
     out += [Case(f"comp_{s}_fresh", "fresh", "composite", SEVEN_SCENES, _composite(s, HALF, 3))
             for s in COMPOSITES]
     out += [Case(f"synth_{s}_fresh", "fresh", "synthetic", None,

@@ -9,7 +9,8 @@ import time
 # Kept in step with jaxvo.synth.scenes.SCENARIOS (checked by the tests); listed here so that
 # ``--help`` does not import JAX.
 SCENARIO_NAMES = ("fixed_camera_1", "fixed_camera_2", "handheld_fast", "handheld_slow",
-                  "close_approach", "static", "three_boxes", "enter_leave", "stop_start")
+                  "close_approach", "static", "three_boxes", "enter_leave", "stop_start",
+                  "heavy_cover_50", "heavy_cover_70", "heavy_cover_90")
 
 
 def add_arguments(parser: argparse.ArgumentParser) -> None:

@@ -75,7 +75,11 @@ class ObjectSpec:
     metres, seconds); rotation about a seeded axis at ``spin`` rad/s. ``phase`` ``None``
     draws the phases from the seed. ``stops`` are ``(start, end)`` intervals in seconds
     from the first frame during which the box holds still (its path's clock stops), so
-    an object can stop and start again.
+    an object can stop and start again. ``follow`` makes the path relative to the camera:
+    ``centre`` and the path are then in the frame of the camera pose averaged over
+    ``follow`` seconds (0: the camera itself), so a box can stay in view, moving with the
+    camera and across it; ``None`` keeps the default frame (the world in a synthetic room,
+    the camera path smoothed over 3 s in a composite).
     """
 
     size: tuple[float, float, float]
@@ -85,6 +89,7 @@ class ObjectSpec:
     spin: float = 0.4
     phase: tuple[float, float, float] | None = None
     stops: tuple[tuple[float, float], ...] = ()
+    follow: float | None = None
 
 
 @dataclass(frozen=True)
@@ -103,6 +108,21 @@ class Scenario:
     objects: tuple[ObjectSpec, ...] = ()
     look_at: tuple[float, float, float] = (0.0, 0.2, 2.0)
     camera_wander: float = 1.0  # scales the path's extent (amplitude per unit speed)
+
+
+def _heavy_cover(percent: int, size: tuple[float, float, float], distance: float) -> Scenario:
+    """One near box covering about ``percent`` % of the view from the first frame and
+    staying in view: it follows the camera (its path averaged over 1 s, so it lags when
+    the camera turns) and drifts across the view, spinning slowly. ``distance`` is the
+    box's centre in front of the camera, metres."""
+    return Scenario(
+        f"heavy_cover_{percent}",
+        f"a near box covering about {percent} % of the view from the first frame, moving "
+        "with the camera and across it",
+        camera="handheld", camera_speed=0.15,
+        objects=(ObjectSpec(size=size, centre=(0.0, 0.0, distance),
+                            amplitude=(0.08, 0.04, 0.05), period=(4.3, 3.7, 5.1), spin=0.08,
+                            follow=1.0),))
 
 
 _CUBE = ObjectSpec(size=(0.36, 0.36, 0.36), centre=(0.0, 0.15, 1.7),
@@ -194,5 +214,10 @@ SCENARIOS: dict[str, Scenario] = {
                            amplitude=(0.25, 0.1, 0.2), period=(3.9, 4.6, 4.3), spin=0.5),
             ),
         ),
+        # the heavy-cover family: a near mover filling the view, from which the camera's
+        # motion must not be taken because it has the most points
+        _heavy_cover(50, (0.76, 0.58, 0.3), 1.05),
+        _heavy_cover(70, (0.87, 0.65, 0.3), 1.0),
+        _heavy_cover(90, (0.95, 0.72, 0.3), 0.9),
     )
 }

@@ -29,7 +29,13 @@ from jaxvo.errors import InputError
 from jaxvo.host.camera import write_camera_file
 from jaxvo.host.io import TumSequence, associate, write_trajectory
 from jaxvo.synth.scenario import SCENARIOS, ObjectSpec, Scenario, SensorOptions
-from jaxvo.synth.sequence import DEPTH_SCALE, RealBackground, SyntheticSequence, make_atlas
+from jaxvo.synth.sequence import (
+    DEPTH_SCALE,
+    RealBackground,
+    SyntheticSequence,
+    make_atlas,
+    smooth_poses,
+)
 
 DEFAULT_FRAMES = 90
 DEFAULT_FPS = 30.0
@@ -110,7 +116,7 @@ def composite_sequence(sequence: str | Path | TumSequence,
     if len(ia) == 0:
         raise InputError(f"{seq.name}: no frame has a ground-truth pose")
     poses = seq.groundtruth.poses[ib].astype(np.float64)
-    anchors = _smooth_poses(poses, half_window=45)
+    anchors = smooth_poses(poses, half_window=45)
     # Keep the boxes in front of the real surfaces: the preset's distances assume a room
     # 3 m deep; scale them to the real scene's median depth at the start.
     first = seq[int(ia[0])].depth
@@ -123,22 +129,6 @@ def composite_sequence(sequence: str | Path | TumSequence,
                              options=options or SensorOptions(), fps=DEFAULT_FPS,
                              background=bg, name=f"composite_{spec.name}_{seq.name}"
                              f"{f'_from{int(start)}' if start else ''}_s{seed}")
-
-
-def _smooth_poses(poses: np.ndarray, half_window: int) -> np.ndarray:
-    """Moving average of positions and of the rotation columns, re-orthonormalised."""
-    n = len(poses)
-    out = np.empty_like(poses)
-    for i in range(n):
-        sl = slice(max(0, i - half_window), min(n, i + half_window + 1))
-        u, _, vt = np.linalg.svd(poses[sl, :3, :3].mean(axis=0))
-        R = u @ vt
-        if np.linalg.det(R) < 0:
-            R = u @ np.diag([1, 1, -1]) @ vt
-        out[i] = np.eye(4)
-        out[i, :3, :3] = R
-        out[i, :3, 3] = poses[sl, :3, 3].mean(axis=0)
-    return out
 
 
 def write_sequence(seq: SyntheticSequence, out_dir: str | Path, *,

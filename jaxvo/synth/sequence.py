@@ -222,6 +222,27 @@ class _ObjectPath:
         return T
 
 
+def mean_pose(poses: np.ndarray) -> np.ndarray:
+    """(4, 4) the average of ``poses`` (k, 4, 4): mean position, and the mean of the
+    rotation matrices re-orthonormalised (the nearest rotation)."""
+    u, _, vt = np.linalg.svd(poses[:, :3, :3].mean(axis=0))
+    R = u @ vt
+    if np.linalg.det(R) < 0:
+        R = u @ np.diag([1, 1, -1]) @ vt
+    out = np.eye(4)
+    out[:3, :3] = R
+    out[:3, 3] = poses[:, :3, 3].mean(axis=0)
+    return out
+
+
+def smooth_poses(poses: np.ndarray, half_window: int) -> np.ndarray:
+    """(N, 4, 4) the moving average (:func:`mean_pose`) of ``poses`` over ``2 half_window +
+    1`` frames, shortened at both ends."""
+    n = len(poses)
+    return np.stack([mean_pose(poses[max(0, i - half_window):min(n, i + half_window + 1)])
+                     for i in range(n)]) if n else np.empty_like(poses)
+
+
 def _inside(T_w_b: np.ndarray, half: np.ndarray, point: np.ndarray, margin: float) -> bool:
     p = T_w_b[:3, :3].T @ (point - T_w_b[:3, 3])
     return bool(np.all(np.abs(p) < half + margin))
@@ -270,6 +291,7 @@ class SyntheticSequence:
             self.timestamps = background.seq.timestamps[background.index].astype(np.float64)
 
         self._atlas = make_atlas(self.seed)
+        self._follow_anchors: dict[float, np.ndarray] = {}  # composites: follow -> anchors
         rng = np.random.default_rng([self.seed, 2])
         self._camera = _CameraPath(rng, scenario)
         self._objects = [_ObjectPath(rng, spec) for spec in scenario.objects]
@@ -317,16 +339,29 @@ class SyntheticSequence:
         path = self._objects[k]
         tau = path.clock(t - float(self.timestamps[0]))
         T_local = path.pose(tau)
-        if self._background is not None:
+        follow = path.spec.follow
+        if self._background is not None or follow is not None:
             # the anchor follows the object's clock too, so a stop stops the object in the
             # world (and it moves on from there, its anchor as far behind as it stood)
-            return self._anchor(tau) @ T_local
+            return self._anchor(tau, follow) @ T_local
         return T_local
 
-    def _anchor(self, tau: float) -> np.ndarray:
-        """The smoothed camera pose the objects move around, at ``tau`` seconds from the first
-        frame: translation interpolated between frames, rotation of the nearer frame."""
-        anchors = self._background.anchors
+    def _anchor(self, tau: float, follow: float | None = None) -> np.ndarray:
+        """The camera pose averaged over ``follow`` seconds (None: the composite's 3 s
+        anchors) that an object moves around, at ``tau`` seconds from the first frame:
+        translation interpolated between frames, rotation of the nearer frame."""
+        if self._background is None:  # the synthetic camera path is known at any time
+            half = int(round(follow * self.fps / 2))
+            t0 = float(self.timestamps[0])
+            return mean_pose(np.stack([self._camera.pose(t0 + tau + j / self.fps)
+                                       for j in range(-half, half + 1)]))
+        if follow is None:
+            anchors = self._background.anchors
+        else:
+            if follow not in self._follow_anchors:
+                self._follow_anchors[follow] = smooth_poses(
+                    self._background.poses, int(round(follow * self.fps / 2)))
+            anchors = self._follow_anchors[follow]
         since = self.timestamps - self.timestamps[0]
         j = int(np.clip(np.searchsorted(since, tau, side="right") - 1, 0, len(since) - 1))
         j1 = min(j + 1, len(since) - 1)

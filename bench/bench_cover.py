@@ -1,0 +1,174 @@
+"""Heavy cover: does the ego-motion lock on a near mover that fills the view (issue 47)?
+
+The heavy-cover family (``jaxvo.synth`` presets ``heavy_cover_50``, ``_70``, ``_90``): one
+near box covering about that share of the view from the first frame, moving with the camera
+and across it, in the synthetic room and composited into the shared 7-Scenes frames
+(development: frames 0-59; validation: frames 150-209). Each of ``--seeds`` seeds is a
+scene of its own (the box's path, its texture, the sensor noise) run with the same jaxvo
+seed. Per case and seed: whether the ego-motion is *locked on the mover* at frames 1, 10
+and 50 (more than half of the points it used at the pair ending there lie on the box, from
+the exact masks), the share of pairs locked from frame 10 on, the pairs whose motion was carried (not
+measured), the box's cover of the view (its share of the grid cells),
+and the ATE beside the best OpenCV peer on the same frames.
+
+Run: ``.venv/bin/python bench/bench_cover.py [--seeds 10] [--only CASE ...] [--set
+NAME=VALUE ...] [--out results/] [--title LINE]``; writes ``cover.md`` and ``cover.json``.
+"""
+
+from __future__ import annotations
+
+import argparse
+import datetime
+import json
+import sys
+import time
+from pathlib import Path
+
+import numpy as np
+
+sys.path.insert(0, str(Path(__file__).resolve().parent))
+from _common import SEVEN_SCENES, log, machine_line, markdown_table
+from bench_robustness import CFG, peers_alone, prepare
+from bench_seeds import config_from, run_seeds, spread
+from splits import Case
+
+from jaxvo.config import Params
+from jaxvo.evaluation.scores import trajectory_scores
+from jaxvo.host.io import InMemorySequence, Trajectory, data_root
+from jaxvo.host.peers import OPENCV_PEERS
+from jaxvo.synth.scenes import composite_sequence, make_sequence
+
+COVERS = (50, 70, 90)
+FRAMES = 60  # frames 1, 10 and 50 are judged
+AT = (1, 10, 50)
+# (kind, split, first 7-Scenes frame or None for the synthetic room)
+SETTINGS = (("synth", "dev", None), ("comp", "dev", 0), ("comp", "val", 150))
+
+
+def cover_cases(seeds: int) -> list[tuple[str, list[Case]]]:
+    """Each (cover, setting) group's name and its cases, one per seed."""
+    groups = []
+    for cover in COVERS:
+        scenario = f"heavy_cover_{cover}"
+        for kind, split, start in SETTINGS:
+            name = f"{kind}_{scenario}_{split}"
+            cases = []
+            for s in range(seeds):
+                if start is None:
+                    build = (lambda sc=scenario, s=s: InMemorySequence(
+                        make_sequence(sc, frames=FRAMES, seed=s)))
+                    source = None
+                else:
+                    build = (lambda sc=scenario, s=s, st=start: InMemorySequence(
+                        composite_sequence(data_root() / SEVEN_SCENES, sc, start=st,
+                                           frames=FRAMES, seed=s)))
+                    source = SEVEN_SCENES
+                cases.append(Case(f"{name}_s{s}", split, "synthetic" if start is None
+                                  else "composite", source, build))
+            groups.append((name, cases))
+    return groups
+
+
+def locked(static: np.ndarray, on_mover: np.ndarray) -> np.ndarray:
+    """(T,) bool: more than half of the points the ego-motion used at each pair lie on a
+    mover (``static``, ``on_mover`` (T, n) bool, the grid of the pair's first image)."""
+    used = static.sum(axis=1)
+    return (static & on_mover).sum(axis=1) > 0.5 * np.maximum(used, 1)
+
+
+def run_group(name: str, cases: list[Case], params: Params, cfg, cache: Path) -> dict:
+    rows = []
+    for s, case in enumerate(cases):
+        data = prepare(case, cache, cfg)
+        T0 = data["gt_poses"][0]
+        # one seed a scene: the scene's own seed is the run's
+        trajs, outs = run_seeds(data, T0, params, cfg, 1, first_seed=s)
+        on_mover = data["grid_gt"][:-1].astype(bool)
+        lk = locked(np.asarray(outs.static[0]), on_mover)
+        gt = Trajectory(data["timestamps"], data["gt_poses"])
+        peers = peers_alone(case, cache)
+        best = min(OPENCV_PEERS, key=lambda k: peers[k]["ate_rmse_m"]) if peers else None
+        status = np.asarray(outs.status[0])
+        rows.append({
+            "seed": s,
+            "ate_mm": 1e3 * trajectory_scores(gt, trajs[0])["ate_rmse_m"],
+            "best_peer_mm": 1e3 * peers[best]["ate_rmse_m"] if best else None,
+            "locked_at": {k: bool(lk[k - 1]) for k in AT},
+            "locked_after10": float(lk[9:].mean()),
+            "carried": int(np.sum(status != 0)),
+            "cover_pct": [float(100 * on_mover[k].mean()) for k in (0, 10, 50)],
+        })
+    ate = spread([r["ate_mm"] for r in rows])
+    peer = [r["best_peer_mm"] for r in rows if r["best_peer_mm"] is not None]
+    return {
+        "case": name, "seeds": len(rows), "ate_mm": ate,
+        "best_peer_mm": float(np.median(peer)) if peer else None,
+        "locked_at": {k: sum(r["locked_at"][k] for r in rows) for k in AT},
+        "seeds_locked_after10": sum(r["locked_after10"] > 0 for r in rows),
+        "locked_after10_pct": spread([100 * r["locked_after10"] for r in rows]),
+        "carried": spread([r["carried"] for r in rows]),
+        "cover_pct": [float(np.median([r["cover_pct"][i] for r in rows])) for i in range(3)],
+        "runs": rows,
+    }
+
+
+def table(groups: list[dict], seeds: int) -> str:
+    head = ["case", "cover % at frames 0 / 10 / 50 (median)",
+            *(f"locked at frame {k} (of {seeds})" for k in AT),
+            "seeds locked after frame 10", "pairs locked after 10 %, median [best-worst]",
+            "pairs carried", "ATE mm median [best-worst]", "worst/best", "best OpenCV peer mm"]
+    cells = []
+    for g in groups:
+        a = g["ate_mm"]
+        cells.append([
+            g["case"], " / ".join(f"{c:.0f}" for c in g["cover_pct"]),
+            *(str(g["locked_at"][k]) for k in AT), str(g["seeds_locked_after10"]),
+            f"{g['locked_after10_pct']['median']:.0f} [{g['locked_after10_pct']['best']:.0f}-"
+            f"{g['locked_after10_pct']['worst']:.0f}]",
+            f"{g['carried']['median']:.0f}",
+            f"{a['median']:.1f} [{a['best']:.1f}-{a['worst']:.1f}]", f"{a['spread']:.2f}",
+            f"{g['best_peer_mm']:.1f}" if g["best_peer_mm"] is not None else "-"])
+    return markdown_table(head, cells)
+
+
+def main(argv=None) -> int:
+    ap = argparse.ArgumentParser(description=__doc__.split("\n\n")[0])
+    ap.add_argument("--seeds", type=int, default=10)
+    ap.add_argument("--only", nargs="*", help="group names (e.g. comp_heavy_cover_50_dev)")
+    ap.add_argument("--set", nargs="*", default=[], metavar="NAME=VALUE",
+                    help="Params values to run with")
+    ap.add_argument("--config", nargs="*", default=[], metavar="NAME=VALUE",
+                    help="Config values to run with")
+    ap.add_argument("--cache", type=Path, default=Path("results/cache"))
+    ap.add_argument("--out", type=Path, default=Path("results"))
+    ap.add_argument("--title", default="", help="a line saying what this run is")
+    args = ap.parse_args(argv)
+    params = Params()._replace(**{k: float(v) for k, v in (a.split("=", 1) for a in args.set)})
+    cfg = config_from(args.config) if args.config else CFG
+    groups = []
+    for name, cases in cover_cases(args.seeds):
+        if args.only and name not in args.only:
+            continue
+        if cases[0].source is not None and not (data_root() / cases[0].source).is_dir():
+            log(f"{name}: skipped, {cases[0].source} not under {data_root()}")
+            continue
+        t0 = time.perf_counter()
+        g = run_group(name, cases, params, cfg, args.cache)
+        g["seconds"] = time.perf_counter() - t0
+        groups.append(g)
+        log(f"{name}: locked at {g['locked_at']}, after 10: {g['seeds_locked_after10']} seeds,"
+            f" ATE {g['ate_mm']['median']:.1f} mm [{g['ate_mm']['best']:.1f}-"
+            f"{g['ate_mm']['worst']:.1f}]")
+    args.out.mkdir(parents=True, exist_ok=True)
+    meta = {"date": datetime.datetime.now().isoformat(timespec="seconds"), "seeds": args.seeds,
+            "set": args.set, "config": args.config, "title": args.title}
+    (args.out / "cover.json").write_text(json.dumps({"meta": meta, "groups": groups}, indent=1))
+    md = [f"# Heavy cover over {args.seeds} seeds\n", machine_line(), "", args.title, "",
+          table(groups, args.seeds), ""]
+    (args.out / "cover.md").write_text("\n".join(md) + "\n")
+    print("\n".join(md))
+    return 0
+
+
+if __name__ == "__main__":
+    raise SystemExit(main())
