@@ -123,8 +123,8 @@ def table(groups: list[dict], seeds: int) -> str:
         cells.append([
             g["case"], " / ".join(f"{c:.0f}" for c in g["cover_pct"]),
             *(str(g["locked_at"][k]) for k in AT), str(g["seeds_locked_after10"]),
-            f"{g['locked_after10_pct']['median']:.0f} [{g['locked_after10_pct']['best']:.0f}-"
-            f"{g['locked_after10_pct']['worst']:.0f}]",
+            (f"{g['locked_after10_pct']['median']:.0f} [{g['locked_after10_pct']['best']:.0f}-"
+            f"{g['locked_after10_pct']['worst']:.0f}]"),
             f"{g['carried']['median']:.0f}",
             f"{a['median']:.1f} [{a['best']:.1f}-{a['worst']:.1f}]", f"{a['spread']:.2f}",
             f"{g['best_peer_mm']:.1f}" if g["best_peer_mm"] is not None else "-"])
