@@ -194,6 +194,11 @@ class Params(NamedTuple):
     # quarter: the gap is a fraction of the noise, so a small object whose motion differs
     # from the camera's by less than the noise at its depth is not merged into it
     same_place: float = 0.25
+    # depth order (jaxvo.core.background.depth_order): the share of decisive neighbour pairs
+    # across a boundary between two motions in which the static side lies behind, measured
+    # on the development composites (86-89 % of 4557 and 1404 such pairs, three_boxes and
+    # fixed_camera_2, frames 0-149); each net pair is worth logit(order_reliability)
+    order_reliability: float = 0.85
 
 
 def default_params() -> Params:
@@ -239,6 +244,7 @@ _PARAM_RANGES = {
     "unestablished_weight": (0.0, True, 1.0, True),
     "unpredicted_support": (0.0, True, None, False),
     "same_place": (0.0, False, 1.0, True),
+    "order_reliability": (0.5, False, 1.0, False),
 }
 
 

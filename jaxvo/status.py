@@ -18,6 +18,7 @@ class Status(enum.IntEnum):
     NO_STATIC = 4  # too few points carry the static identifier
     EGO_DEGENERATE = 5  # static points degenerate (collinear / coincident)
     BAD_INPUT = 6  # frame unreadable or of the wrong size (set on the host)
+    NO_BACKGROUND = 7  # every motion in view lies in front of the background: none of it in view
 
     @property
     def reason(self) -> str:
@@ -32,6 +33,7 @@ _REASONS = {
     Status.NO_STATIC: "too few points labelled static background",
     Status.EGO_DEGENERATE: "static points are degenerate for a rigid fit",
     Status.BAD_INPUT: "frame unreadable or of the wrong size",
+    Status.NO_BACKGROUND: "no background in view (every motion in view lies in front of it)",
 }
 
 

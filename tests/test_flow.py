@@ -504,7 +504,8 @@ def reference_flow(b0, d0, b1, d1, cam, cfg) -> GridFlow:
         valid=ok,
         status=np.int32(Status.OK),
         focal=np.float32(cam.focal),
-        depth_seen=ok0,
+        depth_prev=np.where(ok0, z0, 0).astype(np.float32),
+        camera=np.array([cam.fx, cam.fy, cam.cx, cam.cy], np.float32),
         fb_error=np.where(ok, fb, 0).astype(np.float32),
         depth_slope=np.where(ok, slope1, 0).astype(np.float32),
     )

@@ -272,8 +272,10 @@ def hand_flow(rng, box_moves, status=Status.OK, valid=True):
     prev = prev + along_ray(prev)
     return GridFlow(prev.astype(np.float32), cur.astype(np.float32), uv.astype(np.float32),
                     uv.astype(np.float32), np.full(N_S, valid), np.int32(status),
-                    np.float32(FOCAL_S), np.full(N_S, valid), np.zeros(N_S, np.float32),
-                    np.zeros(N_S, np.float32))
+                    np.float32(FOCAL_S),
+                    np.where(valid, prev[:, 2], 0.0).astype(np.float32),
+                    np.array([FOCAL_S, FOCAL_S, 0.0, 0.0], np.float32),
+                    np.zeros(N_S, np.float32), np.zeros(N_S, np.float32))
 
 
 def run_hand(flows, seed=0):

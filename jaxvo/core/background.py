@@ -18,70 +18,168 @@ import jax
 import jax.numpy as jnp
 
 from jaxvo.config import Config, Params
-from jaxvo.core.evidence import explained_segments, moving_logodds
+from jaxvo.core.evidence import explained_segments, moving_logodds, neighbourhood
 from jaxvo.core.geometry import tiny
 from jaxvo.core.identifiers import STATIC_ID, relabel, swap_perm
-from jaxvo.core.noise import Points, residuals_many
+from jaxvo.core.noise import NoiseScale, Points, residuals_many
+from jaxvo.core.robust import MOST, enough_points, explains
+from jaxvo.status import Status
 
 
 class BackgroundState(NamedTuple):
-    """Each identifier's support as the background (carried by the pipeline)."""
+    """Each identifier's support and evidence as the background (carried by the pipeline)."""
 
-    score: jax.Array  # (max_ids,) float32 accumulated over frames, decaying
+    score: jax.Array  # (max_ids,) float32 support accumulated over frames, decaying
+    # (max_ids,) float32 log-odds that the identifier's segment is the background, from the
+    # evidence of which motion lies behind (depth order), accumulated over frames
+    behind: jax.Array
 
 
 def init_background(*, cfg: Config) -> BackgroundState:
-    """No support yet."""
-    return BackgroundState(jnp.zeros((cfg.max_ids,), jnp.float32))
+    """No support, no evidence yet."""
+    zeros = jnp.zeros((cfg.max_ids,), jnp.float32)
+    return BackgroundState(zeros, zeros)
+
+
+def depth_order(labels, z, sigma, explained, tie, *, grid: tuple[int, int], cfg: Config):
+    """``(behind (S, S), front (S, S))`` float32: for each two segments ``a``, ``b``, the
+    decisive neighbour pairs of points that move unlike each other where ``a``'s point lies
+    behind ``b``'s, and where it lies in front.
+
+    The background is what lies behind: along the boundary between the static scene and a
+    mover, the static side is the farther one. Each valid grid point is compared with the
+    valid points of its 3 x 3 neighbourhood (:func:`jaxvo.core.evidence.neighbourhood`) in
+    another segment, unless each of the two is explained by the other's segment's motion
+    (``explained`` (S, n) bool, each point within the inlier test of each segment's
+    motion): two pieces of one rigid body (a static scene split by noise, or a segment
+    that took in some background) say nothing of which is the background. A pair is
+    decisive when the depth difference exceeds the depth noise of both readings at the
+    two-motion test ``tie`` (``chi2_1(confidence)``). Nothing depends on the motions'
+    sizes, nor on which motion the camera's was before.
+
+    Args:
+      labels: (n,) int32 spatial segments of the valid points (0 none or invalid); z: (n,)
+      depth of each grid point, metres; sigma: (n,) its depth noise, metres; explained:
+      (S, n) bool; tie: () the test, noise units squared.
+    """
+    s = cfg.max_segments
+    near_lab = neighbourhood(labels, 0, grid=grid)  # (n, 9)
+    near_z = neighbourhood(z, 0.0, grid=grid)
+    near_s = neighbourhood(sigma, 0.0, grid=grid)
+    i = jnp.broadcast_to(jnp.clip(labels - 1, 0, s - 1)[:, None], near_lab.shape)
+    j = jnp.clip(near_lab - 1, 0, s - 1)
+    # the point under its neighbour's segment's motion, the neighbour under the point's
+    mine = jnp.take_along_axis(explained.T, j, axis=1)  # (n, 9)
+    near_explained = jnp.stack([neighbourhood(e, False, grid=grid) for e in explained])
+    theirs = jnp.take_along_axis(near_explained, i[None], axis=0)[0]  # (n, 9)
+    other = (labels[:, None] > 0) & (near_lab > 0) & (near_lab != labels[:, None])
+    other = other & ~(mine & theirs)
+    dz = z[:, None] - near_z
+    decisive = other & (dz * dz > tie * (sigma[:, None] ** 2 + near_s * near_s))
+    zero = jnp.zeros((s, s), jnp.float32)
+    behind = zero.at[i, j].add(jnp.where(decisive & (dz > 0), 1.0, 0.0))
+    front = zero.at[i, j].add(jnp.where(decisive & (dz < 0), 1.0, 0.0))
+    return behind, front
+
+
+def order_logodds(behind, front, params: Params, occluded=None):
+    """(S,) float32 this frame's log-likelihood of each segment's motion being the
+    background's, from what lies in front of what (:func:`depth_order`), against the order
+    being random (as it is where no background is in view and movers border movers).
+
+    Where a segment is the background, each decisive pair with another motion has it
+    behind with probability ``p = params.order_reliability``: ``log(2 p)`` a pair behind,
+    ``log(2 (1 - p))`` a pair in front. A segment the occlusion memory holds in front of
+    what was seen (``occluded`` (S,) bool: most of its points, :mod:`jaxvo.core.occlusion`)
+    is an occluder, not the background: ``-params.evidence_step``, as much as one frame
+    can say (a few marked points in a segment are the memory's errors where the camera's
+    motion was only predicted; they keep those points out of the fit, not the segment
+    out of the background). Within ``+-params.evidence_step``, as every evidence of one
+    frame."""
+    p = jnp.asarray(params.order_reliability, jnp.float32)
+    ll = (jnp.sum(behind, axis=1) * jnp.log(2.0 * p)
+          + jnp.sum(front, axis=1) * jnp.log(2.0 * (1.0 - p)))
+    if occluded is not None:
+        ll = jnp.where(occluded, -params.evidence_step, ll)
+    return jnp.clip(ll, -params.evidence_step, params.evidence_step)
 
 
 def choose_background(state: BackgroundState, segment_ids, support, consistency, initialised,
-                      params: Params):
-    """The background of this frame: the identifier with the most support as the background
-    accumulated over frames, weighted by how well its segment moves as the camera was
-    predicted to; it becomes identifier 1.
+                      params: Params, order_counts=None, holds_background=None, occluded=None):
+    """The background of this frame: the segment that lies behind the motions unlike its
+    own, among those with support as the background accumulated over frames; it becomes
+    identifier 1.
 
     ``support`` (S,) is each segment's support this frame (the surface it explains, see
-    :func:`background_support`); each identifier's accumulated score decays
-    by ``params.evidence_decay`` a frame and adds the support of the segment carrying it.
-    ``consistency`` (S,) weighs each segment by this frame's evidence (the predicted
-    camera motion, :func:`background_support`): the history says which
-    identifier has been the background, the prediction whether its segment still moves as
-    the background does, and the choice takes their product. Without the product, the
-    history alone kept the background on an object that a first frame had merged with it
+    :func:`background_support`); each identifier's accumulated score decays by
+    ``params.evidence_decay`` a frame and adds the support of the segment carrying it.
+    ``consistency`` (S,) weighs each segment by this frame's evidence (the predicted camera
+    motion, :func:`background_support`): the history says which identifier has been the
+    background, the prediction whether its segment still moves as the background does, and
+    their product is each segment's prior. Without the product, the history alone kept the
+    background on an object that a first frame had merged with it
     (docs/report/core_decisions.md).
-    The background is the segment present now with the highest weighted score (the segment
-    of most weighted support when no segment has an identifier). When its identifier is not
-    1, the two identifiers swap (the background is re-acquired in this frame, never lost):
-    in the scores here, and by the permutation returned in every later stage's state.
-    ``initialised`` () bool: some segment had an identifier before (a swap then
-    re-acquires the background).
+
+    ``order_counts`` ``(behind, front)`` (S, S) (:func:`depth_order`) and ``occluded`` (S,)
+    bool (segments the occlusion memory holds in front) are the evidence: each
+    identifier's log-odds of being the background (``BackgroundState.behind``) adds this
+    frame's depth order (:func:`order_logodds`), without decay (a change of mind needs
+    evidence against), within
+    ``+-(logit(confidence) + params.evidence_margin)``. The background is the segment
+    present now of highest posterior, the log of its prior relative to the best plus its
+    log-odds, so a mover in front of the background loses to it whatever its size. A
+    segment whose log-odds are established against it (below ``-logit(confidence)``) is
+    not the background unless it ``holds_background`` (S,) bool (its motion explains
+    enough points established as background: a segment that took in the background
+    besides a mover); where no segment can be, no background is in view. When the
+    background's identifier is not 1, the two identifiers swap (the background is
+    re-acquired in this frame, never lost): in the scores here, and by the permutation
+    returned in every later stage's state. ``initialised`` () bool: some segment had an
+    identifier before (a swap then re-acquires the background).
 
     Returns ``(state, segment_ids, background () int32 spatial label 1..S or 0,
-    reacquired () bool, permutation (max_ids,) int32)``.
+    reacquired () bool, permutation (max_ids,) int32, order (S,) float32 this frame's
+    depth-order log-likelihoods)``.
     """
     s, m = segment_ids.shape[0], state.score.shape[0]
     present = segment_ids > 0
-    add = jnp.zeros((m,), jnp.float32).at[jnp.clip(segment_ids - 1, 0, m - 1)].add(
-        jnp.where(present, support, 0.0))
+    idx = jnp.clip(segment_ids - 1, 0, m - 1)
+    add = jnp.zeros((m,), jnp.float32).at[idx].add(jnp.where(present, support, 0.0))
     score = params.evidence_decay * state.score + add
-    seg_score = jnp.where(present, score[jnp.clip(segment_ids - 1, 0, m - 1)], -1.0)
+    seg_score = jnp.where(present, score[idx], -1.0)
     weighted = jnp.where(support > 0, seg_score * consistency, -1.0)
     any_id = jnp.any(present & (support > 0))
-    pick = jnp.where(any_id, jnp.argmax(weighted), jnp.argmax(support * consistency))
-    has = jnp.any(support > 0)
+    prior = jnp.where(any_id, weighted, jnp.where(support > 0, support * consistency, -1.0))
+    behind = state.behind
+    logodds = jnp.where(present, behind[idx], 0.0)
+    delta = jnp.zeros((s,), jnp.float32)
+    if order_counts is not None:
+        delta = order_logodds(*order_counts, params, occluded)
+        bound = moving_logodds(params) + params.evidence_margin
+        behind = jnp.clip(behind + jnp.zeros((m,), jnp.float32).at[idx].add(
+            jnp.where(present, delta, 0.0)), -bound, bound)
+        logodds = jnp.where(present, behind[idx], delta)
+    usable = prior > 0
+    if order_counts is not None:
+        holds = jnp.zeros((s,), bool) if holds_background is None else holds_background
+        usable = usable & ((logodds > -moving_logodds(params)) | holds)
+    post = jnp.log(jnp.maximum(prior, tiny()) / jnp.maximum(jnp.max(prior), tiny())) + logodds
+    pick = jnp.argmax(jnp.where(usable, post, -jnp.inf))
+    has = jnp.any(usable)
     background = jnp.where(has, pick + 1, 0).astype(jnp.int32)
     bg_id = jnp.where(has & present[pick], segment_ids[pick], STATIC_ID)
     reacquired = has & (bg_id != STATIC_ID) & initialised
     perm = swap_perm(bg_id, m)
     segment_ids = relabel(segment_ids, perm)
     # a segment without an identifier chosen as the background takes identifier 1 (the
-    # segment that had it keeps it only if it is the background)
+    # segment that had it keeps it only if it is the background), and its log-odds
     segment_ids = jnp.where(jnp.arange(s) == pick, jnp.where(has, STATIC_ID, segment_ids[pick]),
                             jnp.where(has & ~present[pick] & (segment_ids == STATIC_ID), 0,
                                       segment_ids))
-    return (BackgroundState(score[perm]), segment_ids.astype(jnp.int32), background, reacquired,
-            perm)
+    behind = behind[perm]
+    behind = jnp.where(has & ~present[pick] & (jnp.arange(m) == 0), logodds[pick], behind)
+    return (BackgroundState(score[perm], behind), segment_ids.astype(jnp.int32), background,
+            reacquired, perm, delta)
 
 
 class BackgroundOut(NamedTuple):
@@ -96,6 +194,11 @@ class BackgroundOut(NamedTuple):
     # (max_ids,) int32 the identifiers renumbered so that the background's is 1 (identifier
     # j + 1 becomes permutation[j] + 1): every later stage applies it to its own state
     permutation: jax.Array
+    status: jax.Array  # () int32 Status.OK, or NO_BACKGROUND: no segment can be the background
+    # (n,) float32 each point's log-likelihood ratio, moving over static, from depth order:
+    # a point of a segment in front of another motion that the background's motion does not
+    # explain (jaxvo.core.evidence adds it to the moving evidence); 0 elsewhere
+    in_front: jax.Array
 
 
 def belief_weights(prior, params: Params):
@@ -140,16 +243,20 @@ def background_support(d2_seg, sizes, weights, z, d2_pred, have_last, thr, unpre
 
 
 def update_background(state: BackgroundState, seg, pts: Points, T_pred, have_last,
-                      params: Params, *, cfg: Config, segment_ids, evidence, initialised):
+                      params: Params, *, cfg: Config, grid: tuple[int, int], segment_ids,
+                      evidence, initialised, scale: NoiseScale, occluded=None):
     """The background of this frame and the points the ego-motion may use.
 
     The segment whose motion explains the most surface that earlier frames established as
     background and that moves as the camera was predicted to (:func:`background_support`,
-    :func:`choose_background`; its identifier becomes 1). The ego-motion may use every
-    valid point, weighted by its belief, but those in a segment that moves unlike the
-    background (Algorithm 1's refinement on all points, for the background; a segment the
-    background's motion explains is a piece of the background that fast motion or depth
-    distortion split off).
+    the prior), and that lies behind the motions unlike its own (:func:`depth_order`, the
+    likelihood; :func:`choose_background`; its identifier becomes 1). Where no segment
+    explains any surface that can be background (every point in view established as
+    moving), there is no background in view: the status says so and the camera's motion is
+    carried. The ego-motion may use every valid point, weighted by its belief, but those in
+    a segment that moves unlike the background (Algorithm 1's refinement on all points, for
+    the background; a segment the background's motion explains is a piece of the
+    background that fast motion or depth distortion split off).
 
     Args:
       state: the background's scores entering the frame; seg: the spatial
@@ -158,7 +265,10 @@ def update_background(state: BackgroundState, seg, pts: Points, T_pred, have_las
       measured; segment_ids: (max_segments,) int32 the segments' identifiers
       (:func:`jaxvo.core.identifiers.identify`); evidence: (n,) float32 each cell's moving
       log-odds entering the frame (:mod:`jaxvo.core.evidence`); initialised: () bool some
-      segment had an identifier before.
+      segment had an identifier before; scale: the sensor noise (the depth readings' noise
+      of the depth order); occluded: (n,) bool the points the occlusion memory holds
+      nearer than what was seen there (:mod:`jaxvo.core.occlusion`): never the
+      background's, and in front for their segment's evidence.
 
     Returns:
       ``(state, BackgroundOut)``; ``BackgroundOut.permutation`` renumbers the identifiers
@@ -169,14 +279,32 @@ def update_background(state: BackgroundState, seg, pts: Points, T_pred, have_las
                             pts.noise)[0]
     d2_pred, d2_seg = d2_all[0], d2_all[1:]
     z = jnp.maximum(pts.src[2], pts.dst[2])
-    belief = jnp.where(valid, belief_weights(evidence, params), 0.0)
+    occluded = jnp.zeros_like(valid) if occluded is None else occluded & valid
+    belief = jnp.where(valid & ~occluded, belief_weights(evidence, params), 0.0)
     support, consistency = background_support(d2_seg, seg.sizes, belief, z, d2_pred,
                                               have_last, pts.thr, params.unpredicted_support)
-    state, segment_ids, bg, reacquired, perm = choose_background(
-        state, segment_ids, support, consistency, initialised, params)
+    z_prev = pts.src[2]
+    explained = (d2_seg <= pts.thr) & valid
+    counts = depth_order(jnp.where(valid, seg.labels, 0), z_prev,
+                         scale.depth_coeff * z_prev * z_prev, explained, pts.tie, grid=grid,
+                         cfg=cfg)
+    member = seg.labels[None, :] == jnp.arange(1, cfg.max_segments + 1)[:, None]
+    holds = enough_points(explained & (belief >= 1.0), params) & (seg.sizes > 0)
+    state, segment_ids, bg, reacquired, perm, order = choose_background(
+        state, segment_ids, support, consistency, initialised, params, counts, holds,
+        explains(occluded[None, :], member & valid, MOST))
     bgi = jnp.maximum(bg - 1, 0)
     static_seg = (explained_segments(seg.labels, d2_seg[bgi], valid, pts.thr, cfg=cfg)
                   | (jnp.arange(1, cfg.max_segments + 1) == bg))
     in_moving_seg = (seg.labels > 0) & ~static_seg[jnp.clip(seg.labels - 1, 0, None)]
     use = jnp.where(in_moving_seg, 0.0, belief)
-    return state, BackgroundOut(segment_ids, bg, reacquired, use, belief, d2_seg, perm)
+    status = jnp.where((bg == 0) & (seg.num_segments > 0), jnp.int32(Status.NO_BACKGROUND),
+                       jnp.int32(Status.OK))
+    # the points of a segment in front of another motion are movers, but for those the
+    # background's motion explains (background that a mover's segment took in)
+    own = order[jnp.clip(seg.labels - 1, 0, cfg.max_segments - 1)]
+    in_front = jnp.where((seg.labels > 0) & valid & (own < 0) & ~(explained[bgi] & (bg > 0)),
+                         -own, 0.0)
+    in_front = jnp.where(occluded, params.evidence_step, in_front)
+    return state, BackgroundOut(segment_ids, bg, reacquired, use, belief, d2_seg, perm, status,
+                                in_front)

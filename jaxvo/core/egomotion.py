@@ -228,7 +228,7 @@ def _best_start(pts: Points, weights, *, T_init, candidates):
 
     The starts are ``T_init``, ``candidates`` and the plain weighted fit on ``weights``;
     the best has the least truncated cost (each point's normalised residual, capped at the
-    inlier test, weighted as the fit weighs it)."""
+    inlier test, weighted by ``weights``)."""
     w0 = _prior_weights(weights, _precision(pts))
     T_fit, ok_fit = fit_rigid_cols(pts.src, pts.dst, w0)
     starts = [T_fit[None]]
@@ -238,7 +238,12 @@ def _best_start(pts: Points, weights, *, T_init, candidates):
         starts.append(jnp.asarray(candidates, jnp.float32))
     starts = jnp.concatenate(starts)
     d2 = residuals_many(starts, pts.src, pts.dst, pts.noise)[0]
-    cost = jnp.sum(w0[None] * jnp.minimum(d2, pts.thr), axis=1)
+    # each point counts by its weight alone (its belief), not by its depth's precision too:
+    # which motion is the background's is a question of how much of the scene follows it,
+    # and a precision of 1 / z^2 let a near mover's many not-yet-established points
+    # outweigh the background's established ones
+    cost = jnp.sum(jnp.where(weights > 0, weights, 0.0)[None] * jnp.minimum(d2, pts.thr),
+                   axis=1)
     best = jnp.argmin(jnp.where(jnp.all(jnp.isfinite(starts), axis=(1, 2)), cost, jnp.inf))
     return starts[best], (best > 0) | ok_fit
 

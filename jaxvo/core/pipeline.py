@@ -41,6 +41,7 @@ from jaxvo.core.geometry import full_precision
 from jaxvo.core.identifiers import identify, measured_labels
 from jaxvo.core.keyframe import KeyframeState, init_keyframe, keyframe_support, update_keyframe
 from jaxvo.core.noise import NoiseScale, frame_points, init_noise, transfer, update_noise
+from jaxvo.core.occlusion import OcclusionState, init_occlusion, update_occlusion
 from jaxvo.core.spatial import Segmentation, segment_points
 from jaxvo.core.temporal import TemporalOut, TemporalState, init_temporal, update_temporal
 from jaxvo.status import Status, first_failure
@@ -55,6 +56,7 @@ class PipelineState(NamedTuple):
     frame: jax.Array  # () int32, frame pairs processed so far
     noise: NoiseScale  # the sensor noise model (jaxvo.core.noise; calibrated when noise_rate > 0)
     keyframe: KeyframeState | None = None  # the latest keyframe (cfg.keyframes), None: off
+    occlusion: OcclusionState | None = None  # the occlusion memory of the last image
 
     @property
     def T_w_c(self):
@@ -94,7 +96,7 @@ def init_pipeline(*, cfg: Config, grid: tuple[int, int], T_w_c0=None,
     return PipelineState(temporal=init_temporal(cfg=cfg, grid=grid),
                          background=init_background(cfg=cfg), ego=init_ego(T0),
                          frame=jnp.int32(0), noise=init_noise(Params() if params is None else params),
-                         keyframe=keyframe)
+                         keyframe=keyframe, occlusion=init_occlusion(grid=grid))
 
 
 @full_precision
@@ -107,7 +109,7 @@ def step(state: PipelineState, flow, key, params: Params, *, cfg: Config, grid,
       flow: a ``GridFlow`` of device or host arrays, see :mod:`jaxvo.host.flow`: the
         points ``pts_prev``, ``pts_cur``, ``valid`` and the pair's ``status`` (the frame's
         points); ``focal``, ``fb_error``, ``depth_slope`` (their noise); ``uv_prev``,
-        ``uv_cur`` (the displacement that carries the grid model forward); ``depth_seen``
+        ``uv_cur`` (the displacement that carries the grid model forward); ``depth_prev``
         (cells without depth keep their evidence). Every field is read.
       key: PRNG key of this frame (hypothesis sampling).
       params: numeric settings, possibly traced (vmappable).
@@ -123,13 +125,18 @@ def step(state: PipelineState, flow, key, params: Params, *, cfg: Config, grid,
     # 1. spatial segmentation (Algorithms 1, 2) under the sensor noise model
     seg = segment_points(key, pts, params, cfg=cfg, grid=grid, batch_axis=batch_axis)
     labels = measured_labels(seg, pts.valid, cfg=cfg)
-    # 2. identifiers (Algorithm 3) and the background: the segment whose motion explains
-    # the most surface that earlier frames established as background
+    # 2. identifiers (Algorithm 3) and the background: the segment that lies behind the
+    # motions unlike its own and the surfaces seen before (the occlusion memory), of the
+    # surface earlier frames established as background
     segment_ids = identify(state.temporal.identifiers, labels, params, cfg=cfg)
+    occlusion, _, occluded = update_occlusion(
+        state.occlusion, flow.depth_prev, flow.uv_prev, state.ego.T_w_c, flow.camera,
+        state.noise, pts.tie, grid=grid, cell=cfg.cell)
     background, bg = update_background(
         state.background, seg, pts, predicted_motion(state.ego), state.ego.have_last, params,
-        cfg=cfg, segment_ids=segment_ids, evidence=state.temporal.evidence,
-        initialised=state.temporal.identifiers.initialised)
+        cfg=cfg, grid=grid, segment_ids=segment_ids, evidence=state.temporal.evidence,
+        initialised=state.temporal.identifiers.initialised, scale=state.noise,
+        occluded=occluded)
     # 3. ego-motion from the best of the frame's candidate motions, its support grown over
     # the established background; with keyframes also on the keyframe's static points
     # tracked into this image (jaxvo.core.keyframe)
@@ -142,17 +149,18 @@ def step(state: PipelineState, flow, key, params: Params, *, cfg: Config, grid,
     candidates = jnp.concatenate([predicted_motion(state.ego)[None], seg.motions])
     ego, eo = update_egomotion(state.ego, ego_pts, ego_weights,
                                seg.motions[jnp.maximum(bg.background - 1, 0)],
-                               first_failure(flow.status, seg.status), params, cfg=cfg,
+                               first_failure(flow.status, seg.status, bg.status), params,
+                               cfg=cfg,
                                belief=belief, candidates=candidates)
     eo = eo._replace(used=eo.used[:pts.valid.shape[0]])
     # 4. evidence of each point's own motion under the ego-motion
     explained, delta = moving_evidence(seg.labels, pts, eo.T_cur_prev, bg.d2_seg, eo.ok,
-                                       params, cfg=cfg, grid=grid)
+                                       params, cfg=cfg, grid=grid, in_front=bg.in_front)
     # 5. labels: the dual-mode grid model, compensated to the current image
     temporal, tout = update_temporal(
         state.temporal, labels, flow.uv_cur - flow.uv_prev, pts.valid, params, cfg=cfg,
         grid=grid, segment_ids=bg.segment_ids, explained=explained, evidence_delta=delta,
-        depth_seen=flow.depth_seen, permutation=bg.permutation)
+        depth_prev=flow.depth_prev, permutation=bg.permutation)
     # 6. the sensor noise, from the residuals of the points the ego-motion was fitted to
     noise = state.noise
     if cfg.noise_calibration:
@@ -171,7 +179,8 @@ def step(state: PipelineState, flow, key, params: Params, *, cfg: Config, grid,
     if kout is not None:
         out = out._replace(keyframes=kout.count)
     return PipelineState(temporal=temporal, background=background, ego=ego,
-                         frame=state.frame + 1, noise=noise, keyframe=kf_state), out
+                         frame=state.frame + 1, noise=noise, keyframe=kf_state,
+                         occlusion=occlusion), out
 
 
 def _output(ego: EgoState, eo, seg: Segmentation, bg: BackgroundOut, tout: TemporalOut,

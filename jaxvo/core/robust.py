@@ -59,10 +59,10 @@ def mad_scale(x, mask, times: float = 1.0):
 
 
 def enough_points(mask, params):
-    """() bool whether the points of ``mask`` (n,) bool are enough to fit and judge the
-    camera's motion: at least ``params.min_static_points`` (the ego-motion's fit, the noise
-    calibration, the window's refinement of a pair)."""
-    return jnp.sum(mask) >= params.min_static_points
+    """(...,) bool whether the points of ``mask`` (..., n) bool are enough to fit and judge
+    the camera's motion: at least ``params.min_static_points`` (the ego-motion's fit, the
+    noise calibration, the window's refinement of a pair, a background in view)."""
+    return jnp.sum(mask, axis=-1) >= params.min_static_points
 
 
 def huber_weights(r, c, w):

@@ -82,7 +82,7 @@ def update_temporal(
     segment_ids,
     explained,
     evidence_delta,
-    depth_seen=None,
+    depth_prev=None,
     permutation=None,
 ) -> tuple[TemporalState, TemporalOut]:
     """One frame of motion temporal segmentation (Algorithm 3, eqs. 4.1-4.9).
@@ -103,8 +103,8 @@ def update_temporal(
         explains; they are measured as identifier 1.
       evidence_delta: (n,) float32 log-likelihood ratios (moving over static) of this
         frame's measurement of each cell (:func:`jaxvo.core.evidence.moving_evidence`).
-      depth_seen: (n,) bool, the cells with a depth reading in the previous image (the
-        others are hidden and keep their evidence); None: every cell.
+      depth_prev: (n,) float32, the previous image's depth at each cell (a cell without a
+        reading, 0, is hidden and keeps its evidence); None: every cell seen.
       permutation: (max_ids,) int32 the background choice's renumbering of the identifiers
         (:class:`jaxvo.core.background.BackgroundOut`); None: none.
 
@@ -117,7 +117,7 @@ def update_temporal(
     segment_ids, matched = matched_labels(labels, segment_ids, explained, cfg=cfg)
     # 4.2.1: the grid models with the matched label as measurement
     model = update_grid_model(state.model, matched, params, cfg=cfg, permutation=permutation)
-    hidden = jnp.zeros_like(flow_valid) if depth_seen is None else ~depth_seen
+    hidden = jnp.zeros_like(flow_valid) if depth_prev is None else ~(depth_prev > 0)
     evidence = update_evidence(state.evidence, evidence_delta, flow_valid, hidden, params)
     # the window keeps this frame's identifier map; unmeasured cells keep the grid's label
     identifiers = update_identifiers(state.identifiers, seen,

@@ -106,9 +106,11 @@ class GridFlow(NamedTuple):
     valid: np.ndarray  # (n,) bool, passed LK, forward-backward, similarity and depth checks
     status: np.ndarray  # () int32 Status code: OK, or BAD_INPUT
     focal: np.ndarray  # () float32 pixels, the camera's mean focal length (jaxvo.core.noise)
-    # (n,) bool, the previous image has a depth reading at the cell; False: the cell is
-    # hidden from the sensor (nearer or farther than its range, or a hole)
-    depth_seen: np.ndarray
+    # (n,) float32 metres, the previous image's refined depth at each grid point (0: no
+    # reading, the cell is hidden from the sensor: nearer or farther than its range, or a
+    # hole), tracked or not: what the occlusion memory compares (jaxvo.core.occlusion)
+    depth_prev: np.ndarray
+    camera: np.ndarray  # (4,) float32 pixels, fx, fy, cx, cy of the (depth-registered) camera
     # The tracker's own quality of each valid point (0 where invalid), which the noise
     # model adds to its sequence-wide scales (jaxvo.core.noise.point_noise):
     fb_error: np.ndarray  # (n,) float32 pixels, forward-backward error of the track
@@ -118,9 +120,15 @@ class GridFlow(NamedTuple):
     depth_slope: np.ndarray
 
 
+def camera_row(K: Intrinsics) -> np.ndarray:
+    """(4,) float32 ``fx, fy, cx, cy`` of ``K``, as :class:`GridFlow` carries them."""
+    return np.array([K.fx, K.fy, K.cx, K.cy], np.float32)
+
+
 def invalid_flow(uv_grid: np.ndarray, status: int = Status.BAD_INPUT, *,
-                 focal: float = 1.0) -> GridFlow:
-    """An all-invalid :class:`GridFlow` on the grid ``uv_grid`` (n, 2) with ``status``."""
+                 focal: float = 1.0, camera: np.ndarray | None = None) -> GridFlow:
+    """An all-invalid :class:`GridFlow` on the grid ``uv_grid`` (n, 2) with ``status``
+    (``camera`` (4,), default a camera of focal length ``focal`` centred on the grid)."""
     n = uv_grid.shape[0]
     uv = np.asarray(uv_grid, np.float32)
     return GridFlow(
@@ -131,7 +139,9 @@ def invalid_flow(uv_grid: np.ndarray, status: int = Status.BAD_INPUT, *,
         valid=np.zeros(n, bool),
         status=np.int32(status),
         focal=np.float32(focal),
-        depth_seen=np.zeros(n, bool),
+        depth_prev=np.zeros(n, np.float32),
+        camera=(np.asarray(camera, np.float32) if camera is not None else np.array(
+            [focal, focal, *(uv.max(axis=0) + uv.min(axis=0)) / 2], np.float32)),
         fb_error=np.zeros(n, np.float32),
         depth_slope=np.zeros(n, np.float32),
     )
@@ -298,7 +308,8 @@ class GridFlowTracker:
         grey = _as_grey(bgr, self.height, self.width)
         d = _as_depth(depth, self.height, self.width)
         if grey is None or d is None:
-            return invalid_flow(self.uv_grid, Status.BAD_INPUT, focal=self.K.focal)
+            return invalid_flow(self.uv_grid, Status.BAD_INPUT, focal=self.K.focal,
+                                camera=camera_row(self.K))
         # this frame's grid points and their depth are read by the next pair only: beside LK
         grid_depth = _beside(self._grid_points, grey, d)
         prev = self._prev
@@ -395,7 +406,8 @@ class GridFlowTracker:
             valid=valid,
             status=np.int32(Status.OK),
             focal=np.float32(self.K.focal),
-            depth_seen=prev.z_grid_ok.copy(),
+            depth_prev=np.where(prev.z_grid_ok, prev.z_grid, 0.0).astype(np.float32),
+            camera=camera_row(self.K),
             fb_error=fb_error,
             depth_slope=depth_slope,
         )
@@ -626,7 +638,8 @@ def sequence_flows(
                     kf_flows.append(chain.keyframe_flow)
         if i and progress is not None:
             progress(i, n_frames - 1)
-    stacked = stack_flows(flows, invalid_flow(tracker.uv_grid, focal=seq.intrinsics.focal))
+    stacked = stack_flows(flows, invalid_flow(tracker.uv_grid, focal=seq.intrinsics.focal,
+                                              camera=camera_row(seq.intrinsics)))
     keyframes = (stack_flows(kf_flows, invalid_keyframe_flow(tracker.n, cfg.keyframe_window)) if cfg.keyframes
                  else None)
     return SequenceFlows(stacked, np.asarray(frames, np.int64), dropped, keyframes)

@@ -273,11 +273,13 @@ def share_data(data: SequenceData | None) -> SequenceData:
         head[:] = (T, n, data.height, data.width)
     T, n, h, w = (int(v) for v in from_first(head))
     if data is None:
-        flows = GridFlow(np.zeros((T, n, 3), np.float32), np.zeros((T, n, 3), np.float32),
-                         np.zeros((T, n, 2), np.float32), np.zeros((T, n, 2), np.float32),
-                         np.zeros((T, n), bool), np.zeros((T,), np.int32),
-                         np.zeros((T,), np.float32), np.zeros((T, n), bool),
-                         np.zeros((T, n), np.float32), np.zeros((T, n), np.float32))
+        flows = GridFlow(
+            pts_prev=np.zeros((T, n, 3), np.float32), pts_cur=np.zeros((T, n, 3), np.float32),
+            uv_prev=np.zeros((T, n, 2), np.float32), uv_cur=np.zeros((T, n, 2), np.float32),
+            valid=np.zeros((T, n), bool), status=np.zeros((T,), np.int32),
+            focal=np.zeros((T,), np.float32), depth_prev=np.zeros((T, n), np.float32),
+            camera=np.zeros((T, 4), np.float32), fb_error=np.zeros((T, n), np.float32),
+            depth_slope=np.zeros((T, n), np.float32))
         data = SequenceData("", flows, np.eye(4), np.zeros(T + 1), None, None, h, w)
     flows = GridFlow(*(from_first(np.asarray(a)) for a in data.flows))
     T0 = from_first(np.asarray(data.T_w_c0, np.float64))
