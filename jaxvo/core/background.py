@@ -27,18 +27,14 @@ from jaxvo.status import Status
 
 
 class BackgroundState(NamedTuple):
-    """Each identifier's support and evidence as the background (carried by the pipeline)."""
+    """Each identifier's support as the background (carried by the pipeline)."""
 
-    score: jax.Array  # (max_ids,) float32 support accumulated over frames, decaying
-    # (max_ids,) float32 log-odds that the identifier's segment is the background, from the
-    # evidence of which motion lies behind (depth order), accumulated over frames
-    behind: jax.Array
+    score: jax.Array  # (max_ids,) float32 accumulated over frames, decaying
 
 
 def init_background(*, cfg: Config) -> BackgroundState:
-    """No support, no evidence yet."""
-    zeros = jnp.zeros((cfg.max_ids,), jnp.float32)
-    return BackgroundState(zeros, zeros)
+    """No support yet."""
+    return BackgroundState(jnp.zeros((cfg.max_ids,), jnp.float32))
 
 
 def depth_order(labels, z, sigma, explained, tie, *, grid: tuple[int, int], cfg: Config):
@@ -82,64 +78,54 @@ def depth_order(labels, z, sigma, explained, tie, *, grid: tuple[int, int], cfg:
     return behind, front
 
 
-def order_logodds(behind, front, params: Params, occluded=None):
-    """(S,) float32 this frame's log-likelihood of each segment's motion being the
-    background's, from what lies in front of what (:func:`depth_order`), against the order
-    being random (as it is where no background is in view and movers border movers).
+def order_loglik(behind, front, params: Params):
+    """``(vote (S,), evidence (S,))`` float32: what each segment's depth order
+    (:func:`depth_order`) says of its motion being the background's, against the order
+    being random (as it is where movers border movers).
 
     Where a segment is the background, each decisive pair with another motion has it
     behind with probability ``p = params.order_reliability``: ``log(2 p)`` a pair behind,
-    ``log(2 (1 - p))`` a pair in front. A segment the occlusion memory holds in front of
-    what was seen (``occluded`` (S,) bool: most of its points, :mod:`jaxvo.core.occlusion`)
-    is an occluder, not the background: ``-params.evidence_step``, as much as one frame
-    can say (a few marked points in a segment are the memory's errors where the camera's
-    motion was only predicted; they keep those points out of the fit, not the segment
-    out of the background). Within ``+-params.evidence_step``, as every evidence of one
-    frame."""
+    ``log(2 (1 - p))`` a pair in front. The pairs along one boundary are one observation
+    of how two surfaces lie, not many (a mover behind a desk is behind along the whole
+    edge): for the choice of one frame, ``vote`` is their mean, within ``[log(2 (1 - p)),
+    log(2 p)]``, so it decides between segments of alike prior and cannot overturn a
+    clear one; ``evidence``, their sum within ``+-params.evidence_step`` as every evidence
+    of one frame, is what each point of the segment learns (the moving evidence
+    accumulates it over frames, :func:`jaxvo.core.evidence.moving_evidence`)."""
     p = jnp.asarray(params.order_reliability, jnp.float32)
-    ll = (jnp.sum(behind, axis=1) * jnp.log(2.0 * p)
-          + jnp.sum(front, axis=1) * jnp.log(2.0 * (1.0 - p)))
-    if occluded is not None:
-        ll = jnp.where(occluded, -params.evidence_step, ll)
-    return jnp.clip(ll, -params.evidence_step, params.evidence_step)
+    b, f = jnp.sum(behind, axis=1), jnp.sum(front, axis=1)
+    total = b * jnp.log(2.0 * p) + f * jnp.log(2.0 * (1.0 - p))
+    vote = total / jnp.maximum(b + f, 1.0)
+    return vote, jnp.clip(total, -params.evidence_step, params.evidence_step)
 
 
 def choose_background(state: BackgroundState, segment_ids, support, consistency, initialised,
-                      params: Params, order_counts=None, holds_background=None, occluded=None):
-    """The background of this frame: the segment that lies behind the motions unlike its
-    own, among those with support as the background accumulated over frames; it becomes
-    identifier 1.
+                      params: Params, vote=None, candidate=None):
+    """The background of this frame: the identifier with the most support as the background
+    accumulated over frames, weighted by how well its segment moves as the camera was
+    predicted to and by what lies behind what; it becomes identifier 1.
 
     ``support`` (S,) is each segment's support this frame (the surface it explains, see
-    :func:`background_support`); each identifier's accumulated score decays by
-    ``params.evidence_decay`` a frame and adds the support of the segment carrying it.
-    ``consistency`` (S,) weighs each segment by this frame's evidence (the predicted camera
-    motion, :func:`background_support`): the history says which identifier has been the
-    background, the prediction whether its segment still moves as the background does, and
-    their product is each segment's prior. Without the product, the history alone kept the
-    background on an object that a first frame had merged with it
-    (docs/report/core_decisions.md).
-
-    ``order_counts`` ``(behind, front)`` (S, S) (:func:`depth_order`) and ``occluded`` (S,)
-    bool (segments the occlusion memory holds in front) are the evidence: each
-    identifier's log-odds of being the background (``BackgroundState.behind``) adds this
-    frame's depth order (:func:`order_logodds`), without decay (a change of mind needs
-    evidence against), within
-    ``+-(logit(confidence) + params.evidence_margin)``. The background is the segment
-    present now of highest posterior, the log of its prior relative to the best plus its
-    log-odds, so a mover in front of the background loses to it whatever its size. A
-    segment whose log-odds are established against it (below ``-logit(confidence)``) is
-    not the background unless it ``holds_background`` (S,) bool (its motion explains
-    enough points established as background: a segment that took in the background
-    besides a mover); where no segment can be, no background is in view. When the
-    background's identifier is not 1, the two identifiers swap (the background is
-    re-acquired in this frame, never lost): in the scores here, and by the permutation
-    returned in every later stage's state. ``initialised`` () bool: some segment had an
-    identifier before (a swap then re-acquires the background).
+    :func:`background_support`); each identifier's accumulated score decays
+    by ``params.evidence_decay`` a frame and adds the support of the segment carrying it.
+    ``consistency`` (S,) weighs each segment by this frame's evidence (the predicted
+    camera motion, :func:`background_support`): the history says which
+    identifier has been the background, the prediction whether its segment still moves as
+    the background does, and their product is each segment's prior. Without the product,
+    the history alone kept the background on an object that a first frame had merged with
+    it (docs/report/core_decisions.md). ``vote`` (S,), this frame's depth order
+    (:func:`order_loglik`), is added to the log of the prior (relative to the best): the
+    posterior. The background is the segment present now with the highest posterior (over
+    the segments of most weighted support when no segment has an identifier), among the
+    ``candidate`` (S,) bool segments (those not made mostly of known movers,
+    :func:`update_background`): where there is none, no background is in view. When its
+    identifier is not 1, the two identifiers swap (the background is re-acquired in this
+    frame, never lost): in the scores here, and by the permutation returned in every
+    later stage's state. ``initialised`` () bool: some segment had an identifier before (a
+    swap then re-acquires the background).
 
     Returns ``(state, segment_ids, background () int32 spatial label 1..S or 0,
-    reacquired () bool, permutation (max_ids,) int32, order (S,) float32 this frame's
-    depth-order log-likelihoods)``.
+    reacquired () bool, permutation (max_ids,) int32)``.
     """
     s, m = segment_ids.shape[0], state.score.shape[0]
     present = segment_ids > 0
@@ -150,20 +136,12 @@ def choose_background(state: BackgroundState, segment_ids, support, consistency,
     weighted = jnp.where(support > 0, seg_score * consistency, -1.0)
     any_id = jnp.any(present & (support > 0))
     prior = jnp.where(any_id, weighted, jnp.where(support > 0, support * consistency, -1.0))
-    behind = state.behind
-    logodds = jnp.where(present, behind[idx], 0.0)
-    delta = jnp.zeros((s,), jnp.float32)
-    if order_counts is not None:
-        delta = order_logodds(*order_counts, params, occluded)
-        bound = moving_logodds(params) + params.evidence_margin
-        behind = jnp.clip(behind + jnp.zeros((m,), jnp.float32).at[idx].add(
-            jnp.where(present, delta, 0.0)), -bound, bound)
-        logodds = jnp.where(present, behind[idx], delta)
     usable = prior > 0
-    if order_counts is not None:
-        holds = jnp.zeros((s,), bool) if holds_background is None else holds_background
-        usable = usable & ((logodds > -moving_logodds(params)) | holds)
-    post = jnp.log(jnp.maximum(prior, tiny()) / jnp.maximum(jnp.max(prior), tiny())) + logodds
+    if candidate is not None:
+        usable = usable & candidate
+    post = jnp.log(jnp.maximum(prior, tiny()) / jnp.maximum(jnp.max(prior), tiny()))
+    if vote is not None:
+        post = post + vote
     pick = jnp.argmax(jnp.where(usable, post, -jnp.inf))
     has = jnp.any(usable)
     background = jnp.where(has, pick + 1, 0).astype(jnp.int32)
@@ -172,14 +150,12 @@ def choose_background(state: BackgroundState, segment_ids, support, consistency,
     perm = swap_perm(bg_id, m)
     segment_ids = relabel(segment_ids, perm)
     # a segment without an identifier chosen as the background takes identifier 1 (the
-    # segment that had it keeps it only if it is the background), and its log-odds
+    # segment that had it keeps it only if it is the background)
     segment_ids = jnp.where(jnp.arange(s) == pick, jnp.where(has, STATIC_ID, segment_ids[pick]),
                             jnp.where(has & ~present[pick] & (segment_ids == STATIC_ID), 0,
                                       segment_ids))
-    behind = behind[perm]
-    behind = jnp.where(has & ~present[pick] & (jnp.arange(m) == 0), logodds[pick], behind)
-    return (BackgroundState(score[perm], behind), segment_ids.astype(jnp.int32), background,
-            reacquired, perm, delta)
+    return (BackgroundState(score[perm]), segment_ids.astype(jnp.int32), background, reacquired,
+            perm)
 
 
 class BackgroundOut(NamedTuple):
@@ -285,19 +261,29 @@ def update_background(state: BackgroundState, seg, pts: Points, T_pred, have_las
                                               have_last, pts.thr, params.unpredicted_support)
     z_prev = pts.src[2]
     explained = (d2_seg <= pts.thr) & valid
-    counts = depth_order(jnp.where(valid, seg.labels, 0), z_prev,
-                         scale.depth_coeff * z_prev * z_prev, explained, pts.tie, grid=grid,
-                         cfg=cfg)
-    member = seg.labels[None, :] == jnp.arange(1, cfg.max_segments + 1)[:, None]
-    holds = enough_points(explained & (belief >= 1.0), params) & (seg.sizes > 0)
-    state, segment_ids, bg, reacquired, perm, order = choose_background(
-        state, segment_ids, support, consistency, initialised, params, counts, holds,
-        explains(occluded[None, :], member & valid, MOST))
+    behind, front = depth_order(jnp.where(valid, seg.labels, 0), z_prev,
+                                scale.depth_coeff * z_prev * z_prev, explained, pts.tie,
+                                grid=grid, cfg=cfg)
+    vote, order = order_loglik(behind, front, params)
+    # a segment made mostly of known movers (established moving, or held nearer than what
+    # was seen there) is not the background, unless its motion explains enough points
+    # established as background (a segment that took in the background besides a mover)
+    member = (seg.labels[None, :] == jnp.arange(1, cfg.max_segments + 1)[:, None]) & valid
+    mover = (evidence > moving_logodds(params)) | occluded
+    candidate = (~explains(mover[None, :], member, MOST)
+                 | enough_points(explained & (belief >= 1.0), params))
+    state, segment_ids, bg, reacquired, perm = choose_background(
+        state, segment_ids, support, consistency, initialised, params, vote, candidate)
     bgi = jnp.maximum(bg - 1, 0)
     static_seg = (explained_segments(seg.labels, d2_seg[bgi], valid, pts.thr, cfg=cfg)
                   | (jnp.arange(1, cfg.max_segments + 1) == bg))
     in_moving_seg = (seg.labels > 0) & ~static_seg[jnp.clip(seg.labels - 1, 0, None)]
     use = jnp.where(in_moving_seg, 0.0, belief)
+    # the established decides: where enough of the points the ego-motion may use are
+    # established as background, the others (new in view, or their evidence faded) wait
+    # until the evidence establishes them; they decide only where too few are
+    established = use >= 1.0
+    use = jnp.where(enough_points(established, params), jnp.where(established, use, 0.0), use)
     status = jnp.where((bg == 0) & (seg.num_segments > 0), jnp.int32(Status.NO_BACKGROUND),
                        jnp.int32(Status.OK))
     # the points of a segment in front of another motion are movers, but for those the
