@@ -19,19 +19,42 @@ REAL_SEQUENCES = (TUM_WALKING, SEVEN_SCENES)
 
 
 def with_groundtruth(seq: InMemorySequence, truth: Path, max_diff: float = 0.02) -> InMemorySequence:
-    """``seq`` with the ground truth of each frame taken from the trajectory file ``truth``
-    (the pose nearest in time, within ``max_diff`` seconds), when the file is there: TUM's
-    motion capture, kept apart from the clip's folder (the data root's ``ground_truth/``).
-    A frame without a pose that near leaves the sequence without ground truth."""
+    """``seq`` with the ground truth of its frames taken from the trajectory file ``truth``
+    (for each frame the pose nearest in time, within ``max_diff`` seconds; frames without
+    one are left out of it, as evo's association leaves them out), when the file is
+    there: TUM's motion capture, kept apart from the clip's folder (the data root's
+    ``ground_truth/``), which starts 0.12 s after the clip's first frame."""
     from jaxvo.host.io import Trajectory, pose_at, read_trajectory
 
     if not truth.is_file():
         return seq
     gt = read_trajectory(truth)
-    poses = [pose_at(gt, float(t), max_diff=max_diff) for t in seq.timestamps]
-    if all(p is not None for p in poses):
-        seq.groundtruth = Trajectory(np.asarray(seq.timestamps, np.float64), np.stack(poses))
+    t = np.asarray(seq.timestamps, np.float64)
+    poses = [pose_at(gt, float(x), max_diff=max_diff) for x in t]
+    keep = [i for i, p in enumerate(poses) if p is not None]
+    if keep:
+        seq.groundtruth = Trajectory(t[keep], np.stack([poses[i] for i in keep]))
     return seq
+
+
+def groundtruth(data: dict):
+    """A cached case's ground truth (``gt_poses`` at ``gt_times``, or at every frame's
+    timestamp), or None."""
+    from jaxvo.host.io import Trajectory
+
+    if "gt_poses" not in data:
+        return None
+    return Trajectory(data.get("gt_times", data["timestamps"]), data["gt_poses"])
+
+
+def first_pose(data: dict) -> np.ndarray:
+    """Where a run over a cached case starts: the ground truth's pose of the first frame,
+    where it has one (the trajectories then share a frame without alignment), else the
+    identity."""
+    times = data.get("gt_times", data["timestamps"])
+    if "gt_poses" in data and abs(float(times[0]) - float(data["timestamps"][0])) < 1e-6:
+        return data["gt_poses"][0]
+    return np.eye(4)
 
 
 def tum_walking_truth() -> Path:

@@ -31,14 +31,14 @@ from pathlib import Path
 import numpy as np
 
 sys.path.insert(0, str(Path(__file__).resolve().parent))
-from _common import SEVEN_SCENES, log, machine_line, markdown_table
+from _common import SEVEN_SCENES, first_pose, groundtruth, log, machine_line, markdown_table
 from bench_robustness import CFG, peers_alone, prepare
 from bench_seeds import config_from, run_seeds, spread
 from splits import Case
 
 from jaxvo.config import Params
 from jaxvo.evaluation.scores import trajectory_scores
-from jaxvo.host.io import InMemorySequence, Trajectory, data_root
+from jaxvo.host.io import InMemorySequence, data_root
 from jaxvo.host.peers import OPENCV_PEERS
 from jaxvo.synth.scenes import composite_sequence, make_sequence
 
@@ -120,7 +120,7 @@ def run_group(name: str, cases: list[Case], params: Params, cfg, cache: Path) ->
     rows = []
     for s, case in enumerate(cases):
         data = prepare(case, cache, cfg)
-        T0 = data["gt_poses"][0]
+        T0 = first_pose(data)
         # one seed a scene: the scene's own seed is the run's
         trajs, outs = run_seeds(data, T0, params, cfg, 1, first_seed=s)
         on_mover = data["grid_gt"][:-1].astype(bool)
@@ -128,7 +128,7 @@ def run_group(name: str, cases: list[Case], params: Params, cfg, cache: Path) ->
         ok = np.asarray(outs.status[0]) == 0
         mk = motion_locked(np.asarray(outs.T_cur_prev[0]), lazy_sequence(case),
                            data["flow_pts_prev"], data["flow_valid"]) & ok
-        gt = Trajectory(data["timestamps"], data["gt_poses"])
+        gt = groundtruth(data)
         peers = peers_alone(case, cache)
         best = min(OPENCV_PEERS, key=lambda k: peers[k]["ate_rmse_m"]) if peers else None
         status = np.asarray(outs.status[0])

@@ -34,7 +34,7 @@ import numpy as np
 
 sys.path.insert(0, str(Path(__file__).resolve().parent))
 import orbslam3_peer
-from _common import log, machine, markdown_table
+from _common import first_pose, groundtruth, log, machine, markdown_table
 from splits import Case, cases, runnable
 
 import jaxvo.host.keyframes
@@ -129,8 +129,10 @@ def build_flow(case: Case, path: Path, cfg: Config):
     data["timestamps"] = np.asarray(seq.timestamps, np.float64)
     data["size"] = np.array([seq.height, seq.width])
     gt = seq.groundtruth
-    if gt is not None and len(gt) == len(seq):
+    if gt is not None and len(gt) > 0:
         data["gt_poses"] = np.asarray(gt.poses, np.float64)
+        if len(gt) != len(seq):  # a ground truth of some frames (associated by time)
+            data["gt_times"] = np.asarray(gt.timestamps, np.float64)
     path.parent.mkdir(parents=True, exist_ok=True)
     np.savez_compressed(path, **data)
     return data, seq
@@ -196,7 +198,7 @@ def run_jaxvo(data: dict, params: Params, cfg: Config, seed: int):
     the same per-frame keys as ``run_scan``, so the same result."""
     h, w = (int(x) for x in data["size"])
     grid = grid_shape(h, w, cfg.cell)
-    T0 = data.get("gt_poses", np.eye(4)[None])[0]
+    T0 = first_pose(data)
     state = init_pipeline(cfg=cfg, grid=grid, T_w_c0=T0, params=params)
     key = jax.random.key(seed)
     p = params_as_arrays(params)
@@ -229,7 +231,7 @@ def score(case: Case, data: dict, traj, outs, final_ids, cache: Path, cfg: Confi
     res["dynamic_pixels_pct"] = 100.0 * float(np.mean([m.mean() for m in masks]))
     res["dynamic_pixels_pct_max"] = 100.0 * float(np.max([m.mean() for m in masks]))
     if "gt_poses" in data:
-        gt = Trajectory(data["timestamps"], data["gt_poses"])
+        gt = groundtruth(data)
         res.update(trajectory_scores(gt, traj))
         peers = peers_alone(case, cache)
         if peers:

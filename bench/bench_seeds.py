@@ -33,7 +33,7 @@ import numpy as np
 
 sys.path.insert(0, str(Path(__file__).resolve().parent))
 import orbslam3_peer
-from _common import log, machine_line, markdown_table
+from _common import first_pose, groundtruth, log, machine_line, markdown_table
 from bench_people import without_people
 from bench_robustness import CFG, peers_alone, prepare
 from people_masks import people_masks
@@ -114,7 +114,7 @@ def spread(values) -> dict:
 
 def score_case(case: Case, data: dict, params: Params, seeds: int, cache: Path,
                cfg: Config = CFG) -> dict:
-    T0 = data.get("gt_poses", np.eye(4)[None])[0]
+    T0 = first_pose(data)
     t0 = time.perf_counter()
     trajs, outs = run_seeds(data, T0, params, cfg, seeds)
     row: dict = {"case": case.name, "split": case.split, "kind": case.kind,
@@ -126,7 +126,7 @@ def score_case(case: Case, data: dict, params: Params, seeds: int, cache: Path,
     if cfg.keyframes:
         row["keyframes"] = int(np.median(outs.keyframes[:, -1]))
     if "gt_poses" in data:
-        gt = Trajectory(data["timestamps"], data["gt_poses"])
+        gt = groundtruth(data)
         row["ate_mm"] = spread([1e3 * trajectory_scores(gt, tr)["ate_rmse_m"] for tr in trajs])
         peers = peers_alone(case, cache)
         if peers:
@@ -146,7 +146,7 @@ def score_case(case: Case, data: dict, params: Params, seeds: int, cache: Path,
     if case.kind == "people" and "gt_poses" in data:
         oracle = prepare(reference_case(case), cache, cfg)
         refs, _ = run_seeds(oracle, T0, params, cfg, seeds)
-        gt = Trajectory(data["timestamps"], data["gt_poses"])
+        gt = groundtruth(data)
         row["oracle_ate_mm"] = spread([1e3 * trajectory_scores(gt, tr)["ate_rmse_m"]
                                        for tr in refs])
     return row

@@ -570,7 +570,7 @@ def _seg_vec(values, fill=0, dtype=jnp.float32):
 def _bg_state(bg_score):
     score = np.zeros(M, np.float32)
     score[: len(bg_score)] = bg_score
-    return BackgroundState(jnp.asarray(score), jnp.zeros(M, jnp.float32))
+    return BackgroundState(jnp.asarray(score))
 
 
 def choose(bg_score, ids, support, consistency, initialised=True, **kw):
@@ -640,8 +640,8 @@ def test_the_swap_relabels_every_map_model_and_count_consistently():
     ))
     score0 = np.r_[50.0, 1.0, 10.0, np.zeros(M - 3)].astype(np.float32)
     seg_ids = _seg_vec([1, 3, 2], dtype=jnp.int32)
-    bg, new_ids, background, reacquired, perm_out, _ = _choose(
-        BackgroundState(jnp.asarray(score0), jnp.zeros(M, jnp.float32)), seg_ids, _seg_vec([5.0, 60.0, 1.0]),
+    bg, new_ids, background, reacquired, perm_out = _choose(
+        BackgroundState(jnp.asarray(score0)), seg_ids, _seg_vec([5.0, 60.0, 1.0]),
         _seg_vec([0.1, 1.1, 0.1]), jnp.bool_(True), params())
     assert int(background) == 2 and bool(reacquired)
     perm = np.arange(M + 1)
