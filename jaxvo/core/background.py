@@ -135,7 +135,7 @@ def choose_background(state: BackgroundState, segment_ids, support, consistency,
     seg_score = jnp.where(present, score[idx], -1.0)
     weighted = jnp.where(support > 0, seg_score * consistency, -1.0)
     any_id = jnp.any(present & (support > 0))
-    prior = jnp.where(any_id, weighted, jnp.where(support > 0, support * consistency, -1.0))
+    prior = jnp.where(support > 0, support * consistency, -1.0)  # EXPERIMENT: no score
     usable = prior > 0
     if candidate is not None:
         usable = usable & candidate
