@@ -45,10 +45,11 @@ def depth_order(labels, z, sigma, explained, tie, *, grid: tuple[int, int], cfg:
     The background is what lies behind: along the boundary between the static scene and a
     mover, the static side is the farther one. Each valid grid point is compared with the
     valid points of its 3 x 3 neighbourhood (:func:`jaxvo.core.evidence.neighbourhood`) in
-    another segment, unless each of the two is explained by the other's segment's motion
-    (``explained`` (S, n) bool, each point within the inlier test of each segment's
-    motion): two pieces of one rigid body (a static scene split by noise, or a segment
-    that took in some background) say nothing of which is the background. A pair is
+    another segment, where the two move decisively unlike each other: neither is explained
+    by the other's segment's motion (``explained`` (S, n) bool, each point within the
+    inlier test of each segment's motion). Two pieces of one rigid body (a static scene
+    split where the depth's distortion exceeds its noise, or a segment that took in some
+    background beside a mover) say nothing of which is the background. A pair is
     decisive when the depth difference exceeds the depth noise of both readings at the
     two-motion test ``tie`` (``chi2_1(confidence)``). Nothing depends on the motions'
     sizes, nor on which motion the camera's was before.
@@ -69,7 +70,7 @@ def depth_order(labels, z, sigma, explained, tie, *, grid: tuple[int, int], cfg:
     near_explained = jnp.stack([neighbourhood(e, False, grid=grid) for e in explained])
     theirs = jnp.take_along_axis(near_explained, i[None], axis=0)[0]  # (n, 9)
     other = (labels[:, None] > 0) & (near_lab > 0) & (near_lab != labels[:, None])
-    other = other & ~(mine & theirs)
+    other = other & ~mine & ~theirs
     dz = z[:, None] - near_z
     decisive = other & (dz * dz > tie * (sigma[:, None] ** 2 + near_s * near_s))
     zero = jnp.zeros((s, s), jnp.float32)
@@ -171,6 +172,10 @@ class BackgroundOut(NamedTuple):
     # j + 1 becomes permutation[j] + 1): every later stage applies it to its own state
     permutation: jax.Array
     status: jax.Array  # () int32 Status.OK, or NO_BACKGROUND: no segment can be the background
+    # () bool the background's segment lies behind the motions unlike its own (no pair in
+    # front outweighs those behind): where it does not, the residuals under its motion are
+    # no evidence of what moves (jaxvo.core.evidence.moving_evidence)
+    lies_behind: jax.Array
     # (n,) float32 each point's log-likelihood ratio, moving over static, from depth order:
     # a point of a segment in front of another motion that the background's motion does not
     # explain (jaxvo.core.evidence adds it to the moving evidence); 0 elsewhere
@@ -292,5 +297,6 @@ def update_background(state: BackgroundState, seg, pts: Points, T_pred, have_las
     in_front = jnp.where((seg.labels > 0) & valid & (own < 0) & ~(explained[bgi] & (bg > 0)),
                          -own, 0.0)
     in_front = jnp.where(occluded, params.evidence_step, in_front)
+    lies_behind = (bg == 0) | (vote[bgi] >= 0)
     return state, BackgroundOut(segment_ids, bg, reacquired, use, belief, d2_seg, perm, status,
-                                in_front)
+                                lies_behind, in_front)
