@@ -18,7 +18,7 @@ import numpy as np
 import pytest
 
 from jaxvo.config import Config, Params, params_as_arrays
-from jaxvo.core.background import BackgroundState, choose_background
+from jaxvo.core.background import choose_background
 from jaxvo.core.evidence import update_evidence
 from jaxvo.core.grid_model import splat_weights, update_grid_model
 from jaxvo.core.identifiers import (
@@ -94,7 +94,7 @@ def step():
 _correlation = jax.jit(label_correlation, static_argnames=("num_segments", "num_ids"))
 _match = jax.jit(match_segments)
 _splat_weights = jax.jit(splat_weights, static_argnames=("cfg", "grid"))
-_choose = jax.jit(choose_background)
+_choose = jax.jit(choose_background, static_argnames=("max_ids",))
 _evidence = jax.jit(update_evidence)
 
 
@@ -567,69 +567,10 @@ def _seg_vec(values, fill=0, dtype=jnp.float32):
     return jnp.asarray(list(values) + [fill] * (S - len(values)), dtype)
 
 
-def _bg_state(bg_score):
-    score = np.zeros(M, np.float32)
-    score[: len(bg_score)] = bg_score
-    return BackgroundState(jnp.asarray(score))
-
-
-def choose(bg_score, ids, support, consistency, initialised=True, **kw):
-    """``choose_background`` without its permutation: ``(state, ids, background,
-    reacquired)``."""
-    return _choose(_bg_state(bg_score), _seg_vec(ids, dtype=jnp.int32), _seg_vec(support),
-                   _seg_vec(consistency), jnp.bool_(initialised), params(**kw))[:4]
-
-
-def test_the_identifier_with_the_most_accumulated_support_becomes_the_background():
-    """Identifier 2's segment has as much support as identifier 1's this frame but more
-    over the past frames (decayed by evidence_decay): it is the background; the two
-    identifiers swap, and the run re-acquired its background."""
-    state, ids, background, reacquired = choose([5.0, 20.0], [1, 2], [10.0, 10.0], [1.1, 1.1],
-                                                evidence_decay=0.9)
-    assert int(background) == 2 and bool(reacquired)
-    np.testing.assert_array_equal(np.asarray(ids)[:2], [2, 1])
-    # the scores, decayed and added to, swap with the identifiers (float32: 1e-6)
-    np.testing.assert_allclose(np.asarray(state.score)[:3], [0.9 * 20 + 10, 0.9 * 5 + 10, 0],
-                               rtol=1e-6)
-    # the history of identifier 1 wins when the supports are equal to its advantage
-    _, ids, background, reacquired = choose([20.0, 5.0], [1, 2], [10.0, 10.0], [1.1, 1.1])
-    assert int(background) == 1 and not bool(reacquired)
-    np.testing.assert_array_equal(np.asarray(ids)[:2], [1, 2])
-    # identifier 1 keeps it on a first frame too, where nothing is re-acquired
-    _, _, background, reacquired = choose([5.0, 20.0], [1, 2], [10.0, 10.0], [1.1, 1.1],
-                                          initialised=False)
-    assert int(background) == 2 and not bool(reacquired)
-
-
-def test_a_segment_that_does_not_move_as_predicted_loses_the_background_despite_history():
-    """An object that a first frame merged with the background carries its history; once
-    its segment does not move as the camera was predicted to (consistency near 0), the
-    segment that does takes the background in the same frame."""
-    _, ids, background, reacquired = choose([100.0, 0.0], [1, 2], [10.0, 10.0], [1e-3, 1.1])
-    assert int(background) == 2 and bool(reacquired)
-    np.testing.assert_array_equal(np.asarray(ids)[:2], [2, 1])
-    # with the consistency of both, history decides (the prediction says nothing)
-    _, _, background, _ = choose([100.0, 0.0], [1, 2], [10.0, 10.0], [1.1, 1.1])
-    assert int(background) == 1
-
-
-def test_without_identifiers_the_most_supported_segment_is_the_background():
-    """No segment has an identifier (none was free): the segment of most weighted support
-    takes identifier 1; no support at all: no background, nothing changes."""
-    _, ids, background, reacquired = choose([0.0], [0, 0, 0], [5.0, 8.0, 2.0], [1.1, 1.1, 1.1])
-    assert int(background) == 2 and not bool(reacquired)
-    np.testing.assert_array_equal(np.asarray(ids)[:3], [0, 1, 0])
-    state, ids, background, reacquired = choose([3.0, 4.0], [2, 1], [0.0, 0.0], [0.0, 0.0])
-    assert int(background) == 0 and not bool(reacquired)
-    np.testing.assert_array_equal(np.asarray(ids)[:2], [2, 1])
-    np.testing.assert_allclose(np.asarray(state.score)[:2], [2.7, 3.6], rtol=1e-6)
-
-
 def test_the_swap_relabels_every_map_model_and_count_consistently():
-    """Choosing identifier 3 exchanges identifiers 1 and 3 everywhere: the background's
-    scores, and by its permutation in each later stage's own state the label maps, the
-    window, both models' probability vectors and the observation counts; everything else
-    is untouched."""
+    """Choosing identifier 3 exchanges identifiers 1 and 3 everywhere: by its permutation
+    in each later stage's own state the label maps, the window, both models' probability
+    vectors and the observation counts; everything else is untouched."""
     rng = np.random.default_rng(8)
     state, prob, _, ids, _ = _random_state(9)
     state = state._replace(identifiers=state.identifiers._replace(
@@ -638,19 +579,16 @@ def test_the_swap_relabels_every_map_model_and_count_consistently():
         last_seen=jnp.asarray(rng.integers(-5, 30, M), jnp.int32),
         frame=jnp.int32(30), initialised=jnp.bool_(True),
     ))
-    score0 = np.r_[50.0, 1.0, 10.0, np.zeros(M - 3)].astype(np.float32)
     seg_ids = _seg_vec([1, 3, 2], dtype=jnp.int32)
-    bg, new_ids, background, reacquired, perm_out = _choose(
-        BackgroundState(jnp.asarray(score0)), seg_ids, _seg_vec([5.0, 60.0, 1.0]),
-        _seg_vec([0.1, 1.1, 0.1]), jnp.bool_(True), params())
+    new_ids, background, reacquired, perm_out = _choose(
+        seg_ids, _seg_vec([5.0, 60.0, 1.0]), _seg_vec([0.1, 1.1, 0.1]), jnp.bool_(True),
+        params(), max_ids=M)
     assert int(background) == 2 and bool(reacquired)
     perm = np.arange(M + 1)
     perm[[1, 3]] = [3, 1]  # identifier -> identifier, 0 stays 0
     np.testing.assert_array_equal(np.asarray(perm_out), perm[1:] - 1)
     np.testing.assert_array_equal(np.asarray(new_ids)[:3], [3, 1, 2])
-    score = 0.9 * score0 + np.r_[5.0, 1.0, 60.0, np.zeros(M - 3)]
     cols = perm[1:] - 1  # column j of the new vectors is column cols[j] of the old
-    np.testing.assert_allclose(np.asarray(bg.score), score[cols], rtol=1e-6)
     # each later stage renumbers its own state: an update without a measurement only does
     new_id = jax.jit(permute_identifiers)(state.identifiers, perm_out)
     new_model = jax.jit(lambda m, p: update_grid_model(

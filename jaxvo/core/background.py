@@ -1,13 +1,24 @@
 """The background of each frame: which segment's motion is the camera's (device side).
 
 The thesis gives identifier 1 to the region that covers most of the image, so an object
-covering more than half the view took the background's. Here the background is not left to
-the overlap of eq. (4.1): each identifier accumulates its segment's support as the
-background (:func:`background_support`: the surface its motion explains, each point
-weighted by what earlier frames say of it), the choice weighs it by the frame's consistency
-with the predicted camera motion, and the chosen identifier becomes 1 by one permutation of
-the identifiers (:func:`choose_background`: the background is re-acquired in that frame,
-never lost), which the later stages apply to their own states (``BackgroundOut.permutation``).
+covering more than half the view took the background's. Here a mover cannot win by size:
+
+* each segment's prior is the surface its motion explains, each point weighted by what
+  earlier frames established of it (:func:`background_support`, :func:`belief_weights`:
+  the moving evidence, :mod:`jaxvo.core.evidence`, carries every cell's history), and how
+  well it moves as the camera was predicted to;
+* the background is what lies behind: at the boundaries between motions the static side
+  is the farther one (:func:`depth_order`); one frame's depth order is a vote in the
+  choice (:func:`order_loglik`) and, for the points of a segment in front of another
+  motion, moving evidence that accumulates over frames;
+* points the occlusion memory holds nearer than what was seen there
+  (:mod:`jaxvo.core.occlusion`) are occluders: never the background's;
+* a segment made mostly of known movers is no candidate, and where no segment is one, no
+  background is in view: the camera's motion is carried, with its own status.
+
+The chosen segment's identifier becomes 1 by one permutation of the identifiers
+(:func:`choose_background`: the background is re-acquired in that frame, never lost),
+which the later stages apply to their own states (``BackgroundOut.permutation``).
 """
 
 from __future__ import annotations
@@ -24,17 +35,6 @@ from jaxvo.core.identifiers import STATIC_ID, relabel, swap_perm
 from jaxvo.core.noise import NoiseScale, Points, residuals_many
 from jaxvo.core.robust import MOST, enough_points, explains
 from jaxvo.status import Status
-
-
-class BackgroundState(NamedTuple):
-    """Each identifier's support as the background (carried by the pipeline)."""
-
-    score: jax.Array  # (max_ids,) float32 accumulated over frames, decaying
-
-
-def init_background(*, cfg: Config) -> BackgroundState:
-    """No support yet."""
-    return BackgroundState(jnp.zeros((cfg.max_ids,), jnp.float32))
 
 
 def depth_order(labels, z, sigma, explained, tie, *, grid: tuple[int, int], cfg: Config):
@@ -100,47 +100,37 @@ def order_loglik(behind, front, params: Params):
     return vote, jnp.clip(total, -params.evidence_step, params.evidence_step)
 
 
-def choose_background(state: BackgroundState, segment_ids, support, consistency, initialised,
-                      params: Params, vote=None, candidate=None):
-    """The background of this frame: the identifier with the most support as the background
-    accumulated over frames, weighted by how well its segment moves as the camera was
-    predicted to and by what lies behind what; it becomes identifier 1.
+def choose_background(segment_ids, support, consistency, initialised, params: Params, *,
+                      max_ids: int, vote=None, candidate=None):
+    """The background of this frame among the ``candidate`` (S,) bool segments: the one of
+    highest posterior, the log of its prior relative to the best candidate's plus this
+    frame's depth-order ``vote`` (S,) (:func:`order_loglik`); it becomes identifier 1.
 
-    ``support`` (S,) is each segment's support this frame (the surface it explains, see
-    :func:`background_support`); each identifier's accumulated score decays
-    by ``params.evidence_decay`` a frame and adds the support of the segment carrying it.
-    ``consistency`` (S,) weighs each segment by this frame's evidence (the predicted
-    camera motion, :func:`background_support`): the history says which
-    identifier has been the background, the prediction whether its segment still moves as
-    the background does, and their product is each segment's prior. Without the product,
-    the history alone kept the background on an object that a first frame had merged with
-    it (docs/report/core_decisions.md). ``vote`` (S,), this frame's depth order
-    (:func:`order_loglik`), is added to the log of the prior (relative to the best): the
-    posterior. The background is the segment present now with the highest posterior (over
-    the segments of most weighted support when no segment has an identifier), among the
-    ``candidate`` (S,) bool segments (those not made mostly of known movers,
-    :func:`update_background`): where there is none, no background is in view. When its
-    identifier is not 1, the two identifiers swap (the background is re-acquired in this
-    frame, never lost): in the scores here, and by the permutation returned in every
-    later stage's state. ``initialised`` () bool: some segment had an identifier before (a
-    swap then re-acquires the background).
+    Each segment's prior is its ``support`` (S,) (the surface its motion explains, each
+    point weighted by its belief, :func:`background_support`) times its ``consistency``
+    (S,) with the predicted camera motion: the belief carries what earlier frames
+    established of each cell, the prediction says whether the segment still moves as the
+    background did. Without the consistency, the belief alone kept the background on an
+    object that a first frame had merged with it (docs/report/core_decisions.md). The vote
+    decides between segments of alike prior, and a clear prior decides against it (one
+    frame's depth order can mislead: a mover behind a static desk). No candidate with
+    support: no background in view (0). When the background's identifier is not 1, the two
+    identifiers swap (the background is re-acquired in this frame, never lost), by the
+    permutation returned for every later stage's state; a segment without an identifier
+    takes 1. ``initialised`` () bool: some segment had an identifier before (a swap then
+    re-acquires the background); ``max_ids``: the identifiers' count (static).
 
-    Returns ``(state, segment_ids, background () int32 spatial label 1..S or 0,
-    reacquired () bool, permutation (max_ids,) int32)``.
+    Returns ``(segment_ids, background () int32 spatial label 1..S or 0, reacquired ()
+    bool, permutation (max_ids,) int32)``.
     """
-    s, m = segment_ids.shape[0], state.score.shape[0]
+    s, m = segment_ids.shape[0], max_ids
     present = segment_ids > 0
-    idx = jnp.clip(segment_ids - 1, 0, m - 1)
-    add = jnp.zeros((m,), jnp.float32).at[idx].add(jnp.where(present, support, 0.0))
-    score = params.evidence_decay * state.score + add
-    seg_score = jnp.where(present, score[idx], -1.0)
-    weighted = jnp.where(support > 0, seg_score * consistency, -1.0)
-    any_id = jnp.any(present & (support > 0))
-    prior = jnp.where(support > 0, support * consistency, -1.0)  # EXPERIMENT: no score
+    prior = jnp.where(support > 0, support * consistency, -1.0)
     usable = prior > 0
     if candidate is not None:
         usable = usable & candidate
-    post = jnp.log(jnp.maximum(prior, tiny()) / jnp.maximum(jnp.max(prior), tiny()))
+    best = jnp.max(jnp.where(usable, prior, 0.0))
+    post = jnp.log(jnp.maximum(prior, tiny()) / jnp.maximum(best, tiny()))
     if vote is not None:
         post = post + vote
     pick = jnp.argmax(jnp.where(usable, post, -jnp.inf))
@@ -155,8 +145,7 @@ def choose_background(state: BackgroundState, segment_ids, support, consistency,
     segment_ids = jnp.where(jnp.arange(s) == pick, jnp.where(has, STATIC_ID, segment_ids[pick]),
                             jnp.where(has & ~present[pick] & (segment_ids == STATIC_ID), 0,
                                       segment_ids))
-    return (BackgroundState(score[perm]), segment_ids.astype(jnp.int32), background, reacquired,
-            perm)
+    return segment_ids.astype(jnp.int32), background, reacquired, perm
 
 
 class BackgroundOut(NamedTuple):
@@ -172,13 +161,10 @@ class BackgroundOut(NamedTuple):
     # j + 1 becomes permutation[j] + 1): every later stage applies it to its own state
     permutation: jax.Array
     status: jax.Array  # () int32 Status.OK, or NO_BACKGROUND: no segment can be the background
-    # () bool the background's segment lies behind the motions unlike its own (no pair in
-    # front outweighs those behind): where it does not, the residuals under its motion are
-    # no evidence of what moves (jaxvo.core.evidence.moving_evidence)
-    lies_behind: jax.Array
-    # (n,) float32 each point's log-likelihood ratio, moving over static, from depth order:
+    # (n,) float32 each point's log-likelihood ratio, moving over static, from where it lies:
     # a point of a segment in front of another motion that the background's motion does not
-    # explain (jaxvo.core.evidence adds it to the moving evidence); 0 elsewhere
+    # explain, or one the occlusion memory holds nearer than what was seen there
+    # (jaxvo.core.evidence adds it to the moving evidence); 0 elsewhere
     in_front: jax.Array
 
 
@@ -204,8 +190,8 @@ def background_support(d2_seg, sizes, weights, z, d2_pred, have_last, thr, unpre
     count where the motion explains them (not only its own segment's), so a piece of the
     background split off by noise adds to the motion that explains it. The consistency is
     ``unpredicted + f``, ``f`` the share of that surface the predicted motion explains too
-    (1 before any ego-motion). :func:`choose_background` accumulates the support per
-    identifier and weighs it by the consistency.
+    (1 before any ego-motion). Their product is each segment's prior as the background
+    (:func:`choose_background`).
 
     Args:
       d2_seg: (S, n) normalised residuals of every point under each segment's motion;
@@ -223,37 +209,43 @@ def background_support(d2_seg, sizes, weights, z, d2_pred, have_last, thr, unpre
     return jnp.where(used, total, 0.0), jnp.where(used, unpredicted + f, 0.0)
 
 
-def update_background(state: BackgroundState, seg, pts: Points, T_pred, have_last,
-                      params: Params, *, cfg: Config, grid: tuple[int, int], segment_ids,
-                      evidence, initialised, scale: NoiseScale, occluded=None):
+def update_background(seg, pts: Points, T_pred, have_last, params: Params, *, cfg: Config,
+                      grid: tuple[int, int], segment_ids, evidence, initialised,
+                      scale: NoiseScale, occluded=None):
     """The background of this frame and the points the ego-motion may use.
 
-    The segment whose motion explains the most surface that earlier frames established as
-    background and that moves as the camera was predicted to (:func:`background_support`,
-    the prior), and that lies behind the motions unlike its own (:func:`depth_order`, the
-    likelihood; :func:`choose_background`; its identifier becomes 1). Where no segment
-    explains any surface that can be background (every point in view established as
-    moving), there is no background in view: the status says so and the camera's motion is
-    carried. The ego-motion may use every valid point, weighted by its belief, but those in
-    a segment that moves unlike the background (Algorithm 1's refinement on all points, for
+    Among the segments not made mostly of known movers (established moving, or held
+    nearer than what was seen there), the one of highest posterior
+    (:func:`choose_background`): its prior the surface its motion explains that earlier
+    frames established as background, moving as the camera was predicted to
+    (:func:`background_support`), its likelihood this frame's depth order
+    (:func:`depth_order`, :func:`order_loglik`). A segment made mostly of known movers is a
+    candidate still where its motion explains enough points established as background (a
+    segment that took in the background beside a mover). Where no segment is a candidate
+    no background is in view: the status says so and the camera's motion is carried.
+
+    The ego-motion may use every valid point, weighted by its belief, but those in a
+    segment that moves unlike the background (Algorithm 1's refinement on all points, for
     the background; a segment the background's motion explains is a piece of the
-    background that fast motion or depth distortion split off).
+    background that fast motion or depth distortion split off) and the occluders. Where
+    enough of those points are established as background, they decide alone: the others
+    (new in view, or their evidence faded) wait until the evidence establishes them, so a
+    near mover's many unestablished points cannot pull the fit along the direction in
+    which a far background constrains it least.
 
     Args:
-      state: the background's scores entering the frame; seg: the spatial
-      ``Segmentation``; pts: the frame's points (:func:`jaxvo.core.noise.frame_points`);
-      T_pred: (4, 4) the predicted camera motion; have_last: () bool whether it was
-      measured; segment_ids: (max_segments,) int32 the segments' identifiers
-      (:func:`jaxvo.core.identifiers.identify`); evidence: (n,) float32 each cell's moving
-      log-odds entering the frame (:mod:`jaxvo.core.evidence`); initialised: () bool some
-      segment had an identifier before; scale: the sensor noise (the depth readings' noise
-      of the depth order); occluded: (n,) bool the points the occlusion memory holds
-      nearer than what was seen there (:mod:`jaxvo.core.occlusion`): never the
-      background's, and in front for their segment's evidence.
+      seg: the spatial ``Segmentation``; pts: the frame's points
+      (:func:`jaxvo.core.noise.frame_points`); T_pred: (4, 4) the predicted camera motion;
+      have_last: () bool whether it was measured; segment_ids: (max_segments,) int32 the
+      segments' identifiers (:func:`jaxvo.core.identifiers.identify`); evidence: (n,)
+      float32 each cell's moving log-odds entering the frame (:mod:`jaxvo.core.evidence`);
+      initialised: () bool some segment had an identifier before; scale: the sensor noise
+      (the depth readings' noise of the depth order); occluded: (n,) bool the points the
+      occlusion memory holds nearer than what was seen there (:mod:`jaxvo.core.occlusion`).
 
     Returns:
-      ``(state, BackgroundOut)``; ``BackgroundOut.permutation`` renumbers the identifiers
-      of the later stages' states so that the background's is 1.
+      ``BackgroundOut``; its ``permutation`` renumbers the identifiers of the later stages'
+      states so that the background's is 1.
     """
     valid = pts.valid
     d2_all = residuals_many(jnp.concatenate([T_pred[None], seg.motions]), pts.src, pts.dst,
@@ -270,23 +262,18 @@ def update_background(state: BackgroundState, seg, pts: Points, T_pred, have_las
                                 scale.depth_coeff * z_prev * z_prev, explained, pts.tie,
                                 grid=grid, cfg=cfg)
     vote, order = order_loglik(behind, front, params)
-    # a segment made mostly of known movers (established moving, or held nearer than what
-    # was seen there) is not the background, unless its motion explains enough points
-    # established as background (a segment that took in the background besides a mover)
     member = (seg.labels[None, :] == jnp.arange(1, cfg.max_segments + 1)[:, None]) & valid
     mover = (evidence > moving_logodds(params)) | occluded
     candidate = (~explains(mover[None, :], member, MOST)
                  | enough_points(explained & (belief >= 1.0), params))
-    state, segment_ids, bg, reacquired, perm = choose_background(
-        state, segment_ids, support, consistency, initialised, params, vote, candidate)
+    segment_ids, bg, reacquired, perm = choose_background(
+        segment_ids, support, consistency, initialised, params, max_ids=cfg.max_ids,
+        vote=vote, candidate=candidate)
     bgi = jnp.maximum(bg - 1, 0)
     static_seg = (explained_segments(seg.labels, d2_seg[bgi], valid, pts.thr, cfg=cfg)
                   | (jnp.arange(1, cfg.max_segments + 1) == bg))
     in_moving_seg = (seg.labels > 0) & ~static_seg[jnp.clip(seg.labels - 1, 0, None)]
     use = jnp.where(in_moving_seg, 0.0, belief)
-    # the established decides: where enough of the points the ego-motion may use are
-    # established as background, the others (new in view, or their evidence faded) wait
-    # until the evidence establishes them; they decide only where too few are
     established = use >= 1.0
     use = jnp.where(enough_points(established, params), jnp.where(established, use, 0.0), use)
     status = jnp.where((bg == 0) & (seg.num_segments > 0), jnp.int32(Status.NO_BACKGROUND),
@@ -297,6 +284,5 @@ def update_background(state: BackgroundState, seg, pts: Points, T_pred, have_las
     in_front = jnp.where((seg.labels > 0) & valid & (own < 0) & ~(explained[bgi] & (bg > 0)),
                          -own, 0.0)
     in_front = jnp.where(occluded, params.evidence_step, in_front)
-    lies_behind = (bg == 0) | (vote[bgi] >= 0)
-    return state, BackgroundOut(segment_ids, bg, reacquired, use, belief, d2_seg, perm, status,
-                                lies_behind, in_front)
+    return BackgroundOut(segment_ids, bg, reacquired, use, belief, d2_seg, perm, status,
+                         in_front)

@@ -90,7 +90,7 @@ def neighbourhood_agreement(values, valid, *, grid: tuple[int, int]):
 
 
 def moving_evidence(seg_labels, pts: Points, T_cur_prev, d2_seg, ok, params: Params, *,
-                    cfg: Config, grid: tuple[int, int], in_front=None, trusted=True):
+                    cfg: Config, grid: tuple[int, int], in_front=None):
     """This frame's evidence of each point's own motion under the ego-motion ``T_cur_prev``:
     ``(explained (S,) bool, delta (n,) float32)``, the segments the ego-motion explains
     (:func:`explained_segments`) and every point's log-likelihood ratio
@@ -98,13 +98,11 @@ def moving_evidence(seg_labels, pts: Points, T_cur_prev, d2_seg, ok, params: Par
     depth order's log-likelihood ratio of each point (:class:`jaxvo.core.background.
     BackgroundOut`; already within ``+-params.evidence_step``), is added: an independent
     measurement (where each point lies, not how it moves), which does not depend on the
-    ego-motion, so it counts in every frame. ``trusted`` () bool: the ego-motion is the
-    motion of a background that lies behind what moves unlike it; where it is not, the
-    residuals under it say nothing of what moves and only ``in_front`` counts."""
+    ego-motion, so it counts in every frame."""
     d2_ego = residuals(T_cur_prev, pts.src, pts.dst, pts.noise)[0]
     explained = explained_segments(seg_labels, d2_ego, pts.valid, pts.thr, cfg=cfg)
-    delta = evidence_delta(seg_labels, d2_ego, d2_seg, explained, pts.valid & ok & trusted,
-                           params, grid=grid)
+    delta = evidence_delta(seg_labels, d2_ego, d2_seg, explained, pts.valid & ok, params,
+                           grid=grid)
     if in_front is not None:
         delta = delta + jnp.where(pts.valid, in_front, 0.0)
     return explained & ok, delta

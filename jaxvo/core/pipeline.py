@@ -29,12 +29,7 @@ import jax
 import jax.numpy as jnp
 
 from jaxvo.config import Config, Params
-from jaxvo.core.background import (
-    BackgroundOut,
-    BackgroundState,
-    init_background,
-    update_background,
-)
+from jaxvo.core.background import BackgroundOut, update_background
 from jaxvo.core.egomotion import EgoState, init_ego, predicted_motion, update_egomotion
 from jaxvo.core.evidence import moving_evidence, moving_logodds, neighbourhood, reported_ids
 from jaxvo.core.geometry import full_precision
@@ -51,7 +46,6 @@ class PipelineState(NamedTuple):
     """What the odometry carries from one frame to the next: each stage's state."""
 
     temporal: TemporalState  # identifiers, moving evidence, dual-mode grid model (on the grid)
-    background: BackgroundState  # each identifier's support as the background
     ego: EgoState  # the camera's pose and its last measured motion
     frame: jax.Array  # () int32, frame pairs processed so far
     noise: NoiseScale  # the sensor noise model (jaxvo.core.noise; calibrated when noise_rate > 0)
@@ -94,7 +88,7 @@ def init_pipeline(*, cfg: Config, grid: tuple[int, int], T_w_c0=None,
     T0 = jnp.eye(4, dtype=jnp.float32) if T_w_c0 is None else jnp.asarray(T_w_c0, jnp.float32)
     keyframe = init_keyframe(T0, cfg=cfg, grid=grid) if cfg.keyframes else None
     return PipelineState(temporal=init_temporal(cfg=cfg, grid=grid),
-                         background=init_background(cfg=cfg), ego=init_ego(T0),
+                         ego=init_ego(T0),
                          frame=jnp.int32(0), noise=init_noise(Params() if params is None else params),
                          keyframe=keyframe, occlusion=init_occlusion(grid=grid))
 
@@ -132,8 +126,8 @@ def step(state: PipelineState, flow, key, params: Params, *, cfg: Config, grid,
     occlusion, _, occluded = update_occlusion(
         state.occlusion, flow.depth_prev, flow.uv_prev, state.ego.T_w_c, flow.camera,
         state.noise, pts.tie, grid=grid, cell=cfg.cell)
-    background, bg = update_background(
-        state.background, seg, pts, predicted_motion(state.ego), state.ego.have_last, params,
+    bg = update_background(
+        seg, pts, predicted_motion(state.ego), state.ego.have_last, params,
         cfg=cfg, grid=grid, segment_ids=segment_ids, evidence=state.temporal.evidence,
         initialised=state.temporal.identifiers.initialised, scale=state.noise,
         occluded=occluded)
@@ -155,8 +149,7 @@ def step(state: PipelineState, flow, key, params: Params, *, cfg: Config, grid,
     eo = eo._replace(used=eo.used[:pts.valid.shape[0]])
     # 4. evidence of each point's own motion under the ego-motion
     explained, delta = moving_evidence(seg.labels, pts, eo.T_cur_prev, bg.d2_seg, eo.ok,
-                                       params, cfg=cfg, grid=grid, in_front=bg.in_front,
-                                       trusted=True)
+                                       params, cfg=cfg, grid=grid, in_front=bg.in_front)
     # 5. labels: the dual-mode grid model, compensated to the current image
     temporal, tout = update_temporal(
         state.temporal, labels, flow.uv_cur - flow.uv_prev, pts.valid, params, cfg=cfg,
@@ -179,7 +172,7 @@ def step(state: PipelineState, flow, key, params: Params, *, cfg: Config, grid,
     out = _output(ego, eo, seg, bg, tout, noise, pts.valid, params, cfg=cfg, grid=grid)
     if kout is not None:
         out = out._replace(keyframes=kout.count)
-    return PipelineState(temporal=temporal, background=background, ego=ego,
+    return PipelineState(temporal=temporal, ego=ego,
                          frame=state.frame + 1, noise=noise, keyframe=kf_state,
                          occlusion=occlusion), out
 
