@@ -106,9 +106,9 @@ def test_a_near_mover_lies_in_front_and_pieces_of_one_body_say_nothing():
     assert float(jnp.sum(behind)) == 0
 
 
-def test_order_is_log_2p_a_pair_behind_and_log_2_1mp_in_front_one_vote_a_frame():
-    """Against the closed form: the evidence is the sum over a segment's decisive pairs
-    (within the frame's bound), the vote their mean (one observation a frame)."""
+def test_order_is_log_2p_a_pair_behind_and_log_2_1mp_in_front_within_a_frames_bound():
+    """Against the closed form: a segment's evidence is the sum over its decisive pairs,
+    within the bound of one frame's evidence."""
     p = 0.85
     behind = np.zeros((S, S), np.float32)
     front = np.zeros((S, S), np.float32)
@@ -116,37 +116,18 @@ def test_order_is_log_2p_a_pair_behind_and_log_2_1mp_in_front_one_vote_a_frame()
     front[1, 0] = 3  # segment 2: in front of segment 1 three times
     behind[2, 0] = 1
     lb, lf = np.log(2 * p), np.log(2 * (1 - p))
-    vote, ev = order_loglik(jnp.asarray(behind), jnp.asarray(front),
-                            Params(order_reliability=p, evidence_step=100.0))
-    want = np.array([3 * lb + lf, 3 * lf, lb])
-    np.testing.assert_allclose(np.asarray(ev)[:3], want, rtol=1e-6)  # float32
-    np.testing.assert_allclose(np.asarray(vote)[:3], want / [4, 3, 1], rtol=1e-6)
-    assert np.all(np.asarray(ev)[3:] == 0) and np.all(np.asarray(vote)[3:] == 0)
-    _, ev = order_loglik(jnp.asarray(behind), jnp.asarray(front), Params())
+    ev = order_loglik(jnp.asarray(behind), jnp.asarray(front),
+                      Params(order_reliability=p, evidence_step=100.0))
+    np.testing.assert_allclose(np.asarray(ev)[:3], [3 * lb + lf, 3 * lf, lb], rtol=1e-6)
+    assert np.all(np.asarray(ev)[3:] == 0)
+    ev = order_loglik(jnp.asarray(behind), jnp.asarray(front), Params())
     assert float(jnp.max(jnp.abs(ev))) <= Params().evidence_step
 
 
-def _choose(ids, support, vote=None, candidate=None, **kw):
+def _choose(ids, support, candidate=None, **kw):
     return choose_background(_pad(ids, 0, jnp.int32), _pad(support), _pad([1.1] * len(ids)),
                              jnp.bool_(True), Params(**kw), max_ids=M,
-                             vote=None if vote is None else _pad(vote),
                              candidate=None if candidate is None else _pad(candidate, False, bool))
-
-
-def test_depth_order_decides_between_alike_priors_not_against_a_clear_one():
-    """A box (identifier 1, last frame's background) and the wall behind it with nearly as
-    much support: the wall's vote (behind) against the box's (in front) makes the wall the
-    background, identifier 1. Against twelve times the support (the box behind a desk,
-    the depth order misleading), one frame's vote does not overturn the prior."""
-    p = Params().order_reliability
-    lb, lf = float(np.log(2 * p)), float(np.log(2 * (1 - p)))
-    ids, background, reacquired, _ = _choose([1, 2], [20.0, 18.0], vote=[lf, lb])
-    assert int(background) == 2 and bool(reacquired)
-    np.testing.assert_array_equal(np.asarray(ids)[:2], [2, 1])
-    _, background, *_ = _choose([1, 2], [20.0, 18.0])
-    assert int(background) == 1  # without it, the support decides
-    _, background, *_ = _choose([1, 2], [240.0, 20.0], vote=[lf, lb])
-    assert int(background) == 1
 
 
 def test_no_background_in_view_when_no_segment_can_be_it():
@@ -156,8 +137,8 @@ def test_no_background_in_view_when_no_segment_can_be_it():
     ids, background, reacquired, _ = _choose([2, 3], [10.0, 8.0], candidate=[False, False])
     assert int(background) == 0 and not bool(reacquired)
     np.testing.assert_array_equal(np.asarray(ids)[:2], [2, 3])
-    ids, background, *_ = _choose([2, 3], [10.0, 1.0], candidate=[False, True])
-    assert int(background) == 2
+    ids, background, reacquired, _ = _choose([2, 3], [10.0, 1.0], candidate=[False, True])
+    assert int(background) == 2 and bool(reacquired)
     np.testing.assert_array_equal(np.asarray(ids)[:2], [2, 1])
     ids, background, *_ = _choose([1, 0], [1.0, 10.0])
     assert int(background) == 2

@@ -80,45 +80,36 @@ def depth_order(labels, z, sigma, explained, tie, *, grid: tuple[int, int], cfg:
 
 
 def order_loglik(behind, front, params: Params):
-    """``(vote (S,), evidence (S,))`` float32: what each segment's depth order
-    (:func:`depth_order`) says of its motion being the background's, against the order
-    being random (as it is where movers border movers).
-
-    Where a segment is the background, each decisive pair with another motion has it
-    behind with probability ``p = params.order_reliability``: ``log(2 p)`` a pair behind,
-    ``log(2 (1 - p))`` a pair in front. The pairs along one boundary are one observation
-    of how two surfaces lie, not many (a mover behind a desk is behind along the whole
-    edge): for the choice of one frame, ``vote`` is their mean, within ``[log(2 (1 - p)),
-    log(2 p)]``, so it decides between segments of alike prior and cannot overturn a
-    clear one; ``evidence``, their sum within ``+-params.evidence_step`` as every evidence
-    of one frame, is what each point of the segment learns (the moving evidence
-    accumulates it over frames, :func:`jaxvo.core.evidence.moving_evidence`)."""
+    """(S,) float32 what each segment's depth order (:func:`depth_order`) says of its
+    motion being the background's, against the order being random (as where movers border
+    movers): where a segment is the background, each decisive pair with another motion has
+    it behind with probability ``p = params.order_reliability``, ``log(2 p)`` a pair behind
+    and ``log(2 (1 - p))`` a pair in front; their sum, within ``+-params.evidence_step`` as
+    every evidence of one frame (the pairs along one boundary are one observation of how
+    two surfaces lie, which the bound keeps from counting as many)."""
     p = jnp.asarray(params.order_reliability, jnp.float32)
-    b, f = jnp.sum(behind, axis=1), jnp.sum(front, axis=1)
-    total = b * jnp.log(2.0 * p) + f * jnp.log(2.0 * (1.0 - p))
-    vote = total / jnp.maximum(b + f, 1.0)
-    return vote, jnp.clip(total, -params.evidence_step, params.evidence_step)
+    total = (jnp.sum(behind, axis=1) * jnp.log(2.0 * p)
+             + jnp.sum(front, axis=1) * jnp.log(2.0 * (1.0 - p)))
+    return jnp.clip(total, -params.evidence_step, params.evidence_step)
 
 
 def choose_background(segment_ids, support, consistency, initialised, params: Params, *,
-                      max_ids: int, vote=None, candidate=None):
+                      max_ids: int, candidate=None):
     """The background of this frame among the ``candidate`` (S,) bool segments: the one of
-    highest posterior, the log of its prior relative to the best candidate's plus this
-    frame's depth-order ``vote`` (S,) (:func:`order_loglik`); it becomes identifier 1.
+    most support times consistency; it becomes identifier 1.
 
     Each segment's prior is its ``support`` (S,) (the surface its motion explains, each
     point weighted by its belief, :func:`background_support`) times its ``consistency``
     (S,) with the predicted camera motion: the belief carries what earlier frames
-    established of each cell, the prediction says whether the segment still moves as the
+    established of each cell (motion, depth order and the occlusion memory, through the
+    moving evidence), the prediction says whether the segment still moves as the
     background did. Without the consistency, the belief alone kept the background on an
-    object that a first frame had merged with it (docs/report/core_decisions.md). The vote
-    decides between segments of alike prior, and a clear prior decides against it (one
-    frame's depth order can mislead: a mover behind a static desk). No candidate with
-    support: no background in view (0). When the background's identifier is not 1, the two
-    identifiers swap (the background is re-acquired in this frame, never lost), by the
-    permutation returned for every later stage's state; a segment without an identifier
-    takes 1. ``initialised`` () bool: some segment had an identifier before (a swap then
-    re-acquires the background); ``max_ids``: the identifiers' count (static).
+    object that a first frame had merged with it (docs/report/core_decisions.md). No
+    candidate with support: no background in view (0). When the background's identifier
+    is not 1, the two identifiers swap (the background is re-acquired in this frame, never
+    lost), by the permutation returned for every later stage's state; a segment without an
+    identifier takes 1. ``initialised`` () bool: some segment had an identifier before (a
+    swap then re-acquires the background); ``max_ids``: the identifiers' count (static).
 
     Returns ``(segment_ids, background () int32 spatial label 1..S or 0, reacquired ()
     bool, permutation (max_ids,) int32)``.
@@ -129,11 +120,7 @@ def choose_background(segment_ids, support, consistency, initialised, params: Pa
     usable = prior > 0
     if candidate is not None:
         usable = usable & candidate
-    best = jnp.max(jnp.where(usable, prior, 0.0))
-    post = jnp.log(jnp.maximum(prior, tiny()) / jnp.maximum(best, tiny()))
-    if vote is not None:
-        post = post + vote
-    pick = jnp.argmax(jnp.where(usable, post, -jnp.inf))
+    pick = jnp.argmax(jnp.where(usable, prior, -1.0))
     has = jnp.any(usable)
     background = jnp.where(has, pick + 1, 0).astype(jnp.int32)
     bg_id = jnp.where(has & present[pick], segment_ids[pick], STATIC_ID)
@@ -161,11 +148,11 @@ class BackgroundOut(NamedTuple):
     # j + 1 becomes permutation[j] + 1): every later stage applies it to its own state
     permutation: jax.Array
     status: jax.Array  # () int32 Status.OK, or NO_BACKGROUND: no segment can be the background
-    # (n,) float32 each point's log-likelihood ratio, moving over static, from where it lies:
-    # a point of a segment in front of another motion that the background's motion does not
-    # explain, or one the occlusion memory holds nearer than what was seen there
-    # (jaxvo.core.evidence adds it to the moving evidence); 0 elsewhere
+    # (n,) float32 each point's log-likelihood ratio, moving over static, from its segment's
+    # depth order where that lies in front of another motion (order_loglik), 0 elsewhere;
+    # jaxvo.core.evidence counts it for the points the ego-motion does not explain
     in_front: jax.Array
+    occluded: jax.Array  # (n,) bool points the occlusion memory holds nearer than what was seen
 
 
 def belief_weights(prior, params: Params):
@@ -227,11 +214,7 @@ def update_background(seg, pts: Points, T_pred, have_last, params: Params, *, cf
     The ego-motion may use every valid point, weighted by its belief, but those in a
     segment that moves unlike the background (Algorithm 1's refinement on all points, for
     the background; a segment the background's motion explains is a piece of the
-    background that fast motion or depth distortion split off) and the occluders. Where
-    enough of those points are established as background, they decide alone: the others
-    (new in view, or their evidence faded) wait until the evidence establishes them, so a
-    near mover's many unestablished points cannot pull the fit along the direction in
-    which a far background constrains it least.
+    background that fast motion or depth distortion split off) and the occluders.
 
     Args:
       seg: the spatial ``Segmentation``; pts: the frame's points
@@ -261,28 +244,22 @@ def update_background(seg, pts: Points, T_pred, have_last, params: Params, *, cf
     behind, front = depth_order(jnp.where(valid, seg.labels, 0), z_prev,
                                 scale.depth_coeff * z_prev * z_prev, explained, pts.tie,
                                 grid=grid, cfg=cfg)
-    vote, order = order_loglik(behind, front, params)
+    order = order_loglik(behind, front, params)
     member = (seg.labels[None, :] == jnp.arange(1, cfg.max_segments + 1)[:, None]) & valid
     mover = (evidence > moving_logodds(params)) | occluded
     candidate = (~explains(mover[None, :], member, MOST)
                  | enough_points(explained & (belief >= 1.0), params))
     segment_ids, bg, reacquired, perm = choose_background(
         segment_ids, support, consistency, initialised, params, max_ids=cfg.max_ids,
-        vote=vote, candidate=candidate)
+        candidate=candidate)
     bgi = jnp.maximum(bg - 1, 0)
     static_seg = (explained_segments(seg.labels, d2_seg[bgi], valid, pts.thr, cfg=cfg)
                   | (jnp.arange(1, cfg.max_segments + 1) == bg))
     in_moving_seg = (seg.labels > 0) & ~static_seg[jnp.clip(seg.labels - 1, 0, None)]
     use = jnp.where(in_moving_seg, 0.0, belief)
-    established = use >= 1.0
-    use = jnp.where(enough_points(established, params), jnp.where(established, use, 0.0), use)
     status = jnp.where((bg == 0) & (seg.num_segments > 0), jnp.int32(Status.NO_BACKGROUND),
                        jnp.int32(Status.OK))
-    # the points of a segment in front of another motion are movers, but for those the
-    # background's motion explains (background that a mover's segment took in)
     own = order[jnp.clip(seg.labels - 1, 0, cfg.max_segments - 1)]
-    in_front = jnp.where((seg.labels > 0) & valid & (own < 0) & ~(explained[bgi] & (bg > 0)),
-                         -own, 0.0)
-    in_front = jnp.where(occluded, params.evidence_step, in_front)
+    in_front = jnp.where((seg.labels > 0) & valid & (own < 0), -own, 0.0)
     return BackgroundOut(segment_ids, bg, reacquired, use, belief, d2_seg, perm, status,
-                         in_front)
+                         in_front, occluded)

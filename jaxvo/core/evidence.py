@@ -90,21 +90,32 @@ def neighbourhood_agreement(values, valid, *, grid: tuple[int, int]):
 
 
 def moving_evidence(seg_labels, pts: Points, T_cur_prev, d2_seg, ok, params: Params, *,
-                    cfg: Config, grid: tuple[int, int], in_front=None):
+                    cfg: Config, grid: tuple[int, int], in_front=None, occluded=None):
     """This frame's evidence of each point's own motion under the ego-motion ``T_cur_prev``:
     ``(explained (S,) bool, delta (n,) float32)``, the segments the ego-motion explains
     (:func:`explained_segments`) and every point's log-likelihood ratio
-    (:func:`evidence_delta`); none where the frame is not ``ok``. ``in_front`` (n,), the
-    depth order's log-likelihood ratio of each point (:class:`jaxvo.core.background.
-    BackgroundOut`; already within ``+-params.evidence_step``), is added: an independent
-    measurement (where each point lies, not how it moves), which does not depend on the
-    ego-motion, so it counts in every frame."""
+    (:func:`evidence_delta`); none where the frame is not ``ok``.
+
+    Where a point lies adds to it, an independent measurement (where each point lies, not
+    how it moves): ``in_front`` (n,), the depth order's log-likelihood ratio of a point
+    whose segment lies in front of another motion (:class:`jaxvo.core.background.
+    BackgroundOut`; within ``+-params.evidence_step``), for the points whose own motion is
+    already as sure a sign of moving as one frame gives (:func:`evidence_delta` at
+    ``params.evidence_step``: they do not follow the camera, and their neighbourhood
+    agrees): it strengthens that evidence, it does not make it (a static surface in front
+    of a mover follows the camera; where noise splits a static scene, which piece lies in
+    front is chance); ``occluded`` (n,) bool, the points the occlusion memory holds
+    nearer than what was seen there, ``params.evidence_step`` each (the static scene never
+    comes nearer than itself)."""
     d2_ego = residuals(T_cur_prev, pts.src, pts.dst, pts.noise)[0]
     explained = explained_segments(seg_labels, d2_ego, pts.valid, pts.thr, cfg=cfg)
     delta = evidence_delta(seg_labels, d2_ego, d2_seg, explained, pts.valid & ok, params,
                            grid=grid)
     if in_front is not None:
-        delta = delta + jnp.where(pts.valid, in_front, 0.0)
+        decided = delta >= params.evidence_step  # as sure as one frame's motion can be
+        delta = delta + jnp.where(pts.valid & decided, in_front, 0.0)
+    if occluded is not None:
+        delta = delta + jnp.where(pts.valid & occluded, params.evidence_step, 0.0)
     return explained & ok, delta
 
 

@@ -149,7 +149,8 @@ def step(state: PipelineState, flow, key, params: Params, *, cfg: Config, grid,
     eo = eo._replace(used=eo.used[:pts.valid.shape[0]])
     # 4. evidence of each point's own motion under the ego-motion
     explained, delta = moving_evidence(seg.labels, pts, eo.T_cur_prev, bg.d2_seg, eo.ok,
-                                       params, cfg=cfg, grid=grid, in_front=bg.in_front)
+                                       params, cfg=cfg, grid=grid, in_front=bg.in_front,
+                                       occluded=bg.occluded)
     # 5. labels: the dual-mode grid model, compensated to the current image
     temporal, tout = update_temporal(
         state.temporal, labels, flow.uv_cur - flow.uv_prev, pts.valid, params, cfg=cfg,

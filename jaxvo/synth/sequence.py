@@ -351,7 +351,7 @@ class SyntheticSequence:
         anchors) that an object moves around, at ``tau`` seconds from the first frame:
         translation interpolated between frames, rotation of the nearer frame."""
         if self._background is None:  # the synthetic camera path is known at any time
-            half = int(round(follow * self.fps / 2))
+            half = round(follow * self.fps / 2)
             t0 = float(self.timestamps[0])
             return mean_pose(np.stack([self._camera.pose(t0 + tau + j / self.fps)
                                        for j in range(-half, half + 1)]))
@@ -360,7 +360,7 @@ class SyntheticSequence:
         else:
             if follow not in self._follow_anchors:
                 self._follow_anchors[follow] = smooth_poses(
-                    self._background.poses, int(round(follow * self.fps / 2)))
+                    self._background.poses, round(follow * self.fps / 2))
             anchors = self._follow_anchors[follow]
         since = self.timestamps - self.timestamps[0]
         j = int(np.clip(np.searchsorted(since, tau, side="right") - 1, 0, len(since) - 1))
