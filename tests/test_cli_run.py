@@ -143,7 +143,9 @@ def test_interrupted_run_keeps_every_pose_computed(seq_dir, tmp_path, capsys, mo
 def test_an_image_that_cannot_be_written_mid_run_is_one_line_and_exit_2(
         seq_dir, tmp_path, capsys, monkeypatch):
     """Masks are written on a background thread: a write that fails there (a full disk)
-    still ends the run with one line naming the file, and the poses so far are kept."""
+    still ends the run with one line naming the file. A failed run replaces no file: the
+    earlier trajectory stays as it was (an interrupted one keeps its poses: the test above),
+    and the folder keeps the masks written whole before the failure."""
     import jaxvo.host.io
 
     real_write = jaxvo.host.io.write_image
@@ -157,15 +159,18 @@ def test_an_image_that_cannot_be_written_mid_run_is_one_line_and_exit_2(
 
     monkeypatch.setattr(jaxvo.host.io, "write_image", write_image)
     traj = tmp_path / "traj.txt"
+    traj.write_text("# an earlier run\n")
     rc = main(["run", str(seq_dir), "--out", str(traj), "--masks", str(tmp_path / "m"), "-q"])
     err = capsys.readouterr().err.strip().splitlines()
     assert rc == 2 and len(err) == 1
     assert err[0].startswith("jaxvo: error: ") and "No space left on device" in err[0]
     assert ".png" in err[0]
-    # the run stops at the next frame after the failure, or at the end: the poses it
-    # computed are kept, and no mask after the failed one is written
-    assert len(read_trajectory(traj)) >= 3
+    # the run stops at the next frame after the failure, or at the end; no mask after the
+    # failed one is written, and nothing is left half-written beside them
+    assert traj.read_text() == "# an earlier run\n"
+    assert sorted(p.name for p in tmp_path.iterdir()) == ["m", "traj.txt"]
     assert len(list((tmp_path / "m").glob("*.png"))) == 2
+    assert not list((tmp_path / "m").glob(".*"))
 
 
 _COMPILING = {"on": False, "events": []}

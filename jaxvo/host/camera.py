@@ -212,6 +212,26 @@ def check_depth_scale_value(scale: float, *, name: str) -> None:
             "no RGB-D sensor reads; TUM's scale is 5000 per metre, millimetres 1000")
 
 
+def intrinsics_option(text: str, *, where: str = "--intrinsics") -> Intrinsics:
+    """The camera an ``--intrinsics fx,fy,cx,cy`` option gives (pixels; a negative fy: a
+    camera whose y axis points up), checked as :func:`check_intrinsics` does without an
+    image size.
+
+    Raises:
+      InputError: not four numbers, or no camera has them.
+    """
+    want = f"{where} must be four numbers fx,fy,cx,cy in pixels, got {text!r}"
+    try:
+        values = [float(v) for v in text.split(",")]
+    except ValueError:
+        raise InputError(want) from None
+    if len(values) != 4:
+        raise InputError(want)
+    camera = as_intrinsics(values, where=where)
+    check_intrinsics(camera, where=where)
+    return camera
+
+
 # The principal point of a real camera lies near the image centre: beyond a quarter of
 # the image side from it, the intrinsics are another image size's (a 640x480 camera.txt
 # kept beside images resized to 320x240 puts it at the image corner).
@@ -269,7 +289,9 @@ def write_camera_file(path: str | Path, K: Intrinsics, *, comment: str = "") -> 
     lines = [f"# {comment}"] if comment else []
     lines += [f"fx {K.fx:.6g}", f"fy {K.fy:.6g}", f"cx {K.cx:.6g}", f"cy {K.cy:.6g}"]
     lines.append(f"depth_scale {K.depth_scale:.6g}")
-    Path(path).write_text("\n".join(lines) + "\n")
+    from jaxvo.host.outputs import write_text  # host.outputs imports nothing of this module
+
+    write_text(path, "\n".join(lines) + "\n")
 
 
 def depth_metres(depth: np.ndarray, K: Intrinsics) -> np.ndarray:

@@ -33,10 +33,13 @@ from jaxvo.host.frames import (
 
 # the output checks, in a module of their own; their names stay importable from here too
 from jaxvo.host.outputs import (  # noqa: F401 (re-exported)
+    STDOUT,
+    OutputFile,
     check_outputs,
     output_file,
     output_folder,
     write_image,
+    write_text,
 )
 from jaxvo.host.rosbag import BagSequence, is_bag
 
@@ -74,9 +77,18 @@ QUAT_NORM_TOL = 1e-3
 
 
 def _read_text(path: Path) -> str:
+    """A text file's contents; ``-`` reads standard input, and a pipe (``/dev/stdin``, a
+    FIFO) is read as a file is."""
+    import sys
+
+    if str(path) == "-":  # standard input, as for other tools that read a file
+        if sys.stdin is None or sys.stdin.isatty():
+            raise InputError("-: standard input is a terminal or closed, not a trajectory "
+                             "piped in (jaxvo run --out - | jaxvo eval ate gt.txt -)")
+        return sys.stdin.read()
     if not path.exists():
         raise InputError(f"file not found: {path}")
-    if not path.is_file():
+    if path.is_dir():
         raise InputError(f"not a file: {path}")
     try:
         return path.read_text()
@@ -97,7 +109,8 @@ def _data_lines(path: Path) -> list[tuple[int, list[str]]]:
 
 
 def read_trajectory(path: str | Path) -> Trajectory:
-    """Read a TUM trajectory file ``timestamp tx ty tz qx qy qz qw`` (``#`` comments).
+    """Read a TUM trajectory file ``timestamp tx ty tz qx qy qz qw`` (``#`` comments);
+    ``-`` reads it from standard input.
 
     Poses are sorted by time. Raises :class:`InputError` (``file:line: ...``) for a line
     that is not eight numbers, a non-finite value, a quaternion whose norm is not 1 within
@@ -160,7 +173,7 @@ def write_trajectory(path: str | Path, traj: Trajectory, *, comment: str = "") -
     rotations within about 1e-9 of the written ones (the printed precision).
 
     Args:
-      path: the file to write (overwritten).
+      path: the file to write (replaced whole, :class:`jaxvo.host.outputs.OutputFile`).
       traj: timestamps (N,) seconds, poses (N, 4, 4) ``T_w_c``.
       comment: an optional first line (written after ``# ``).
     """
@@ -179,10 +192,46 @@ def write_trajectory(path: str | Path, traj: Trajectory, *, comment: str = "") -
     fmt = " ".join([_TIME_FMT] + [_VALUE_FMT] * 7)
     for t, T, qi in zip(stamps, poses, q):
         lines.append(fmt % (t, *T[:3, 3], *qi))
+    write_text(path, "\n".join(lines) + "\n")  # whole or not at all, errors name the file
+
+
+# A trajectory jaxvo run writes starts with the command, then a line naming what it ran on
+# (RUN_TAG, then JSON), which jaxvo map reads back to map the depth as the run read it and to
+# refuse a trajectory of another sequence; evo and read_trajectory skip both as comments.
+RUN_TAG = "jaxvo-run "
+
+
+def run_header(where: str | Path, seq) -> str:
+    """The comment lines a run's trajectory starts with (without ``#``): the command, and
+    the sequence's name, frames, first frame's time and camera as the run read them."""
+    import json
+
+    K = seq.intrinsics
+    info = {"sequence": seq.name, "frames_listed": int(getattr(seq, "frames_listed", len(seq))),
+            "first_time": round(float(seq.timestamps[0]), 6),
+            "intrinsics": [float(K.fx), float(K.fy), float(K.cx), float(K.cy)],
+            "depth_scale": float(K.depth_scale)}
+    return f"jaxvo run {where}\n{RUN_TAG}{json.dumps(info)}"
+
+
+def read_run_header(path: str | Path) -> dict | None:
+    """What :func:`run_header` wrote at the top of a trajectory file, or None (another
+    tool's trajectory, or a header that does not parse)."""
+    import json
+
     try:
-        Path(path).write_text("\n".join(lines) + "\n")
-    except OSError as exc:  # a full disk fails in write() or close(), which name no file
-        raise OSError(exc.errno, exc.strerror, str(path)) from None
+        with open(path, encoding="utf-8", errors="replace") as fh:
+            for _, line in zip(range(8), fh):
+                if line.startswith("# " + RUN_TAG):
+                    info = json.loads(line[2 + len(RUN_TAG):])
+                    K = Intrinsics(*(float(v) for v in info["intrinsics"]),
+                                   float(info["depth_scale"]))
+                    return {**info, "intrinsics": K}
+                if not line.startswith("#"):
+                    break
+    except (OSError, ValueError, KeyError, TypeError):
+        return None
+    return None
 
 
 def pose_at(traj: Trajectory, t: float, *, max_diff: float = 0.02) -> np.ndarray | None:
@@ -363,6 +412,14 @@ class TumSequence:
 
         gt = root / "groundtruth.txt"
         self.groundtruth = read_trajectory(gt) if gt.is_file() else None
+        if depth_scale is not None:  # float depth is metres: a depth scale would do nothing
+            try:
+                stored = _read_depth(self._depth[0]).dtype
+            except InputError:
+                stored = None  # an unreadable first depth: that frame is dropped, said then
+            if stored is not None and stored.kind == "f":
+                raise InputError(f"{self._depth[0]}: depth is float metres ({stored}); "
+                                 "--depth-scale is for 16-bit depth in raw units: leave it out")
 
         first = _read_image(self._rgb[0], _imread_color())
         self.height, self.width = first.shape[:2]
@@ -421,15 +478,19 @@ class TumSequence:
         return Frame(index, float(self.timestamps[index]), bgr, depth, mask)
 
     def files(self, frames: int | None = None) -> list[Path]:
-        """Every file reading the first ``frames`` frames (default all) touches: the lists,
-        the camera, the ground truth and the images (what no output may overwrite)."""
+        """What no output may overwrite (:func:`jaxvo.host.outputs.check_outputs`): the
+        lists, the camera, the ground truth, the images of the first ``frames`` frames
+        (default all), and the folders of the images, every file of which is protected (the
+        images of frames this run does not read too)."""
         names = ("rgb.txt", "depth.txt", "associations.txt", "groundtruth.txt", "camera.txt",
                  "calibration.txt", "mask.txt")
         out = [self.path / name for name in names if (self.path / name).exists()]
         n = len(self) if frames is None else min(frames, len(self))
+        folders: dict[Path, None] = {}
         for paths in (self._rgb, self._depth, self._mask or []):
             out += paths[:n]
-        return out
+            folders.update(dict.fromkeys(p.parent for p in paths if p.parent != self.path))
+        return out + [p for p in folders if p.is_dir()]
 
     def _read_mask(self, index: int) -> np.ndarray:
         path = self._mask[index]
@@ -514,15 +575,14 @@ def open_sequence(path: str | Path, *, rgb_topic: str | None = None,
     return TumSequence(root, **kwargs)
 
 
-# the file name that writes a trajectory to standard output, as command-line tools take it
-STDOUT = "-"
-
-
 class TrajectoryWriter:
-    """Writes a TUM trajectory one pose at a time, flushed, so nothing computed is lost
-    when a long run is interrupted. Same format as :func:`write_trajectory`; ``"-"``
-    writes to standard output. A write that fails (a full disk) raises ``OSError`` naming
-    the file.
+    """Writes a TUM trajectory one pose at a time (as :func:`write_trajectory`; ``"-"``:
+    standard output), whole at every moment a reader can see: the poses go to a temporary
+    file beside it, flushed pose by pose, which replaces the file on :meth:`close` (also
+    after Ctrl-C, with the poses computed so far; after a second Ctrl-C as flushed,
+    :func:`jaxvo.host.outputs.abort_pending`). A failed run leaves the earlier file as it
+    was (:class:`jaxvo.host.outputs.OutputFile`); a failed write (a full disk) raises
+    ``OSError`` naming the file.
 
     Example::
 
@@ -539,12 +599,13 @@ class TrajectoryWriter:
         self.poses: list[np.ndarray] = []
         self._stdout = str(path) == STDOUT
         if self._stdout:
-            self._fh = sys.stdout
+            self._out = None
         else:
             if self.path.parent and not self.path.parent.exists():
                 raise InputError(f"folder of the output trajectory does not exist: "
                                  f"{self.path.parent}")
-            self._fh = open(self.path, "w")  # noqa: SIM115 (held open across writes; closed by close())
+            self._out = OutputFile(self.path, text=True, keep_on_abort=True)
+        self._fh = sys.stdout if self._stdout else self._out.handle
         self._fmt = " ".join([_TIME_FMT] + [_VALUE_FMT] * 7) + "\n"
         self._put("".join(f"# {line}\n" for line in comment.splitlines())
                   + "# timestamp tx ty tz qx qy qz qw\n")
@@ -572,18 +633,24 @@ class TrajectoryWriter:
                           np.asarray(self.poses, np.float64).reshape(-1, 4, 4))
 
     def close(self) -> None:
-        if self._stdout:
-            return
-        try:
-            self._fh.close()
-        except OSError as exc:
-            raise OSError(exc.errno, exc.strerror, str(self.path)) from None
+        """Put the file in place with every pose written (idempotent)."""
+        if self._out is not None:
+            self._out.commit()
+
+    def discard(self) -> None:
+        """Leave the earlier file as it was (idempotent; nothing after :meth:`close`)."""
+        if self._out is not None:
+            self._out.discard()
 
     def __enter__(self):
         return self
 
-    def __exit__(self, *exc):
-        self.close()
+    def __exit__(self, exc_type, exc, tb):
+        # Ctrl-C (KeyboardInterrupt) keeps the poses computed; an error keeps the old file
+        if exc_type is None or issubclass(exc_type, KeyboardInterrupt):
+            self.close()
+        else:
+            self.discard()
 
 
 # Median depth of a frame, metres: outside the hard band no RGB-D sensor reads (the depth

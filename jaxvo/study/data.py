@@ -13,7 +13,6 @@ import functools
 import hashlib
 import inspect
 import json
-import os
 import re
 from collections.abc import Callable
 from pathlib import Path
@@ -24,6 +23,7 @@ import numpy as np
 from jaxvo.config import Config, grid_shape
 from jaxvo.errors import InputError
 from jaxvo.host.io import Trajectory, groundtruth_of_frames
+from jaxvo.host.outputs import OutputFile
 from jaxvo.study.spec import SequenceSpec, config_fields
 
 
@@ -191,9 +191,8 @@ def sequence_data(s: SequenceSpec, cfg: Config, cache_dir: str | Path | None, *,
         if truth is not None:
             arrays["truth"] = truth
         path.parent.mkdir(parents=True, exist_ok=True)
-        tmp = path.with_name(f".{path.name}.{os.getpid()}.tmp.npz")
-        np.savez(tmp, **arrays)
-        os.replace(tmp, path)  # whole or absent, also with several writers
+        with OutputFile(path) as fh:  # whole or absent, also with several writers
+            np.savez(fh.handle, **arrays)
     return data, False
 
 
