@@ -157,7 +157,7 @@ def _check_options(args: argparse.Namespace):
 
     from jaxvo.config import Config, check_config
     from jaxvo.errors import InputError, check_seed
-    from jaxvo.host.camera import as_intrinsics, check_depth_scale_value, check_intrinsics
+    from jaxvo.host.camera import check_depth_scale_value, intrinsics_option
 
     if not (math.isfinite(args.max_diff) and args.max_diff >= 0):
         raise InputError(f"--max-diff must be a number of seconds >= 0, got {args.max_diff}")
@@ -174,16 +174,7 @@ def _check_options(args: argparse.Namespace):
     check_config(cfg, names=_CONFIG_OPTIONS)
     camera = args.camera
     if args.intrinsics is not None:
-        try:
-            camera = as_intrinsics([float(v) for v in args.intrinsics.split(",")],
-                                   where="--intrinsics")
-        except ValueError:
-            raise InputError(f"--intrinsics must be four numbers fx,fy,cx,cy in pixels, got "
-                             f"{args.intrinsics!r}") from None
-        if len(camera) != 5 or args.intrinsics.count(",") != 3:
-            raise InputError(f"--intrinsics must be four numbers fx,fy,cx,cy in pixels, got "
-                             f"{args.intrinsics!r}")
-        check_intrinsics(camera, where="--intrinsics")
+        camera = intrinsics_option(args.intrinsics)
     return cfg, camera
 
 
@@ -194,6 +185,7 @@ def _open(args: argparse.Namespace, cfg, camera):
     from jaxvo.errors import InputError
     from jaxvo.host.io import STDOUT, check_outputs, open_sequence, output_file, output_folder
     from jaxvo.host.memory import check_memory, run_bytes
+    from jaxvo.host.outputs import stream_target
 
     seq = open_sequence(args.sequence, camera=camera, max_diff=args.max_diff,
                         depth_scale=args.depth_scale, rgb_topic=args.rgb_topic,
@@ -207,27 +199,28 @@ def _open(args: argparse.Namespace, cfg, camera):
     given = {option: folder for option, folder in (
         ("--masks", args.masks), ("--dynamic-masks", args.dynamic_masks),
         ("--overlays", args.overlays)) if folder}
-    to_stdout = args.out == STDOUT
-    files = {} if to_stdout else {"--out": Path(args.out)}
+    out = stream_target(args.out, what="--out", stdout=True)
+    files = {} if out == STDOUT else {"--out": out}
     if args.rerun_save:
-        files["--rerun-save"] = Path(args.rerun_save)
+        files["--rerun-save"] = args.rerun_save
     if args.map:
         from jaxvo.cli.map import map_outputs
 
         files.update({("--map" if k == "map" else f"--map's {k}"): v
                       for k, v in map_outputs(args.map).items()})
-    check_outputs(seq.files(n), files=files, folders={k: Path(v) for k, v in given.items()})
-    out = args.out if to_stdout else output_file(args.out, what="--out")
+    files = {what: stream_target(path, what=what) for what, path in files.items()}
+    check_outputs(seq.files(), files=files, folders={k: Path(v) for k, v in given.items()})
     for what, path in files.items():
-        if what != "--out":
-            output_file(path, what=what)
+        output_file(path, what=what)
     if args.rerun or args.rerun_save:
         from jaxvo.host.recording import check_display, import_rerun
 
         import_rerun("--rerun" if args.rerun else "--rerun-save")
         if args.rerun:
             check_display("--rerun")
-    folders = {option: output_folder(folder, what=option) for option, folder in given.items()}
+    names = {f"{t:.6f}.png" for t in seq.timestamps[:n]}
+    folders = {option: output_folder(folder, what=option, names=names)
+               for option, folder in given.items()}
     return seq, n, out, folders
 
 
@@ -250,7 +243,13 @@ def run(args: argparse.Namespace, prepared=None) -> int:
 
     from jaxvo.cli.main import EXIT_INTERRUPTED, EXIT_NOTHING_ESTIMATED, interrupt_at_safe_points
     from jaxvo.host.compile_cache import announce_compile
-    from jaxvo.host.io import DepthScaleWarning, TrajectoryWriter, check_depth_scale, first_readable
+    from jaxvo.host.io import (
+        DepthScaleWarning,
+        TrajectoryWriter,
+        check_depth_scale,
+        first_readable,
+        run_header,
+    )
     from jaxvo.host.prefetch import BackgroundWriter, read_ahead
     from jaxvo.host.progress import Progress
 
@@ -275,34 +274,27 @@ def run(args: argparse.Namespace, prepared=None) -> int:
     T_w_c0, start = choose_start_pose(args.start_pose or "gt", gt, first.timestamp,
                                       max_diff=args.max_diff, required=bool(args.start_pose))
     odo = Odometry(seq.intrinsics, cfg=cfg, seed=args.seed, T_w_c0=T_w_c0)
-    logger = None
-    if args.rerun or args.rerun_save:
-        from jaxvo.host.recording import RerunLogger
-
-        logger = RerunLogger(save=args.rerun_save, spawn=args.rerun)
-        odo.attach(logger)
-        logger.log_groundtruth(gt)
     progress = Progress("jaxvo run", n - 1, enabled=not args.quiet)
-    # leaving this block, also by Ctrl-C, closes the reader, then writes every image queued
-    with (TrajectoryWriter(out, comment=f"jaxvo run {args.sequence}") as writer,
-          interrupt_at_safe_points() as stop,
-          BackgroundWriter() as images,
-          contextlib.closing(reads),
-          announce_compile("the per-frame step", stream=None if args.quiet else sys.stderr)
-          as compiling,
-          py_warnings.catch_warnings()):
-        py_warnings.simplefilter("ignore", DepthScaleWarning)  # said above, with the frame
-        rec = _Recorder(cfg, writer, images, folders, keep_dynamic=bool(args.map))
-        rec.process(odo, itertools.chain(early, ((i, fut.result) for i, fut in reads)), stop,
-                    progress)
-    progress.close()
-    summary = _summary(args, seq, n, start, rec, compiling, warnings, out)
-    try:
-        if args.map and rec.written and not rec.interrupted:
+    # the recording is whole once the run (and its map) is: closed last, or discarded on
+    # an error, when the earlier file stays
+    with _logger(args, odo, gt) as logger:
+        # leaving this block, also by Ctrl-C, closes the reader, writes every image queued,
+        # then puts the trajectory file in place (whole, with every pose computed)
+        with (TrajectoryWriter(out, comment=run_header(args.sequence, seq)) as writer,
+              interrupt_at_safe_points() as stop,
+              BackgroundWriter() as images,
+              contextlib.closing(reads),
+              announce_compile("the per-frame step", stream=None if args.quiet else sys.stderr)
+              as compiling,
+              py_warnings.catch_warnings()):
+            py_warnings.simplefilter("ignore", DepthScaleWarning)  # said above, with the frame
+            rec = _Recorder(cfg, writer, images, folders, keep_dynamic=bool(args.map))
+            rec.process(odo, itertools.chain(early, ((i, fut.result) for i, fut in reads)),
+                        stop, progress)
+        progress.close()
+        summary = _summary(args, seq, n, start, rec, compiling, warnings, out)
+        if args.map:
             summary.update(_map(args, seq, n, rec, out, writer, logger))
-    finally:
-        if logger is not None:
-            logger.close()
     if gt is not None and rec.written >= 3:
         summary.update(_scores(gt, out, writer, args.max_diff))
     # the trajectory on standard output (--out -): the summary goes beside the warnings
@@ -315,12 +307,27 @@ def run(args: argparse.Namespace, prepared=None) -> int:
     if rec.interrupted:
         print("jaxvo: interrupted; the poses computed so far are in the trajectory file",
               file=sys.stderr)
-        return EXIT_INTERRUPTED
+        return stop.exit_status if stop.requested else EXIT_INTERRUPTED
     if rec.pairs_ok == 0:
         print("jaxvo: no frame pair gave a camera motion (every pair skipped or dropped, see "
               "the summary)", file=sys.stderr)
         return EXIT_NOTHING_ESTIMATED
     return 0
+
+
+def _logger(args: argparse.Namespace, odo, gt):
+    """The run's Rerun logger attached to ``odo`` (a context that closes it), or a context
+    holding None."""
+    import contextlib
+
+    if not (args.rerun or args.rerun_save):
+        return contextlib.nullcontext(None)
+    from jaxvo.host.recording import RerunLogger
+
+    logger = RerunLogger(save=args.rerun_save, spawn=args.rerun, what="--rerun-save")
+    odo.attach(logger)
+    logger.log_groundtruth(gt)
+    return logger
 
 
 class _Recorder:
@@ -343,6 +350,7 @@ class _Recorder:
         self.keyframes = 1 if cfg.keyframes else 0  # keyframes taken (the first frame is one)
         self.first_unreadable = ""  # the first unreadable frame's error, for the summary
         self.interrupted = False
+        self.seen = 0  # frames taken from the sequence (read, or found unreadable)
         # frame index -> its dynamic cells (n,) bool, for --map; None: not kept
         self.dynamic: dict[int, object] | None = {} if keep_dynamic else None
 
@@ -358,6 +366,7 @@ class _Recorder:
             for i, read in frames:
                 stop()  # Ctrl-C is taken here, between frames, never inside a compile
                 t0 = time.perf_counter()
+                self.seen += 1
                 try:
                     frame = read()
                 except InputError as exc:  # unreadable frame: drop it, keep going
@@ -445,7 +454,12 @@ class _Recorder:
 
 def _map(args, seq, n: int, rec: _Recorder, out, writer, logger) -> dict:
     """``--map``: the maps from the trajectory written and the run's dynamic cells, as
-    ``jaxvo map`` makes them with its default options; the summary's part."""
+    ``jaxvo map`` makes them with its default options; the summary's part (why there is no
+    map, after Ctrl-C or with no pose)."""
+    if rec.interrupted or not rec.written:
+        why = "the run was interrupted" if rec.interrupted else "no pose was written"
+        kept = f" (an earlier {args.map} is as it was)" if Path(args.map).exists() else ""
+        return {"map_not_written": why + kept}
     from types import SimpleNamespace
 
     from jaxvo.cli.map import make_maps, map_outputs
@@ -474,6 +488,7 @@ def _summary(args, seq, n: int, start: str, rec: _Recorder, compiling, warnings,
         "sequence": str(args.sequence),
         "frames_listed": getattr(seq, "frames_listed", len(seq)),
         "frames": n,
+        "frames_processed": rec.seen,
         "camera": getattr(seq, "camera_source", "given"),
         "start_pose": start,
         "poses_written": rec.written,
@@ -534,8 +549,9 @@ def _print_summary(summary: dict, n: int, interrupted: bool) -> None:
         print(f"  keyframes  {summary['keyframes']} taken (each frame's motion also fitted to "
               "the latest keyframe's static points; the last keyframes refined together as "
               "each was taken)")
-    listed = summary["frames_listed"]
-    print(f"  frames     {n} processed" + (f" of {listed} listed" if listed != n else ""))
+    listed, seen = summary["frames_listed"], summary["frames_processed"]
+    print(f"  frames     {seen} processed" + (f" of {n}" if seen != n else "")
+          + (f" ({listed} listed)" if listed != n else ""))
     for label, counts, unit in (("dropped", summary["dropped"], "frames"),
                                 ("skipped", summary["skipped"], "frame pairs")):
         total = sum(counts.values())
@@ -551,6 +567,8 @@ def _print_summary(summary: dict, n: int, interrupted: bool) -> None:
         print(f"  warning    {w}")
     if "scores_not_computed" in summary:
         print(f"  ATE / RPE  not computed: {summary['scores_not_computed']}")
+    if "map_not_written" in summary:
+        print(f"  map        not written: {summary['map_not_written']}")
     if "map" in summary:
         print(f"  map        {summary['map_points']} points -> {summary['map']} (dynamic pixels "
               f"left out), {summary['map_all_points']} -> {summary['map_all']} (nothing left "
