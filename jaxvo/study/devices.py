@@ -10,7 +10,9 @@ is dropped); the same configuration vmapped in a batch of another size may diffe
 
 from __future__ import annotations
 
+import contextlib
 import functools
+from collections.abc import Callable
 from concurrent.futures import ThreadPoolExecutor
 from typing import Any
 
@@ -77,12 +79,26 @@ def free_memory(device) -> float | None:
     return float(stats["bytes_limit"] - stats.get("bytes_in_use", 0))
 
 
+# How long the processes of a study wait for each other to join, seconds (JAX's own
+# default); past it each stops with one line (JAX itself aborted the process, exit 134 with
+# a native stack trace, after 300 s of silence)
+JOIN_TIMEOUT = 300.0
+
+
 def init_distributed(coordinator: str | None, num_processes: int | None,
-                     process_id: int | None) -> None:
+                     process_id: int | None, *, timeout: float = JOIN_TIMEOUT,
+                     say: Callable[[str], None] | None = None) -> None:
     """Join a multi-process study (``jax.distributed``) when more than one process is
     asked for; call before JAX touches a device.
 
-    On the CPU the processes exchange data over Gloo (JAX's default CPU collectives).
+    The processes first meet on the coordinator's port (:func:`join`: each says so on
+    ``say`` while it waits, and stops with one line after ``timeout`` seconds when one is
+    missing), then start JAX's distributed runtime. On the CPU the processes exchange data
+    over Gloo (JAX's default CPU collectives).
+
+    Raises:
+      InputError: a missing coordinator or process id, an id out of range, or processes
+        that did not all join within ``timeout``.
     """
     if not num_processes or num_processes == 1:
         return
@@ -91,12 +107,138 @@ def init_distributed(coordinator: str | None, num_processes: int | None,
                          "and this process's id (0 .. num_processes - 1)")
     if not 0 <= process_id < num_processes:
         raise InputError(f"process id {process_id} is not in 0 .. {num_processes - 1}")
+    join(coordinator, num_processes, process_id, timeout=timeout, say=say)
     import jax
 
     if jax.config.jax_cpu_collectives_implementation is None:  # JAX before 0.5 had none
         jax.config.update("jax_cpu_collectives_implementation", "gloo")
     jax.distributed.initialize(coordinator_address=coordinator, num_processes=num_processes,
-                               process_id=process_id)
+                               process_id=process_id,
+                               initialization_timeout=max(int(timeout), 1))
+
+
+_HELLO = "jaxvo-study-join"
+
+
+def join(coordinator: str, num_processes: int, process_id: int, *, timeout: float,
+         say: Callable[[str], None] | None = None) -> None:
+    """Wait until every process of a study is there, on the coordinator's own port (which
+    JAX's runtime takes over afterwards): process 0 listens and tells each other process to
+    go once all ``num_processes`` have come, or why not; the others call it until it
+    answers. Each says on ``say`` that it waits, and for whom.
+
+    Raises:
+      InputError: one line, after ``timeout`` seconds without every process (naming the
+        missing ones), or when process 0 refused this one (another count, a taken id).
+    """
+    import socket
+    import time
+
+    host, _, port_text = coordinator.rpartition(":")
+    host = host.strip("[]")
+    if not host or not port_text.isdigit():
+        raise InputError(f"--coordinator must be HOST:PORT, got {coordinator!r}")
+    port = int(port_text)
+    deadline = time.monotonic() + timeout
+    tell = say or (lambda line: None)
+    how = (f"start each with the same spec, --coordinator {coordinator}, --num-processes "
+           f"{num_processes} and its own --process-id")
+    if process_id == 0:
+        tell(f"jaxvo study: process 0 of {num_processes}: waiting up to {timeout:g} s for the "
+             f"other {num_processes - 1} at {coordinator}")
+        _meet(coordinator, port, num_processes, deadline, timeout=timeout, how=how)
+        return
+    said = False
+    while True:
+        try:
+            conn = socket.create_connection((host, port), timeout=1.0)
+            break
+        except OSError:
+            if not said:
+                tell(f"jaxvo study: process {process_id} of {num_processes}: waiting up to "
+                     f"{timeout:g} s for process 0 at {coordinator}")
+                said = True
+            if time.monotonic() > deadline:
+                raise InputError(f"--coordinator {coordinator}: process 0 did not answer "
+                                 f"within {timeout:g} s; {how}") from None
+            time.sleep(0.5)
+    with conn:
+        conn.settimeout(max(deadline - time.monotonic(), 0.01))
+        try:
+            conn.sendall(f"{_HELLO} {process_id} {num_processes}\n".encode())
+            answer = conn.makefile().readline().strip()
+        except OSError:
+            answer = ""
+    if answer != "go":
+        why = answer[3:] if answer.startswith("no ") else "no answer"
+        raise InputError(f"the first process stopped the study ({why}); {how}")
+
+
+def _meet(coordinator: str, port: int, num_processes: int, deadline: float, *,
+            timeout: float, how: str) -> None:
+    """Process 0's side of :func:`join`: listen until every other process has said hello,
+    then tell them all to go (or, past ``deadline``, why not)."""
+    import socket
+    import time
+
+    family = socket.AF_INET6 if ":" in coordinator.rpartition(":")[0] else socket.AF_INET
+    with socket.socket(family) as server:
+        server.setsockopt(socket.SOL_SOCKET, socket.SO_REUSEADDR, 1)
+        try:
+            server.bind(("", port))
+        except OSError as exc:
+            raise InputError(f"--coordinator {coordinator}: cannot listen on port {port} "
+                             f"({exc.strerror})") from None
+        server.listen(num_processes)
+        joined: dict[int, socket.socket] = {}
+        try:
+            while len(joined) < num_processes - 1:
+                server.settimeout(max(deadline - time.monotonic(), 0.01))
+                try:
+                    conn, _ = server.accept()
+                except TimeoutError:
+                    missing = sorted(set(range(1, num_processes)) - set(joined))
+                    for c in joined.values():
+                        _send(c, f"no process(es) {missing} did not join")
+                    raise InputError(
+                        f"--num-processes {num_processes}: process(es) "
+                        f"{', '.join(map(str, missing))} did not join at {coordinator} within "
+                        f"{timeout:g} s; {how}") from None
+                other = _hello(conn, num_processes, joined)
+                if other is not None:
+                    joined[other] = conn
+            for c in joined.values():
+                _send(c, "go")
+        finally:
+            for c in joined.values():
+                c.close()
+
+
+def _hello(conn, num_processes: int, joined: dict) -> int | None:
+    """The process id a joining process sends, or None (told why, and closed)."""
+    conn.settimeout(5.0)
+    try:
+        parts = conn.makefile().readline().split()
+    except OSError:
+        parts = []
+    if len(parts) != 3 or parts[0] != _HELLO or not parts[1].isdigit():
+        conn.close()  # not a process of a study (a port scan, another program)
+        return None
+    pid, count = int(parts[1]), parts[2]
+    why = (f"--num-processes {count} here, {num_processes} on process 0"
+           if count != str(num_processes) else
+           f"process id {pid} is taken" if pid in joined or not 0 < pid < num_processes
+           else None)
+    if why is not None:
+        _send(conn, f"no {why}")
+        conn.close()
+        return None
+    return pid
+
+
+def _send(conn, line: str) -> None:
+    with contextlib.suppress(OSError):
+        conn.sendall((line + "\n").encode())
 
 
 def study_devices() -> list:
