@@ -399,7 +399,7 @@ class OutputFile:
         if not _regular(real):  # a device, FIFO or terminal: a stream, no rename
             self.temporary = None
             if open_file:
-                self._fh = self._call(open, real, "w" if text else "wb")
+                self._fh = _Named(self._call(open, real, "w" if text else "wb"), str(self.path))
             return
         token = f"{os.getpid()}-{secrets.token_hex(4)}"
         self.temporary = real.parent / f".{real.name[:_NAME_KEEP]}{_TAG}{token}{_PART}"
@@ -407,7 +407,7 @@ class OutputFile:
         fd = self._call(os.open, self.temporary, flags, 0o666)  # the umask applies, as open()
         _PENDING[id(self)] = self
         if open_file:
-            self._fh = os.fdopen(fd, "w" if text else "wb")
+            self._fh = _Named(_open_fd(fd, text), str(self.path))
         else:
             os.close(fd)
 
@@ -429,7 +429,8 @@ class OutputFile:
 
     @property
     def handle(self):
-        """The open file, for writers that take one (``zipfile``, ``savefig``, ``csv``)."""
+        """The open file, for writers that take one (``zipfile``, ``savefig``,
+        ``np.savez``); its errors name the target too."""
         return self._fh
 
     def commit(self) -> None:
@@ -551,6 +552,39 @@ class OutputFolder:
             self.commit()
         else:
             self.discard()
+
+
+class _Named:
+    """A file whose ``OSError`` names the output (``write`` and ``close`` on a full disk name
+    no file of their own), for the writers that take a file (zipfile, matplotlib, NumPy)."""
+
+    def __init__(self, fh, name: str):
+        self._fh, self._name = fh, name
+
+    def _named(self, fn, *args):
+        try:
+            return fn(*args)
+        except OSError as exc:
+            if exc.errno is None:  # not the system's (io.UnsupportedOperation): as it is
+                raise
+            raise OSError(exc.errno, exc.strerror, self._name) from None
+
+    def write(self, data):
+        return self._named(self._fh.write, data)
+
+    def flush(self) -> None:
+        self._named(self._fh.flush)
+
+    def close(self) -> None:
+        self._named(self._fh.close)
+
+    def __getattr__(self, name: str):
+        return getattr(self._fh, name)
+
+
+def _open_fd(fd: int, text: bool):
+    """The temporary file's handle (one place, where a test cuts writes short)."""
+    return os.fdopen(fd, "w" if text else "wb")
 
 
 def abort_pending() -> None:

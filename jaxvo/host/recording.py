@@ -172,12 +172,18 @@ class RerunLogger:
             raise self._os_error(exc) from None
 
     def _os_error(self, exc: Exception) -> OSError:
+        """Rerun's error as an ``OSError`` naming the recording: its cause where Rerun's
+        message carries one ("(os error 28)") or the disk is full, else Rerun's words."""
+        import re
+
+        said = str(exc).strip().splitlines()[0] if str(exc).strip() else type(exc).__name__
         if self._file is None:
-            return OSError(errno.EIO, f"the Rerun viewer: {str(exc).splitlines()[0]}")
-        full = _disk_full(self._file.target.parent)
-        why = os.strerror(errno.ENOSPC) if full else (
-            f"Rerun could not write it ({str(exc).splitlines()[0]})")
-        return OSError(errno.ENOSPC if full else errno.EIO, why, str(self._file.path))
+            return OSError(errno.EIO, f"the Rerun viewer: {said}")
+        code = re.search(r"\(os error (\d+)\)", str(exc))
+        number = int(code[1]) if code else (
+            errno.ENOSPC if _disk_full(self._file.target.parent) else None)
+        why = os.strerror(number) if number else f"Rerun could not write it ({said})"
+        return OSError(number or errno.EIO, why, str(self._file.path))
 
     def setup(self, intrinsics: Intrinsics, cell: int) -> None:
         """The camera and grid of the run (called by :meth:`jaxvo.Odometry.attach`)."""
@@ -316,6 +322,11 @@ class RerunLogger:
             self._writer.close()
             self._flush()
             self.rec.disconnect()
+            # Rerun writes the end of the stream on disconnect and, where that fails, only
+            # logs it: a disk left full here most likely cut it
+            if (self._file is not None and self._file.temporary is not None
+                    and _disk_full(self._file.target.parent)):
+                raise self._os_error(RuntimeError("(os error 28)"))
         except BaseException:
             if self._file is not None:
                 self._file.discard()
@@ -374,6 +385,8 @@ class RerunLogger:
 VIEWER_WAIT = 10.0
 # one wait of a flush, seconds; flushes go on while the recording grows
 FLUSH_WAIT = 2.0
+# Rerun's default port, where rec.spawn starts the viewer and GrpcSink() connects
+_VIEWER_PORT = 9876
 
 
 def _spawn_viewer(rec) -> None:
@@ -382,7 +395,7 @@ def _spawn_viewer(rec) -> None:
     display it could open)."""
     import socket
 
-    port = 9876  # Rerun's default, where rec.spawn starts it and GrpcSink connects
+    port = _VIEWER_PORT
     try:
         rec.spawn(connect=False, port=port)
     except RuntimeError as exc:
