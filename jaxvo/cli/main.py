@@ -207,10 +207,12 @@ def _quiet_end_of_pipe() -> int:
     error, as for other command-line tools. Standard output is pointed at the null device
     so that the interpreter's last flush says nothing; the status is 141 (128 + SIGPIPE),
     what a shell reports for a tool the closed pipe ended."""
-    with contextlib.suppress(OSError):
+    with contextlib.suppress(OSError, ValueError, AttributeError):  # no file descriptor
         null = os.open(os.devnull, os.O_WRONLY)
-        os.dup2(null, sys.stdout.fileno())
-        os.close(null)
+        try:
+            os.dup2(null, sys.stdout.fileno())
+        finally:
+            os.close(null)
     return EXIT_PIPE
 
 

@@ -103,6 +103,37 @@ def check_map_options(args: argparse.Namespace, *, height: int | None = None,
                            "vote_voxel": "--vote-voxel", "vote_share": "--vote-share"})
 
 
+# A run's trajectory names what it ran on in a comment line (RUN_TAG, then JSON): jaxvo map
+# reads the depth as the run read it, and refuses a trajectory of another sequence
+RUN_TAG = "jaxvo-run "
+
+
+def run_header(where: str | Path, seq) -> str:
+    """The comment lines a run's trajectory starts with (without ``#``): the command, and
+    the sequence's name, frames, first frame's time and camera as the run read them."""
+    K = seq.intrinsics
+    info = {"sequence": seq.name, "frames_listed": int(getattr(seq, "frames_listed", len(seq))),
+            "first_time": round(float(seq.timestamps[0]), 6),
+            "intrinsics": [float(K.fx), float(K.fy), float(K.cx), float(K.cy)],
+            "depth_scale": float(K.depth_scale)}
+    return f"jaxvo run {where}\n{RUN_TAG}{json.dumps(info)}"
+
+
+def read_run_header(path: str | Path) -> dict | None:
+    """What :func:`run_header` wrote at the top of a trajectory file, or None (another
+    tool's trajectory, or a header that does not parse)."""
+    from jaxvo.host.camera import Intrinsics
+
+    try:
+        with open(path, encoding="utf-8", errors="replace") as fh:
+            lines = [line for _, line in zip(range(8), fh) if line.startswith("# " + RUN_TAG)]
+        info = json.loads(lines[0][2 + len(RUN_TAG):])
+        K = Intrinsics(*(float(v) for v in info["intrinsics"]), float(info["depth_scale"]))
+    except (OSError, ValueError, KeyError, TypeError, IndexError):
+        return None
+    return {**info, "intrinsics": K}
+
+
 def map_outputs(path: str | Path) -> dict[str, Path]:
     """The files a map writes: ``{option: path}`` for the static map (``path``), the map
     with nothing left out (``<stem>_all.ply``) and the picture (``<stem>.png``)."""
@@ -152,7 +183,7 @@ def open_mapped(args: argparse.Namespace):
     from jaxvo.errors import InputError
     from jaxvo.host.camera import intrinsics_option
     from jaxvo.host.frames import describe
-    from jaxvo.host.io import open_sequence, read_run_header, read_trajectory
+    from jaxvo.host.io import open_sequence, read_trajectory
 
     camera = intrinsics_option(args.intrinsics) if args.intrinsics else args.camera
     if args.depth_scale is not None:

@@ -242,14 +242,9 @@ def run(args: argparse.Namespace, prepared=None) -> int:
     import warnings as py_warnings
 
     from jaxvo.cli.main import EXIT_INTERRUPTED, EXIT_NOTHING_ESTIMATED, interrupt_at_safe_points
+    from jaxvo.cli.map import run_header
     from jaxvo.host.compile_cache import announce_compile
-    from jaxvo.host.io import (
-        DepthScaleWarning,
-        TrajectoryWriter,
-        check_depth_scale,
-        first_readable,
-        run_header,
-    )
+    from jaxvo.host.io import DepthScaleWarning, TrajectoryWriter, check_depth_scale, first_readable
     from jaxvo.host.prefetch import BackgroundWriter, read_ahead
     from jaxvo.host.progress import Progress
 
@@ -463,7 +458,6 @@ def _map(args, seq, n: int, rec: _Recorder, out, writer, logger) -> dict:
     from types import SimpleNamespace
 
     from jaxvo.cli.map import make_maps, map_outputs
-    from jaxvo.host.io import STDOUT, read_trajectory
     from jaxvo.host.mapping import GROW, VOTE_SHARE, VOTE_VOXEL
     from jaxvo.host.masks import dynamic_pixels
 
@@ -474,7 +468,7 @@ def _map(args, seq, n: int, rec: _Recorder, out, writer, logger) -> dict:
 
     options = SimpleNamespace(max_diff=args.max_diff, voxel=0.02, max_depth=4.0, grow=GROW,
                               vote_voxel=VOTE_VOXEL, vote_share=VOTE_SHARE)
-    est = writer.trajectory if str(out) == STDOUT else read_trajectory(out)
+    est = writer.written()  # as the file holds it, whoever replaced the file since
     return make_maps(seq, est, dynamic, options, map_outputs(args.map),
                      where=f"--out {out}", frames=n, logger=logger)
 
@@ -518,9 +512,8 @@ def _scores(gt, out, writer, max_diff: float) -> dict:
 
     from jaxvo.errors import InputError
     from jaxvo.evaluation.metrics import ate, rpe
-    from jaxvo.host.io import STDOUT, read_trajectory
 
-    est = writer.trajectory if str(out) == STDOUT else read_trajectory(out)
+    est = writer.written()  # as the file holds it, whoever replaced the file since
     # a camera that never moves (a fixed camera) defines no alignment: compared as it is,
     # from the true first pose (as jaxvo.evaluation.scores.trajectory_scores does)
     aligned = bool(np.ptp(np.asarray(gt.poses)[:, :3, 3], axis=0).max() > 1e-6)

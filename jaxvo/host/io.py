@@ -98,19 +98,21 @@ def _read_text(path: Path) -> str:
         raise InputError(f"{path}: cannot read ({exc.strerror})") from None
 
 
-def _data_lines(path: Path) -> list[tuple[int, list[str]]]:
-    """Non-empty, non-comment lines of a text file, split on whitespace or commas."""
+def _data_lines(path: Path, text: str | None = None) -> list[tuple[int, list[str]]]:
+    """Non-empty, non-comment lines of a text file (or of ``text``, named ``path``), split
+    on whitespace or commas."""
     out = []
-    for lineno, raw in enumerate(_read_text(path).splitlines(), start=1):
+    for lineno, raw in enumerate((_read_text(path) if text is None else text).splitlines(),
+                                 start=1):
         line = raw.split("#", 1)[0].replace(",", " ").strip()
         if line:
             out.append((lineno, line.split()))
     return out
 
 
-def read_trajectory(path: str | Path) -> Trajectory:
+def read_trajectory(path: str | Path, *, text: str | None = None) -> Trajectory:
     """Read a TUM trajectory file ``timestamp tx ty tz qx qy qz qw`` (``#`` comments);
-    ``-`` reads it from standard input.
+    ``-`` reads it from standard input, ``text`` is the file's text (named ``path``).
 
     Poses are sorted by time. Raises :class:`InputError` (``file:line: ...``) for a line
     that is not eight numbers, a non-finite value, a quaternion whose norm is not 1 within
@@ -125,7 +127,7 @@ def read_trajectory(path: str | Path) -> Trajectory:
 
     path = Path(path)
     rows, linenos = [], []
-    for lineno, parts in _data_lines(path):
+    for lineno, parts in _data_lines(path, text):
         if len(parts) != 8:
             raise InputError(
                 f"{path}:{lineno}: expected 8 values 'timestamp tx ty tz qx qy qz qw', "
@@ -193,45 +195,6 @@ def write_trajectory(path: str | Path, traj: Trajectory, *, comment: str = "") -
     for t, T, qi in zip(stamps, poses, q):
         lines.append(fmt % (t, *T[:3, 3], *qi))
     write_text(path, "\n".join(lines) + "\n")  # whole or not at all, errors name the file
-
-
-# A trajectory jaxvo run writes starts with the command, then a line naming what it ran on
-# (RUN_TAG, then JSON), which jaxvo map reads back to map the depth as the run read it and to
-# refuse a trajectory of another sequence; evo and read_trajectory skip both as comments.
-RUN_TAG = "jaxvo-run "
-
-
-def run_header(where: str | Path, seq) -> str:
-    """The comment lines a run's trajectory starts with (without ``#``): the command, and
-    the sequence's name, frames, first frame's time and camera as the run read them."""
-    import json
-
-    K = seq.intrinsics
-    info = {"sequence": seq.name, "frames_listed": int(getattr(seq, "frames_listed", len(seq))),
-            "first_time": round(float(seq.timestamps[0]), 6),
-            "intrinsics": [float(K.fx), float(K.fy), float(K.cx), float(K.cy)],
-            "depth_scale": float(K.depth_scale)}
-    return f"jaxvo run {where}\n{RUN_TAG}{json.dumps(info)}"
-
-
-def read_run_header(path: str | Path) -> dict | None:
-    """What :func:`run_header` wrote at the top of a trajectory file, or None (another
-    tool's trajectory, or a header that does not parse)."""
-    import json
-
-    try:
-        with open(path, encoding="utf-8", errors="replace") as fh:
-            for _, line in zip(range(8), fh):
-                if line.startswith("# " + RUN_TAG):
-                    info = json.loads(line[2 + len(RUN_TAG):])
-                    K = Intrinsics(*(float(v) for v in info["intrinsics"]),
-                                   float(info["depth_scale"]))
-                    return {**info, "intrinsics": K}
-                if not line.startswith("#"):
-                    break
-    except (OSError, ValueError, KeyError, TypeError):
-        return None
-    return None
 
 
 def pose_at(traj: Trajectory, t: float, *, max_diff: float = 0.02) -> np.ndarray | None:
@@ -412,14 +375,9 @@ class TumSequence:
 
         gt = root / "groundtruth.txt"
         self.groundtruth = read_trajectory(gt) if gt.is_file() else None
-        if depth_scale is not None:  # float depth is metres: a depth scale would do nothing
-            try:
-                stored = _read_depth(self._depth[0]).dtype
-            except InputError:
-                stored = None  # an unreadable first depth: that frame is dropped, said then
-            if stored is not None and stored.kind == "f":
-                raise InputError(f"{self._depth[0]}: depth is float metres ({stored}); "
-                                 "--depth-scale is for 16-bit depth in raw units: leave it out")
+        if depth_scale is not None and _stored_kind(self._depth[0]) == "f":  # metres: unused
+            raise InputError(f"{self._depth[0]}: depth is float metres; --depth-scale is for "
+                             "16-bit depth in raw units: leave it out")
 
         first = _read_image(self._rgb[0], _imread_color())
         self.height, self.width = first.shape[:2]
@@ -546,6 +504,14 @@ def _read_depth(path: Path) -> np.ndarray:
     return raw
 
 
+def _stored_kind(path: Path) -> str | None:
+    """A depth image's dtype kind as stored; None if unreadable (dropped when reached)."""
+    try:
+        return _read_depth(path).dtype.kind
+    except InputError:
+        return None
+
+
 def _imread_color() -> int:
     import cv2
 
@@ -606,6 +572,7 @@ class TrajectoryWriter:
                                  f"{self.path.parent}")
             self._out = OutputFile(self.path, text=True, keep_on_abort=True)
         self._fh = sys.stdout if self._stdout else self._out.handle
+        self._text: list[str] = []  # what the file holds
         self._fmt = " ".join([_TIME_FMT] + [_VALUE_FMT] * 7) + "\n"
         self._put("".join(f"# {line}\n" for line in comment.splitlines())
                   + "# timestamp tx ty tz qx qy qz qw\n")
@@ -616,6 +583,7 @@ class TrajectoryWriter:
             self._fh.flush()
         except OSError as exc:  # write() and flush() errors name no file of their own
             raise OSError(exc.errno, exc.strerror, str(self.path)) from None
+        self._text.append(text)
 
     def write(self, timestamp: float, T_w_c: np.ndarray) -> None:
         from jaxvo.host.transforms import rotation_to_quat
@@ -625,6 +593,14 @@ class TrajectoryWriter:
         self._put(self._fmt % (timestamp, *T[:3, 3], *q))
         self.timestamps.append(float(timestamp))
         self.poses.append(T)
+
+    def written(self) -> Trajectory:
+        """The poses as the file holds them (rounded as printed), read from what this writer
+        wrote, not from the file, which another run may have replaced since; standard
+        output's: :attr:`trajectory`."""
+        if self._stdout:
+            return self.trajectory
+        return read_trajectory(self.path, text="".join(self._text))
 
     @property
     def trajectory(self) -> Trajectory:
@@ -637,11 +613,6 @@ class TrajectoryWriter:
         if self._out is not None:
             self._out.commit()
 
-    def discard(self) -> None:
-        """Leave the earlier file as it was (idempotent; nothing after :meth:`close`)."""
-        if self._out is not None:
-            self._out.discard()
-
     def __enter__(self):
         return self
 
@@ -649,8 +620,8 @@ class TrajectoryWriter:
         # Ctrl-C (KeyboardInterrupt) keeps the poses computed; an error keeps the old file
         if exc_type is None or issubclass(exc_type, KeyboardInterrupt):
             self.close()
-        else:
-            self.discard()
+        elif self._out is not None:
+            self._out.discard()
 
 
 # Median depth of a frame, metres: outside the hard band no RGB-D sensor reads (the depth
