@@ -132,12 +132,19 @@ def test_interrupted_run_keeps_every_pose_computed(seq_dir, tmp_path, capsys, mo
     monkeypatch.setattr(Odometry, "submit", submit)
     traj = tmp_path / "traj.txt"
     masks = tmp_path / "masks"
-    rc = main(["run", str(seq_dir), "--out", str(traj), "--masks", str(masks), "-q", "--json"])
+    (tmp_path / "map.ply").write_bytes(b"an earlier map")
+    rc = main(["run", str(seq_dir), "--out", str(traj), "--masks", str(masks), "-q", "--json",
+               "--map", str(tmp_path / "map.ply")])
     summary = json.loads(capsys.readouterr().out)
     assert rc == 130 and summary["interrupted"]
     est = read_trajectory(traj)
     assert len(est) == 5 and summary["poses_written"] == 5
     assert len(list(masks.glob("*.png"))) == 4  # one label mask per frame pair
+    # it said "frames 8 processed" for 5 poses, and nothing of the map it did not write
+    assert summary["frames"] == 8 and summary["frames_processed"] == 6
+    assert summary["map_not_written"] == ("the run was interrupted (an earlier "
+                                          f"{tmp_path / 'map.ply'} is as it was)")
+    assert (tmp_path / "map.ply").read_bytes() == b"an earlier map"
 
 
 def test_an_image_that_cannot_be_written_mid_run_is_one_line_and_exit_2(

@@ -595,3 +595,50 @@ num_hypotheses = 4
     # the study vmaps the scan that run_sequence runs alone: float32 rounding apart
     expected = trajectory_scores(data.groundtruth, ref.trajectory)["ate_rmse_m"]
     assert res.rows[0]["ate_rmse_m"] == pytest.approx(expected, rel=1e-3, abs=1e-5)
+
+
+# --- nothing lost (issue 46) -----------------------------------------------------------------
+
+
+def test_rows_holding_only_ids_are_no_finished_runs(tiny, tmp_path):
+    """--resume over a runs.jsonl whose rows held only run ids: KeyError: 'sequence'."""
+    import shutil
+
+    spec, _, root, _res = tiny
+    out = tmp_path / "out"
+    shutil.copytree(root / "one", out, ignore=shutil.ignore_patterns("flows"))
+    lines = (out / study.RUNS_FILE).read_text().splitlines()
+    ids = [json.loads(line)["id"] for line in lines]
+    (out / study.RUNS_FILE).write_text("\n".join(
+        [json.dumps({"id": i}) for i in ids[:2]] + lines[2:]) + "\n")
+    with pytest.warns(UserWarning, match="2 line.* hold no finished run"):
+        rows = study.finished_rows(spec, out)
+    assert [r["id"] for r in rows] == ids[2:]
+    write_report(spec, rows, out, plot=False)  # the tables of what did finish
+    # resumed: the first process says the size before any flow or compile (a study of
+    # 100,000 configurations printed 0/200000 for minutes), and runs the two again
+    said = []
+    with pytest.warns(UserWarning, match="2 line.* hold no finished run"):
+        again = study.run_spec(spec, out, resume=True, flow_cache=root / "flows",
+                               log=said.append)
+    assert said[0].startswith("2 of 6 runs to do (1 sequences x 3 configurations x 2 seeds)")
+    assert again.ran == 2 and len(again.rows) == 6
+
+
+def test_processes_say_they_wait_and_stop_in_one_line(tmp_path):
+    """--num-processes 2 --process-id 0 with no second process: silent for 300 s, then exit
+    134 with a native stack trace from JAX."""
+    port = _free_port()
+    for pid, needle in ((0, r"process\(es\) 1 did not join at 127.0.0.1"),
+                        (1, "process 0 did not answer within 0.5 s")):
+        said = []
+        with pytest.raises(InputError, match=needle):
+            study.init_distributed(f"127.0.0.1:{port}", 2, pid, timeout=0.5, say=said.append)
+        assert said and "waiting up to 0.5 s" in said[0]
+
+
+@pytest.mark.skipif(not Path("/dev/full").exists(), reason="needs /dev/full (Linux)")
+def test_a_full_disk_names_the_runs_file():
+    with pytest.raises(OSError, match="No space left on device") as got:
+        study._append_runs(Path("/dev/full"), [{"id": "x"}])
+    assert got.value.filename == "/dev/full"
