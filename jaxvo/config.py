@@ -372,11 +372,13 @@ def check_config(
         kept = -(-rows // cfg.keyframe_stride) * -(-cols // cfg.keyframe_stride)
         least = int(Params().min_static_points)
         if kept < least:
+            best = _largest_stride(rows, cols, least)
             raise InputError(
                 f"{name('keyframe_stride')} {cfg.keyframe_stride} keeps {kept} of the "
                 f"{rows}x{cols} grid's points in a keyframe, fewer than the {least} a fit of "
-                f"the camera's motion needs (Params.min_static_points): at most "
-                f"{_largest_stride(rows, cols, least)}")
+                "the camera's motion needs (Params.min_static_points): " + (
+                    f"at most {best}" if best else f"the grid itself is too coarse: a smaller "
+                    f"{name('cell')}"))
 
 
 def np_bool():
@@ -387,8 +389,9 @@ def np_bool():
 
 
 def _largest_stride(rows: int, cols: int, least: int) -> int:
-    """The largest keyframe stride that keeps ``least`` points of a ``rows`` x ``cols`` grid."""
-    best = 1
+    """The largest keyframe stride that keeps ``least`` points of a ``rows`` x ``cols`` grid
+    (0: none does)."""
+    best = 0
     for stride in range(1, max(rows, cols) + 1):
         if -(-rows // stride) * -(-cols // stride) >= least:
             best = stride

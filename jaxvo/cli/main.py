@@ -223,12 +223,15 @@ def main(argv: list[str] | None = None) -> int:
     # Rerun's own log lines (a full disk: ERROR and WARN lines of its file writer) stay
     # quiet; the command says what failed in one line of its own (RUST_LOG set wins)
     os.environ.setdefault("RUST_LOG", "off")
-    parser = build_parser()
-    args = parser.parse_args(argv)
     stop = None
     with warnings.catch_warnings():
         warnings.showwarning = _one_line_warning
         try:
+            try:  # --help, --version and usage errors end in SystemExit, as argparse's do
+                args = build_parser().parse_args(argv)
+            except SystemExit:
+                sys.stdout.flush()  # a closed pipe (jaxvo --help | head -1) is found here
+                raise
             module = importlib.import_module(args._module)
             if not hasattr(module, "prepare"):
                 with interrupt_at_safe_points(safe=False) as stop:

@@ -147,6 +147,7 @@ def make_maps(seq, traj, dynamic, args, outputs: dict[str, Path], *, where: str,
     """Fuse, write the maps and their picture (and into ``logger``); the summary's part.
     Each file is written whole or not at all; a failure leaves the earlier maps as they
     were, all three."""
+    from jaxvo.errors import InputError
     from jaxvo.host.io import write_image
     from jaxvo.host.mapping import fuse_maps, map_picture, matched_poses, trajectory_fit, write_ply
 
@@ -156,6 +157,12 @@ def make_maps(seq, traj, dynamic, args, outputs: dict[str, Path], *, where: str,
         print(f"jaxvo: warning: {where}: {fit}", file=sys.stderr)
     maps = fuse_maps(seq, poses, dynamic, voxel=args.voxel, max_depth=args.max_depth,
                      grow=args.grow, vote_voxel=args.vote_voxel, vote_share=args.vote_share)
+    if not len(maps.full.points):  # an empty map is no map: the earlier files stay
+        raise InputError(f"none of the {len(poses)} frames with a pose has a depth reading "
+                         f"within --max-depth {args.max_depth:g} m: no map written")
+    if dynamic is not None and not len(maps.static.points):
+        print("jaxvo: warning: the static map is empty: every reading lies in a dynamic mask "
+              f"(grown by --grow {args.grow}) or a frame without one", file=sys.stderr)
     picture = map_picture(maps, seq.intrinsics, poses[0][1], seq.height, seq.width)
     write_ply(outputs["map"], maps.static)
     summary = {"map": str(outputs["map"]), "map_points": len(maps.static.points),
@@ -222,7 +229,7 @@ def run(args: argparse.Namespace) -> int:
     from jaxvo.errors import InputError
     from jaxvo.host.io import check_outputs, output_file
     from jaxvo.host.mapping import mask_reader
-    from jaxvo.host.outputs import stream_target
+    from jaxvo.host.outputs import file_id, stream_target
 
     check_map_options(args)
     seq, traj, notes = open_mapped(args)
@@ -239,6 +246,10 @@ def run(args: argparse.Namespace) -> int:
         masks = Path(args.dynamic_masks)
         if not masks.is_dir():
             raise InputError(f"--dynamic-masks {masks}: not a folder")
+        image_folders = {file_id(p if p.is_dir() else p.parent) for p in seq.files()}
+        if file_id(masks) in image_folders:  # TUM names its images by time, as masks are
+            raise InputError(f"--dynamic-masks {masks}: holds the sequence's own images, not "
+                             "dynamic masks (jaxvo run --dynamic-masks DIR writes those)")
         reads.append(masks)  # every file of it
     check_outputs(reads, files=files)
     for what, path in files.items():

@@ -257,6 +257,9 @@ def output_file(path: str | Path, *, what: str, stdout: bool = False) -> Path | 
     if real.exists() and not _regular(real):
         if not os.access(real, os.W_OK):
             raise InputError(f"{what} {p}: cannot write (permission denied)")
+        if stat.S_ISFIFO(os.stat(real).st_mode) and not _fifo_read(real):
+            raise InputError(f"{what} {p}: a named pipe that no process reads (writing would "
+                             "wait for one forever); start its reader first")
         return p  # a device or FIFO: written as the stream it is
     if real.exists() and not os.access(real, os.W_OK):
         raise InputError(f"{what} {p}: cannot write (the file is read-only)")
@@ -316,6 +319,19 @@ def _regular(p: Path) -> bool:
         return stat.S_ISREG(os.stat(p).st_mode)
     except OSError:
         return True  # missing: it will be a regular file
+
+
+def _fifo_read(path: Path) -> bool:
+    """Whether a process has the named pipe ``path`` open for reading (opening it to write
+    would block until one does)."""
+    try:
+        fd = os.open(path, os.O_WRONLY | os.O_NONBLOCK)
+    except OSError as exc:
+        if exc.errno == errno.ENXIO:  # no reader
+            return False
+        raise
+    os.close(fd)
+    return True
 
 
 def _others_writing(real: Path, *, what: str) -> None:
@@ -561,9 +577,9 @@ class _Named:
     def __init__(self, fh, name: str):
         self._fh, self._name = fh, name
 
-    def _named(self, fn, *args):
+    def _named(self, fn, *args, **kwargs):
         try:
-            return fn(*args)
+            return fn(*args, **kwargs)
         except OSError as exc:
             if exc.errno is None:  # not the system's (io.UnsupportedOperation): as it is
                 raise
@@ -578,8 +594,11 @@ class _Named:
     def close(self) -> None:
         self._named(self._fh.close)
 
-    def __getattr__(self, name: str):
-        return getattr(self._fh, name)
+    def __getattr__(self, name: str):  # seek() flushes too: every method names the file
+        attr = getattr(self._fh, name)
+        if not callable(attr):
+            return attr
+        return lambda *args, **kwargs: self._named(attr, *args, **kwargs)
 
 
 def _open_fd(fd: int, text: bool):

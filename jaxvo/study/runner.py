@@ -33,7 +33,7 @@ from typing import NamedTuple
 
 import numpy as np
 
-from jaxvo.config import Config
+from jaxvo.config import Config, check_config
 from jaxvo.errors import InputError
 from jaxvo.host.io import Trajectory
 from jaxvo.host.outputs import write_text
@@ -281,6 +281,8 @@ def _start(spec: StudySpec, out: Path, cache: Path, ids: list[str], *, resume: b
             # accelerator's calls are sized to its own memory (call_batch)
             check_study(spec, out, cache, requested or (
                 CPU_BATCH if jax.default_backend() == "cpu" else 1))
+            if runs_path.exists() and not runs_path.is_file():
+                raise InputError(f"{runs_path}: is not a file; the study appends its runs there")
             if runs_path.is_file() and not resume:
                 raise InputError(f"{out} already holds a study's runs ({RUNS_FILE}); pass "
                                  "--resume to continue it, or choose another --out")
@@ -385,6 +387,7 @@ def check_study(spec: StudySpec, out_dir: str | Path, flow_cache: str | Path,
         rendered_bytes = (SYNTH_BYTES_PER_FRAME + SYNTH_BYTES_PER_OBJECT_FRAME * len(
             SCENARIOS[s.scene].objects)) * rendered if s.scene else 0.0
         for cfg in cfgs:
+            check_config(cfg, height=height, width=width)  # what needs the image size
             check_memory(run_bytes(cfg, height=height, width=width, frames=frames, configs=side,
                                    host_bytes=rendered_bytes),
                          what=f"sequence {s.label!r} ({frames} frames) with num_hypotheses "
