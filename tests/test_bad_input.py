@@ -1431,6 +1431,8 @@ def test_config_names_the_replacement_and_checks_every_value():
         with pytest.raises(InputError, match=needle):
             check_config(cfg, height=480, width=640)
     check_config(Config(keyframes=True), height=480, width=640)  # the defaults pass
+    with pytest.raises(InputError, match="the grid itself is too coarse"):
+        check_config(Config(keyframes=True, cell=200), height=480, width=640)
 
 
 def test_a_date_past_2262_is_not_wrapped():

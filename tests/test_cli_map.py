@@ -164,3 +164,14 @@ def test_fuse_maps_refuses_settings_no_map_can_use(run_dir):
                            ({"stride": 0}, "stride must be 1 or more")):
         with pytest.raises(InputError, match=needle):
             fuse_maps(seq, poses, None, **kwargs)
+
+
+def test_the_sequences_images_as_masks_and_a_map_with_no_point(run_dir, capsys, tmp_path):
+    d = run_dir
+    rc, _, err = _map(capsys, d, "--traj", d / "traj.txt", "--dynamic-masks", d / "seq" / "rgb",
+                      "--out", tmp_path / "m.ply")
+    _one_line(rc, err, "holds the sequence's own images, not dynamic masks")
+    rc, _, err = _map(capsys, d, "--traj", d / "traj.txt", "--out", tmp_path / "m.ply",
+                      "--max-depth", "0.01")
+    _one_line(rc, err, "has a depth reading within --max-depth 0.01 m: no map written")
+    assert not list(tmp_path.iterdir())
