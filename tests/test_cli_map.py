@@ -175,3 +175,21 @@ def test_the_sequences_images_as_masks_and_a_map_with_no_point(run_dir, capsys, 
                       "--max-depth", "0.01")
     _one_line(rc, err, "has a depth reading within --max-depth 0.01 m: no map written")
     assert not list(tmp_path.iterdir())
+
+
+def test_a_folder_without_a_camera_is_told_an_option_map_takes(run_dir, capsys, tmp_path):
+    """It advised --intrinsics, which jaxvo map did not take."""
+    import shutil
+
+    seq = tmp_path / "seq"
+    shutil.copytree(run_dir / "seq", seq)
+    (seq / "camera.txt").unlink()
+    traj = tmp_path / "t.txt"
+    traj.write_text("".join(ln for ln in (run_dir / "traj.txt").read_text().splitlines(True)
+                            if not ln.startswith("# jaxvo-run")))  # another tool's: no camera
+    capsys.readouterr()
+    rc = main(["map", str(seq), "--traj", str(traj), "--out", str(tmp_path / "m.ply")])
+    err = capsys.readouterr().err
+    assert rc == 2 and "--intrinsics fx,fy,cx,cy" in err, err
+    assert main(["map", str(seq), "--traj", str(traj), "--out", str(tmp_path / "m.ply"),
+                 "--intrinsics", "525,525,319.5,239.5"]) == 0
