@@ -422,6 +422,8 @@ class OutputFile:
         flags = os.O_WRONLY | os.O_CREAT | os.O_EXCL | getattr(os, "O_CLOEXEC", 0)
         fd = self._call(os.open, self.temporary, flags, 0o666)  # the umask applies, as open()
         _PENDING[id(self)] = self
+        with contextlib.suppress(OSError):  # a file replaced keeps its permissions
+            os.chmod(fd, stat.S_IMODE(os.stat(real).st_mode))
         if open_file:
             self._fh = _Named(_open_fd(fd, text), str(self.path))
         else:
