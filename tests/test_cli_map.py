@@ -80,15 +80,17 @@ def test_map_reads_the_depth_as_the_run_did(run_dir, capsys):
     text = (d / "traj.txt").read_text()
     assert RUN_TAG + "{" in text and '"depth_scale": 5000.0' in text
     (d / "t1000.txt").write_text(text.replace('"depth_scale": 5000.0', '"depth_scale": 1000.0'))
-    rc, out, err = _map(capsys, d, "--traj", d / "t1000.txt", "--out", d / "h.ply", "--json")
+    far = ("--max-depth", "20")  # the depth read at 1000 per metre is 5 times as far
+    rc, out, err = _map(capsys, d, "--traj", d / "t1000.txt", "--out", d / "h.ply", "--json",
+                        *far)
     assert rc == 0 and err == [], err
     assert json.loads(out)["camera"].startswith("as jaxvo run read it")
     rc, _, _ = _map(capsys, d, "--traj", d / "traj.txt", "--out", d / "o.ply",
-                    "--depth-scale", "1000")
+                    "--depth-scale", "1000", *far)
     assert rc == 0 and (d / "h.ply").read_bytes() == (d / "o.ply").read_bytes()
     # an option that differs from the run's is said
     rc, out, err = _map(capsys, d, "--traj", d / "t1000.txt", "--out", d / "w.ply",
-                        "--depth-scale", "5000")
+                        "--depth-scale", "5000", *far)
     assert rc == 0 and len(err) == 1 and "differs from the one jaxvo run read" in err[0], err
 
 

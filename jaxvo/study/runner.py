@@ -409,21 +409,19 @@ ROW_FIELDS = ("id", "sequence", "seed", "digest")
 
 
 def read_runs(path: str | Path) -> dict[str, dict]:
-    """Finished runs by id from a ``runs.jsonl``. A last line cut short by an interruption
-    is ignored (that run is simply run again); any other line that is no row of a finished
-    run (no JSON object with :data:`ROW_FIELDS`) is ignored too, with a warning that counts
-    them (those runs run again)."""
+    """Finished runs by id from a ``runs.jsonl``. A line cut short by an interruption (no
+    JSON) is ignored: that run is simply run again. A JSON line that is no row of a
+    finished run (without :data:`ROW_FIELDS`: written by hand or by another program) is
+    ignored too, with a warning that counts them (those runs run again)."""
     rows: dict[str, dict] = {}
     path = Path(path)
     if not path.is_file():
         return rows
-    lines = path.read_text().splitlines()
     bad = 0
-    for k, line in enumerate(lines):
+    for line in path.read_text().splitlines():
         try:
             row = json.loads(line)
         except ValueError:
-            bad += k < len(lines) - 1 and bool(line.strip())  # a cut last line says nothing
             continue
         if isinstance(row, dict) and all(f in row for f in ROW_FIELDS):
             rows[row["id"]] = row
