@@ -249,18 +249,21 @@ def test_sigterm_and_a_second_ctrl_c_leave_whole_files(seq_dir, tmp_path):
     recording whole; after a second Ctrl-C (exit 130, at once) the trajectory is whole and
     the recording the earlier one, and nothing else is printed."""
     _rerun()
+    runs = {}
     for signals, status in (((signal.SIGTERM,), 143), ((signal.SIGINT, signal.SIGINT), 130)):
-        out = tmp_path / str(status)
+        out = tmp_path / str(status)  # the two runs at once: one start of JAX's time
         out.mkdir()
         (out / "r.rrd").write_bytes(b"an earlier recording")
-        proc = subprocess.Popen(
+        runs[status] = (out, signals, subprocess.Popen(
             [sys.executable, "-c", ("import sys; from jaxvo.cli.main import main; "
              "sys.exit(main())"), "run", str(seq_dir), "--out", str(out / "t.txt"),
              "--rerun-save", str(out / "r.rrd"), "-q"],
-            stdout=subprocess.PIPE, stderr=subprocess.PIPE, text=True)
+            stdout=subprocess.PIPE, stderr=subprocess.PIPE, text=True))
+    for status, (out, signals, proc) in runs.items():
         _wait_for_a_pose(out, proc)
         for sig in signals:
             proc.send_signal(sig)
+    for status, (out, _, proc) in runs.items():
         _, err = proc.communicate(timeout=120)
         assert proc.returncode == status, err[-2000:]
         assert "Traceback" not in err and "Exception ignored" not in err, err[-2000:]
