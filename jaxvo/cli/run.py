@@ -289,7 +289,9 @@ def run(args: argparse.Namespace, prepared=None) -> int:
         progress.close()
         summary = _summary(args, seq, n, start, rec, compiling, warnings, out)
         if args.map:
+            rec.interrupted = rec.interrupted or stop.requested  # Ctrl-C after the last frame
             summary.update(_map(args, seq, n, rec, out, writer, logger))
+            summary["interrupted"] = rec.interrupted = rec.interrupted or stop.requested
     if gt is not None and rec.written >= 3:
         summary.update(_scores(gt, out, writer, args.max_diff))
     # the trajectory on standard output (--out -): the summary goes beside the warnings
