@@ -373,7 +373,27 @@ def _alive(pid: int) -> bool:
 _PENDING: dict[int, object] = {}
 
 
-class OutputFile:
+class _WholeOrNothing:
+    """What an output file and an output folder share: committed when a ``with`` block
+    ends normally, discarded when an exception (also Ctrl-C) leaves it."""
+
+    def commit(self) -> None:
+        raise NotImplementedError
+
+    def discard(self) -> None:
+        raise NotImplementedError
+
+    def __enter__(self) -> Self:
+        return self
+
+    def __exit__(self, exc_type, exc, tb) -> None:
+        if exc_type is None:
+            self.commit()
+        else:
+            self.discard()
+
+
+class OutputFile(_WholeOrNothing):
     """One output file, written whole or not at all.
 
     The data goes to a temporary file beside the target (same folder, so the same file
@@ -486,17 +506,8 @@ class OutputFile:
             with contextlib.suppress(OSError):
                 os.unlink(self.temporary)
 
-    def __enter__(self) -> Self:
-        return self
 
-    def __exit__(self, exc_type, exc, tb) -> None:
-        if exc_type is None:
-            self.commit()
-        else:
-            self.discard()
-
-
-class OutputFolder:
+class OutputFolder(_WholeOrNothing):
     """One output folder, written whole or not at all (a synthetic sequence, a bag folder).
 
     The files go into a temporary folder beside the target (:attr:`temporary`, hidden and
@@ -561,15 +572,6 @@ class OutputFolder:
         import shutil
 
         shutil.rmtree(self.temporary, ignore_errors=True)
-
-    def __enter__(self) -> Self:
-        return self
-
-    def __exit__(self, exc_type, exc, tb) -> None:
-        if exc_type is None:
-            self.commit()
-        else:
-            self.discard()
 
 
 class _Named:
