@@ -99,8 +99,9 @@ def map_outputs(path: str | Path) -> dict[str, Path]:
 
 
 def make_maps(seq, traj, dynamic, args, outputs: dict[str, Path], *, where: str,
-              frames: int | None = None, logger=None) -> dict:
-    """Fuse, write the maps and their picture (and into ``logger``); the summary's part."""
+              frames: int | None = None, logger=None, on_static=None) -> dict:
+    """Fuse, write the maps and their picture (and into ``logger``, and the static map to
+    ``on_static``: ``jaxvo run --out-bag``); the summary's part."""
     from jaxvo.host.io import write_image
     from jaxvo.host.mapping import fuse_maps, map_picture, matched_poses, write_ply
 
@@ -108,6 +109,8 @@ def make_maps(seq, traj, dynamic, args, outputs: dict[str, Path], *, where: str,
     maps = fuse_maps(seq, poses, dynamic, voxel=args.voxel, max_depth=args.max_depth,
                      grow=args.grow, vote_voxel=args.vote_voxel, vote_share=args.vote_share)
     write_ply(outputs["map"], maps.static)
+    if on_static is not None:
+        on_static(maps.static)
     summary = {"map": str(outputs["map"]), "map_points": len(maps.static.points),
                "frames_fused": maps.frames, "frames_without_mask": maps.no_mask}
     if dynamic is not None:
