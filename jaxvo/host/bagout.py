@@ -224,9 +224,10 @@ class BagWriter:
         self._conns: dict[str, object] = {}
         self._info = self._camera_info(seq.intrinsics, seq.height, seq.width)
         self._summary: dict = {}
+        self._dry = False  # serialise, do not write (_open)
         self.finished = False
         self._thread = BackgroundWriter(limit=_QUEUE)
-        self._thread.submit(self._writer.open)
+        self._thread.submit(self._open, seq.height, seq.width)
 
     def write_pose(self, index: int, T_w_c: np.ndarray) -> None:
         """Frame ``index``'s pose (camera to world, (4, 4)) as odometry and as tf."""
@@ -251,6 +252,27 @@ class BagWriter:
 
     # -- messages ----------------------------------------------------------------------
 
+    def _open(self, height: int, width: int) -> None:
+        """Open the bag, add its topics, and make each message type's serialiser (``rosbags``
+        generates it on first use) by serialising a frame's messages without writing them:
+        the one-time work, done while the run reads its first frame and loads its step,
+        not among the run's steady frames."""
+        from jaxvo.host.frames import Frame
+
+        self._writer.open()
+        blank = Frame(0, 0.0, np.zeros((height, width, 3), np.uint8),
+                      np.zeros((height, width), np.float32), None)
+        self._dry = True
+        try:
+            self._write_pose(0, np.eye(4))
+            self._write_mask(blank, blank.depth.astype(np.uint8), None)
+            if self.overlay_cell is not None:
+                self._conn(OVERLAY_TOPIC, "sensor_msgs/msg/Image")
+            if self.input_frames:
+                self._write_frame(blank)
+        finally:
+            self._dry = False
+
     def _conn(self, topic: str, msgtype: str):
         conn = self._conns.get(topic)
         if conn is None:
@@ -259,8 +281,9 @@ class BagWriter:
         return conn
 
     def _write(self, topic: str, msgtype: str, record_ns: int, msg) -> None:
-        self._writer.write(self._conn(topic, msgtype), int(record_ns),
-                           self.ts.serialize_cdr(msg, msgtype))
+        conn, data = self._conn(topic, msgtype), self.ts.serialize_cdr(msg, msgtype)
+        if not self._dry:
+            self._writer.write(conn, int(record_ns), data)
 
     def _header(self, stamp_ns: int, frame_id: str):
         T = self.ts.types
