@@ -115,8 +115,6 @@ def check_bag_options(args) -> None:
 def open_bag(args, seq):
     """The :class:`BagWriter` of ``jaxvo run --out-bag`` (options checked by
     :func:`check_bag_options`), or a context of None without ``--out-bag``."""
-    import contextlib
-
     if not args.out_bag:
         return contextlib.nullcontext()
     frames = Frames(args.world_frame or WORLD_FRAME, args.camera_frame or CAMERA_FRAME)
