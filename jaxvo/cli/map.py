@@ -143,10 +143,10 @@ def map_outputs(path: str | Path) -> dict[str, Path]:
 
 
 def make_maps(seq, traj, dynamic, args, outputs: dict[str, Path], *, where: str,
-              frames: int | None = None, logger=None) -> dict:
-    """Fuse, write the maps and their picture (and into ``logger``); the summary's part.
-    Each file is written whole or not at all; a failure leaves the earlier maps as they
-    were, all three."""
+              frames: int | None = None, logger=None, on_static=None) -> dict:
+    """Fuse, write the maps and their picture (and into ``logger``, and the static map to
+    ``on_static``: ``jaxvo run --out-bag``); the summary's part. Each file is written whole
+    or not at all; a failure leaves the earlier maps as they were, all three."""
     from jaxvo.errors import InputError
     from jaxvo.host.io import write_image
     from jaxvo.host.mapping import fuse_maps, map_picture, matched_poses, trajectory_fit, write_ply
@@ -179,6 +179,8 @@ def make_maps(seq, traj, dynamic, args, outputs: dict[str, Path], *, where: str,
         logger.log_map("static", maps.static)
         if dynamic is not None:
             logger.log_map("full", maps.full)
+    if on_static is not None:
+        on_static(maps.static)
     return summary
 
 

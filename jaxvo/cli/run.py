@@ -7,6 +7,8 @@ next frames are read and decoded on other threads meanwhile, and masks and overl
 encoded and written on another (:mod:`jaxvo.host.prefetch`), so neither waits on the other.
 The per-frame step is compiled on the first run on a machine and loaded from the persistent
 compile cache afterwards (:mod:`jaxvo.host.compile_cache`); the terminal says when it compiles.
+With ``--out-bag`` the results also go to a ROS 2 bag (:mod:`jaxvo.host.bagout`), written on
+its own thread and renamed into place once finished.
 """
 
 from __future__ import annotations
@@ -32,7 +34,8 @@ input: SEQ_DIR in the TUM RGB-D layout: rgb.txt and depth.txt ('timestamp filena
   order are sorted and repeated timestamps dropped, with a warning. Or a ROS bag (ROS 1
   SEQ.bag, or a ROS 2 bag folder): --rgb-topic and --depth-topic (TUM's topics by default),
   paired by header stamp within --max-diff; the camera from the camera_info beside the
-  colour topic unless --camera.
+  colour topic unless --camera. A RealSense Viewer recording (.bag): its Color and Depth
+  streams, cameras, depth units and extrinsics found, the depth registered to colour.
 
 camera: --camera or --intrinsics, else camera.txt, else ETH3D's calibration.txt ('fx fy cx
   cy'), else the folder's name as the TUM and Bonn benchmarks name their downloads
@@ -53,7 +56,9 @@ output: the trajectory is camera-to-world in TUM format, one pose per frame kept
   panels side by side at half size (1280x240 for 640x480 images): Model (the image tinted
   by temporal identifier: grey-blue static, colours moving objects), Hypotheses (best raw
   motion hypothesis per cell), Segments (spatial segments) and Group (segments after
-  label matching), as thesis Fig. 5.1.
+  label matching), as thesis Fig. 5.1. --out-bag writes a new ROS 2 bag folder (MCAP):
+  /jaxvo/odometry, /tf (odom -> camera_optical_frame), /jaxvo/dynamic_mask and its
+  /jaxvo/camera_info, stamped with each frame's own time (docs/ros.md).
 """
 
 
@@ -65,7 +70,8 @@ def add_arguments(p: argparse.ArgumentParser) -> None:
     p.formatter_class = argparse.RawDescriptionHelpFormatter
     p.add_argument("sequence", metavar="SEQ_DIR",
                    help="folder in the TUM RGB-D layout, or a ROS bag (SEQ.bag, or a ROS 2 "
-                   "bag folder): colour, depth and camera info, TUM's topics by default")
+                   "bag folder): colour, depth and camera info, TUM's topics by default; or "
+                   "a RealSense Viewer recording (.bag)")
     p.add_argument("--rgb-topic", metavar="TOPIC",
                    help="a bag's colour topic (sensor_msgs/Image; default /camera/rgb/image_color"
                    "; the camera info beside it, e.g. /camera/rgb/camera_info)")
@@ -129,9 +135,29 @@ def add_arguments(p: argparse.ArgumentParser) -> None:
                    help="after the run, fuse the depth into a static map with the dynamic "
                    "pixels left out, as jaxvo map does (FILE_all.ply: nothing left out; "
                    "FILE.png: both pictured); the map's options are jaxvo map's defaults")
+    _add_bag_arguments(p.add_argument_group("ROS 2 bag output (docs/ros.md)"))
     p.add_argument("--json", action="store_true", help="print the summary as JSON")
     p.add_argument("--quiet", "-q", action="store_true",
                    help="no progress line, and no line saying that the step compiles")
+
+
+def _add_bag_arguments(g) -> None:
+    from jaxvo.host.bagout import CAMERA_FRAME, STORAGES, WORLD_FRAME
+
+    g.add_argument("--out-bag", metavar="DIR",
+                   help="also write a ROS 2 bag (a new folder): the odometry "
+                   "(nav_msgs/Odometry), /tf and the dynamic masks, stamped with each frame's "
+                   "own time; with --map the static map (PointCloud2) at the end")
+    g.add_argument("--bag-storage", choices=STORAGES, help="the bag's storage (default mcap)")
+    g.add_argument("--world-frame", metavar="NAME", help=f"the odometry's fixed frame (default {WORLD_FRAME}, "
+                   "REP 105; its axes: the first camera's, or the ground truth's)")
+    g.add_argument("--camera-frame", metavar="NAME", help="the colour camera's optical frame (default "
+                   f"{CAMERA_FRAME}: z forward, x right, y down, REP 103)")
+    g.add_argument("--bag-overlay", action="store_true",
+                   help="also the image tinted by identifier (/jaxvo/overlay)")
+    g.add_argument("--with-input", action="store_true",
+                   help="also the input: a bag's every message, or a folder's frames on TUM's "
+                   "bag topics, so that one bag replays everything")
 
 
 def _peak_rss_mib() -> float:
@@ -157,6 +183,7 @@ def _check_options(args: argparse.Namespace):
 
     from jaxvo.config import Config, check_config
     from jaxvo.errors import InputError, check_seed
+    from jaxvo.host.bagout import check_bag_options
     from jaxvo.host.camera import check_depth_scale_value, intrinsics_option
 
     if not (math.isfinite(args.max_diff) and args.max_diff >= 0):
@@ -172,6 +199,7 @@ def _check_options(args: argparse.Namespace):
     cfg = Config(cell=args.cell, num_hypotheses=args.hypotheses,
                  keyframes=Config.keyframes if args.keyframes is None else args.keyframes)
     check_config(cfg, names=_CONFIG_OPTIONS)
+    check_bag_options(args)
     camera = args.camera
     if args.intrinsics is not None:
         camera = intrinsics_option(args.intrinsics)
@@ -183,6 +211,7 @@ def _open(args: argparse.Namespace, cfg, camera):
     nothing is written here but the output folders (created)."""
     from jaxvo.config import check_config
     from jaxvo.errors import InputError
+    from jaxvo.host.bagout import check_bag_target
     from jaxvo.host.io import STDOUT, check_outputs, open_sequence, output_file, output_folder
     from jaxvo.host.memory import check_memory, run_bytes
     from jaxvo.host.outputs import stream_target
@@ -209,7 +238,11 @@ def _open(args: argparse.Namespace, cfg, camera):
         files.update({("--map" if k == "map" else f"--map's {k}"): v
                       for k, v in map_outputs(args.map).items()})
     files = {what: stream_target(path, what=what) for what, path in files.items()}
-    check_outputs(seq.files(), files=files, folders={k: Path(v) for k, v in given.items()})
+    bag = {"--out-bag": Path(args.out_bag)} if args.out_bag else {}
+    check_outputs(seq.files(), files=files,
+                  folders={**{k: Path(v) for k, v in given.items()}, **bag})
+    if args.out_bag:
+        check_bag_target(args.out_bag)
     for what, path in files.items():
         output_file(path, what=what)
     if args.rerun or args.rerun_save:
@@ -243,6 +276,7 @@ def run(args: argparse.Namespace, prepared=None) -> int:
 
     from jaxvo.cli.main import EXIT_INTERRUPTED, EXIT_NOTHING_ESTIMATED, interrupt_at_safe_points
     from jaxvo.cli.map import run_header
+    from jaxvo.host.bagout import open_bag
     from jaxvo.host.compile_cache import announce_compile
     from jaxvo.host.io import DepthScaleWarning, TrajectoryWriter, check_depth_scale, first_readable
     from jaxvo.host.prefetch import BackgroundWriter, read_ahead
@@ -270,9 +304,9 @@ def run(args: argparse.Namespace, prepared=None) -> int:
                                       max_diff=args.max_diff, required=bool(args.start_pose))
     odo = Odometry(seq.intrinsics, cfg=cfg, seed=args.seed, T_w_c0=T_w_c0)
     progress = Progress("jaxvo run", n - 1, enabled=not args.quiet)
-    # the recording is whole once the run (and its map) is: closed last, or discarded on
-    # an error, when the earlier file stays
-    with _logger(args, odo, gt) as logger:
+    # the recording and the bag are whole once the run and its map are (the recording
+    # closed last); an error discards both, and an earlier recording stays
+    with _logger(args, odo, gt) as logger, open_bag(args, seq) as bag:
         # leaving this block, also by Ctrl-C, closes the reader, writes every image queued,
         # then puts the trajectory file in place (whole, with every pose computed)
         with (TrajectoryWriter(out, comment=run_header(args.sequence, seq)) as writer,
@@ -283,14 +317,19 @@ def run(args: argparse.Namespace, prepared=None) -> int:
               as compiling,
               py_warnings.catch_warnings()):
             py_warnings.simplefilter("ignore", DepthScaleWarning)  # said above, with the frame
-            rec = _Recorder(cfg, writer, images, folders, keep_dynamic=bool(args.map))
+            rec = _Recorder(cfg, writer, images, folders, keep_dynamic=bool(args.map), bag=bag)
             rec.process(odo, itertools.chain(early, ((i, fut.result) for i, fut in reads)),
                         stop, progress)
         progress.close()
         summary = _summary(args, seq, n, start, rec, compiling, warnings, out)
+        # a Ctrl-C after the last frame: no map; the bag finished with every frame, as the
+        # trajectory was put in place with every pose; then the run says it was interrupted
         if args.map:
-            rec.interrupted = rec.interrupted or stop.requested  # Ctrl-C after the last frame
+            rec.interrupted = rec.interrupted or stop.requested
             summary.update(_map(args, seq, n, rec, out, writer, logger))
+        if bag is not None:
+            summary.update(bag.finish())
+        if args.map or bag is not None:
             summary["interrupted"] = rec.interrupted = rec.interrupted or stop.requested
     if gt is not None and rec.written >= 3:
         summary.update(_scores(gt, out, writer, args.max_diff))
@@ -331,10 +370,12 @@ class _Recorder:
     """What a run does with each frame's result: the pose to the trajectory file, the
     pair's images to the writer thread, and the counts the summary gives."""
 
-    def __init__(self, cfg, writer, images, folders: dict, *, keep_dynamic: bool = False):
+    def __init__(self, cfg, writer, images, folders: dict, *, keep_dynamic: bool = False,
+                 bag=None):
         from collections import Counter
 
         self.cfg, self.writer, self.images, self.folders = cfg, writer, images, folders
+        self.bag = bag  # a BagWriter (--out-bag), written on the writer thread as the images
         self.skipped: Counter[str] = Counter()
         self.dropped: Counter[str] = Counter()
         self.times: list[float] = []
@@ -393,8 +434,8 @@ class _Recorder:
         if (self.dynamic is not None and self.last_moving is not None
                 and self.anchor is not None):
             self.dynamic[self.anchor.index] = self.last_moving
-        if ("--dynamic-masks" in self.folders and self.last_moving is not None
-                and self.anchor is not None):
+        if (("--dynamic-masks" in self.folders or self.bag is not None)
+                and self.last_moving is not None and self.anchor is not None):
             # the last kept frame has no pair of its own: it takes the last label map
             self.images.submit(self.write_images, self.anchor, None, self.last_moving)
 
@@ -404,10 +445,14 @@ class _Recorder:
         from jaxvo.status import Status
 
         frame = self.recent.pop(r.index)
+        if self.bag is not None and self.bag.input_frames:
+            self.images.submit(self.bag.write_frame, frame)
         if r.dropped is not None:
             self.dropped[r.dropped] += 1
             return
         self.writer.write(r.timestamp, r.T_w_c)
+        if self.bag is not None:
+            self.images.submit(self.bag.write_pose, frame.index, r.T_w_c)
         self.written += 1
         prev_frame, self.anchor = self.anchor, frame
         if r.output is None or prev_frame is None:
@@ -422,7 +467,7 @@ class _Recorder:
         self.last_moving = r.output.dynamic
         if self.dynamic is not None:
             self.dynamic[prev_frame.index] = self.last_moving
-        if self.folders:
+        if self.folders or self.bag is not None:
             self.images.submit(self.write_images, prev_frame, r, self.last_moving)
 
     def write_images(self, frame, r, moving) -> None:
@@ -441,9 +486,11 @@ class _Recorder:
         if "--masks" in self.folders and r is not None:
             ids = grid_to_pixels(r.ids, h, w, cell).astype(np.uint8)
             write_image(self.folders["--masks"] / name, ids)
-        if "--dynamic-masks" in self.folders:  # jaxvo.host.plugin: step k labels image k
-            write_image(self.folders["--dynamic-masks"] / name,
-                        mask_png(dynamic_pixels(moving, h, w, cell)))
+        mask = mask_png(dynamic_pixels(moving, h, w, cell))  # plugin: step k labels image k
+        if "--dynamic-masks" in self.folders:
+            write_image(self.folders["--dynamic-masks"] / name, mask)
+        if self.bag is not None:
+            self.bag.write_mask(frame, mask, None if r is None else r.output)
         if "--overlays" in self.folders and r is not None:
             write_image(self.folders["--overlays"] / name,
                         overlay_panel(frame.bgr, r.output, cell))
@@ -471,8 +518,10 @@ def _map(args, seq, n: int, rec: _Recorder, out, writer, logger) -> dict:
     options = SimpleNamespace(max_diff=args.max_diff, voxel=0.02, max_depth=4.0, grow=GROW,
                               vote_voxel=VOTE_VOXEL, vote_share=VOTE_SHARE)
     est = writer.written()  # as the file holds it, whoever replaced the file since
+    on_static = None if rec.bag is None else (
+        lambda static: rec.bag.write_map(static, rec.anchor.index))
     return make_maps(seq, est, dynamic, options, map_outputs(args.map),
-                     where=f"--out {out}", frames=n, logger=logger)
+                     where=f"--out {out}", frames=n, logger=logger, on_static=on_static)
 
 
 def _summary(args, seq, n: int, start: str, rec: _Recorder, compiling, warnings, out) -> dict:
@@ -568,6 +617,10 @@ def _print_summary(summary: dict, n: int, interrupted: bool) -> None:
         print(f"  map        {summary['map_points']} points -> {summary['map']} (dynamic pixels "
               f"left out), {summary['map_all_points']} -> {summary['map_all']} (nothing left "
               f"out), picture {summary['map_picture']}")
+    if "bag" in summary:
+        print(f"  bag        {summary['bag_messages']} messages on {summary['bag_topics']} topics "
+              f"-> {summary['bag']}" + (f" ({summary['bag_input_messages']} of them the "
+                                        "input's)" if summary["bag_input_messages"] else ""))
     if "ate_rmse_m" in summary:
         how = "aligned" if summary["ate_aligned"] else "not aligned: the camera does not move"
         print(f"  ATE        {summary['ate_rmse_m']:.4f} m rmse ({how}, ground truth in folder)")

@@ -183,6 +183,20 @@ def as_intrinsics(camera, *, where: str = "intrinsics") -> Intrinsics:
     raise ValueError(f"{expected}; got shape {a.shape}")
 
 
+def camera_info_intrinsics(msg, depth_scale: float) -> Intrinsics | str:
+    """Pinhole intrinsics (pixels) from a ROS ``sensor_msgs/CameraInfo`` (ROS 1 ``K``, ROS 2
+    ``k``) with ``depth_scale``, or why it holds none, in words (an all-zero K: an
+    uncalibrated camera)."""
+    K = np.asarray(msg.K if hasattr(msg, "K") else msg.k, np.float64)
+    if K.size != 9:
+        return f"its K has {K.size} values, not 9"
+    if not np.any(K[[0, 2, 4, 5]]):
+        return "its K is all zero (the camera driver had no calibration)"
+    if not (np.all(np.isfinite(K)) and K[0] > 0 and K[4] > 0):
+        return f"its K has fx {K[0]:g}, fy {K[4]:g} (no calibration)"
+    return Intrinsics(float(K[0]), float(K[4]), float(K[2]), float(K[5]), float(depth_scale))
+
+
 # Median depth of a frame, metres, outside which no RGB-D sensor reads (host.io's
 # check_depth_scale); a depth scale that puts every 16-bit reading (1 to 65535 raw units)
 # outside it is no sensor's either.
