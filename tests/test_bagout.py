@@ -33,7 +33,6 @@ from jaxvo.host.bagout import (
     TF_TOPIC,
     check_frame_id,
     frame_times,
-    move_into_place,
 )
 from jaxvo.host.camera import Intrinsics
 from jaxvo.host.io import open_sequence, read_trajectory
@@ -407,14 +406,29 @@ def test_a_bag_that_cannot_be_finished_leaves_nothing(folder, tmp_path, capsys, 
 # --- the pieces -------------------------------------------------------------------------
 
 
-def test_move_into_place_takes_an_empty_folder_and_leaves_nothing_beside(tmp_path):
-    target = tmp_path / "bag"
-    target.mkdir()  # made empty beforehand (e.g. by a script): taken
-    work = tmp_path / ".bag.x.partial"
-    (work / "bag").mkdir(parents=True)
-    (work / "bag" / "metadata.yaml").write_text("x")
-    move_into_place(work / "bag", target)
-    assert (target / "metadata.yaml").read_text() == "x" and not work.exists()
+def test_a_second_ctrl_c_leaves_no_bag_and_nothing_beside(folder, tmp_path):
+    """A second Ctrl-C ends the process at once, settling the outputs being written first
+    (abort_pending): the bag's temporary folder is one of them, removed as a half-written
+    file is, so that nothing of the bag outlives the process."""
+    import time
+
+    from jaxvo.host.outputs import abort_pending
+
+    bag = tmp_path / "bag"
+    writer = bagout.BagWriter(bag, open_sequence(folder))
+    writer.write_pose(0, np.eye(4))
+    for _ in range(500):  # rosbags makes the folder on the bag's thread
+        if any(bag.parent.glob(f".{bag.name}.*/*")):
+            break
+        time.sleep(0.01)
+    else:
+        pytest.fail("the bag's temporary folder was never made")
+    abort_pending()
+    assert not bag.exists()
+    no_leftovers(bag)
+    writer.abort()  # its thread (the process would have ended)
+    assert not bag.exists()
+    no_leftovers(bag)
 
 
 def test_frame_ids_and_times():

@@ -175,6 +175,21 @@ def test_a_folder_appears_whole_or_not_at_all(tmp_path):
         OutputFolder(tmp_path / "seq")
 
 
+def test_a_folder_a_library_makes_takes_an_empty_target_and_leaves_nothing_beside(tmp_path):
+    """make_folder=False: the library makes the folder at the temporary path (rosbags'
+    writer refuses one that exists); a target made empty beforehand (by a script) is taken;
+    a discard before the library made anything leaves nothing either."""
+    target = tmp_path / "bag"
+    target.mkdir()
+    with OutputFolder(target, make_folder=False) as folder:
+        assert not folder.temporary.exists()
+        folder.temporary.mkdir()  # as rosbags' Writer.open does
+        (folder.temporary / "metadata.yaml").write_text("x")
+    assert (target / "metadata.yaml").read_text() == "x" and leftovers(tmp_path) == []
+    OutputFolder(tmp_path / "other", make_folder=False).discard()
+    assert not (tmp_path / "other").exists() and leftovers(tmp_path) == []
+
+
 def test_another_writer_is_said_and_a_killed_ones_leftover_removed(tmp_path):
     """Two runs into one --out: each writes it whole, the last one kept, and the second is
     told; a temporary a killed run left (its process gone) is removed."""

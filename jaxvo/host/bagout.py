@@ -38,23 +38,22 @@ zeros, which ROS's message definitions read as "covariance unknown"; jaxvo gives
 velocity, so the twist is zero with its covariance's element 0 at -1, "no estimate"
 (``sensor_msgs/msg/Imu``'s stated conventions, the ones ROS writes down).
 
-Whole or nothing: the bag is written in a temporary folder beside the target and renamed
-into place once complete (:func:`move_into_place`); a failure or an interruption that
-stops the run before the bag is finished leaves nothing at the target.
+Whole or nothing, as every output of jaxvo (:class:`jaxvo.host.outputs.OutputFolder`): the
+bag is written in a hidden temporary folder beside the target and renamed onto it once
+finished; a failure, or an exception that leaves before :meth:`BagWriter.finish` (a second
+Ctrl-C too), removes the temporary folder and leaves nothing at the target.
 """
 
 from __future__ import annotations
 
 import contextlib
-import os
-import shutil
-import tempfile
 from pathlib import Path
 from typing import NamedTuple, Self
 
 import numpy as np
 
 from jaxvo.errors import InputError
+from jaxvo.host.outputs import OutputFolder
 from jaxvo.host.prefetch import BackgroundWriter
 
 ODOMETRY_TOPIC = "/jaxvo/odometry"
@@ -120,14 +119,16 @@ def open_bag(args, seq):
     frames = Frames(args.world_frame or WORLD_FRAME, args.camera_frame or CAMERA_FRAME)
     return BagWriter(args.out_bag, seq, storage=args.bag_storage or "mcap", frames=frames,
                      with_input=args.with_input,
-                     overlay_cell=args.cell if args.bag_overlay else None)
+                     overlay_cell=args.cell if args.bag_overlay else None, what="--out-bag")
 
 
 def check_bag_target(path: str | Path, *, what: str = "--out-bag") -> Path:
     """``path`` as a new bag folder this run can write, checked before any work.
 
-    The bag is written beside it and renamed onto it when complete, so the folder must not
-    exist yet (or be empty), and its parent must take a new folder. Nothing is created here.
+    The bag is written beside it and renamed onto it when complete (an
+    :class:`~jaxvo.host.outputs.OutputFolder`), so the folder must not exist yet (or be
+    empty), and its parent must take the temporary folder (made and removed here: nothing
+    is left).
 
     Raises:
       InputError: it is a file, a folder that holds anything (an existing bag), or its
@@ -144,19 +145,10 @@ def check_bag_target(path: str | Path, *, what: str = "--out-bag") -> Path:
     if not parent.is_dir():
         raise InputError(f"{what} {p}: folder {parent} does not exist")
     try:
-        tempfile.TemporaryDirectory(dir=parent).cleanup()
+        OutputFolder(p, what=what).discard()  # the bag's temporary folder, made and removed
     except OSError as exc:
         raise InputError(f"{what} {p}: cannot write in {parent} ({exc.strerror})") from None
     return p
-
-
-def move_into_place(finished: Path, target: Path) -> None:
-    """The one step that makes a finished output appear: ``finished`` (a folder inside a
-    temporary folder beside ``target``) renamed onto ``target`` (which is absent or an empty
-    folder), then the temporary folder removed. A rename within one folder is atomic, so
-    ``target`` is the whole output or nothing."""
-    os.replace(finished, target)
-    shutil.rmtree(finished.parent, ignore_errors=True)
 
 
 def frame_times(seq) -> tuple[np.ndarray, np.ndarray]:
@@ -184,8 +176,11 @@ class BagWriter:
     on the bag's own thread (a :class:`~jaxvo.host.prefetch.BackgroundWriter`, bounded, in
     the order given), so writing overlaps the run's computation; every ``rosbags`` call is
     made there (SQLite takes its connection on one thread only). A failure there is raised
-    by a later ``write_*`` or by :meth:`finish`. As a context manager, leaving by an
-    exception (or an interruption before :meth:`finish`) removes everything written.
+    by a later ``write_*`` or by :meth:`finish`. The bag is an
+    :class:`~jaxvo.host.outputs.OutputFolder` (made by ``rosbags`` at its temporary path):
+    :meth:`finish` puts it in place; as a context manager, leaving by an exception (or
+    before :meth:`finish`) removes everything written, and so does a second Ctrl-C
+    (:func:`~jaxvo.host.outputs.abort_pending`).
 
     Args:
       target: the bag folder to create (checked by :func:`check_bag_target`).
@@ -196,11 +191,12 @@ class BagWriter:
         for a folder, each frame given to :meth:`write_frame`.
       overlay_cell: the grid's cell size, pixels, to write each mask's frame tinted by
         identifier (``--bag-overlay``); None: no overlay.
+      what: how to name the target in messages (default: the path).
     """
 
     def __init__(self, target: str | Path, seq, *, storage: str = "mcap",
                  frames: Frames | None = None, with_input: bool = False,
-                 overlay_cell: int | None = None) -> None:
+                 overlay_cell: int | None = None, what: str | None = None) -> None:
         from rosbags.rosbag2 import StoragePlugin, Writer
         from rosbags.typesys import Stores, get_typestore
 
@@ -215,9 +211,10 @@ class BagWriter:
         self.input_bag = Path(seq.path) if with_input and is_bag(getattr(seq, "path", "")) else None
         self.input_frames = with_input and self.input_bag is None
         self.ts = get_typestore(Stores(_STORE))
-        self._tmp = Path(tempfile.mkdtemp(prefix=f".{self.target.name}.", suffix=".partial",
-                                          dir=self.target.absolute().parent))
-        self._writer = Writer(self._tmp / self.target.name, version=_BAG_VERSION,
+        # the folder whole or not at all; rosbags makes it at the temporary path (it refuses
+        # a folder that exists), on the bag's thread
+        self._out = OutputFolder(self.target, what=what, make_folder=False)
+        self._writer = Writer(self._out.temporary, version=_BAG_VERSION,
                               storage_plugin=StoragePlugin[storage.upper()])
         self._conns: dict[str, object] = {}
         self._info = self._camera_info(seq.intrinsics, seq.height, seq.width)
@@ -426,7 +423,7 @@ class BagWriter:
         ``bag_input_messages``, ``bag_topics``)."""
         self._thread.submit(self._close)
         self._thread.close()  # waits; raises what failed on the bag's thread
-        move_into_place(self._tmp / self.target.name, self.target)
+        self._out.commit()
         self.finished = True
         return self._summary
 
@@ -439,7 +436,7 @@ class BagWriter:
             self._thread.submit(self._writer.abort)  # its files closed on its own thread
         with contextlib.suppress(BaseException):
             self._thread.close()
-        shutil.rmtree(self._tmp, ignore_errors=True)
+        self._out.discard()
 
     def __enter__(self) -> Self:
         return self

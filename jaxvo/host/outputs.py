@@ -19,12 +19,14 @@ Rerun recording, the study's tables, the evo zips, a synthetic sequence):
   that fails raises ``OSError`` naming the target (a full disk fails in ``write`` or
   ``close``, which name no file of their own); the CLI prints it as one line.
 
-A folder of outputs (masks and overlays, named by frame; a study's tables; a synthetic
-sequence) is whole file by file: each file in it appears whole or not at all, and an
-interrupted command keeps the files it finished. A writer of a new kind of output (a ROS 2
-bag folder, say) uses the same three steps: ``output_file`` / ``output_folder`` and
-``check_outputs`` before any work, then an :class:`OutputFile` per file (or
-:meth:`OutputFile.temporary` for a library that writes a path itself, as Rerun does)::
+A folder of outputs (masks and overlays, named by frame; a study's tables) is whole file
+by file: each file in it appears whole or not at all, and an interrupted command keeps the
+files it finished. A folder that is one output (a synthetic sequence, a ROS 2 bag) is whole
+as a folder: an :class:`OutputFolder`. A writer of a new kind of output uses the same three
+steps: ``output_file`` / ``output_folder`` and ``check_outputs`` before any work, then an
+:class:`OutputFile` per file or an :class:`OutputFolder` (for a library that writes a path
+itself, :attr:`OutputFile.temporary` as Rerun's file sink takes it, or an
+``OutputFolder(..., make_folder=False)`` as ``rosbags``' bag writer takes it)::
 
     out = output_file(args.out, what="--out")          # before any work
     check_outputs(seq.files(), files={"--out": out})
@@ -508,13 +510,14 @@ class OutputFile(_WholeOrNothing):
 
 
 class OutputFolder(_WholeOrNothing):
-    """One output folder, written whole or not at all (a synthetic sequence, a bag folder).
+    """One output folder, written whole or not at all (a synthetic sequence, a ROS 2 bag).
 
     The files go into a temporary folder beside the target (:attr:`temporary`, hidden and
     named as :class:`OutputFile`'s); :meth:`commit` renames it onto the target, which must
     be missing or an empty folder (``os.replace``, atomic), and :meth:`discard` removes it.
     As a context manager it commits when the block ends normally and discards when an
-    exception (also Ctrl-C) leaves it. A failure names the target.
+    exception (also Ctrl-C) leaves it; a second Ctrl-C (:func:`abort_pending`) discards it
+    too. A failure names the target.
 
     Example::
 
@@ -524,11 +527,15 @@ class OutputFolder(_WholeOrNothing):
     Args:
       path: the target folder (missing, or empty).
       what: how to name it in messages (default: the path).
+      make_folder: create :attr:`temporary` here; False leaves it to a library that makes
+        the folder at a path it is given and refuses one that exists (``rosbags``' bag
+        writer, :mod:`jaxvo.host.bagout`), as :class:`OutputFile`'s ``open_file`` leaves a
+        file to Rerun.
     """
 
     keep_on_abort = False
 
-    def __init__(self, path: str | Path, *, what: str | None = None):
+    def __init__(self, path: str | Path, *, what: str | None = None, make_folder: bool = True):
         self.path = Path(path)
         self.what = what or str(path)
         self._done = False
@@ -538,10 +545,11 @@ class OutputFolder(_WholeOrNothing):
             raise InputError(f"{self.what} {self.path}: exists and is not an empty folder")
         token = f"{os.getpid()}-{secrets.token_hex(4)}"
         self.temporary = real.parent / f".{real.name[:_NAME_KEEP]}{_TAG}{token}{_PART}"
-        try:
-            os.mkdir(self.temporary)
-        except OSError as exc:
-            raise OSError(exc.errno, exc.strerror, str(self.path)) from None
+        if make_folder:
+            try:
+                os.mkdir(self.temporary)
+            except OSError as exc:
+                raise OSError(exc.errno, exc.strerror, str(self.path)) from None
         _PENDING[id(self)] = self
 
     def commit(self) -> None:
