@@ -115,18 +115,19 @@ def _study_program(cfg: Config, grid: tuple[int, int]):
 
     from jaxvo.core.pipeline import run_study
 
-    def one_device(flows, T_w_c0, seeds, params):
+    def one_device(flows, keyframes, T_w_c0, seeds, params):
         keys = jax.vmap(jax.random.key)(seeds)
-        out = run_study(flows, keys, params, T_w_c0, cfg=cfg, grid=grid)
+        out = run_study(flows, keys, params, T_w_c0, cfg=cfg, grid=grid, keyframes=keyframes)
         return out.T_w_c, out.moving, out.status
 
     return jax.jit(one_device)
 
 
 def _call_args(data: SequenceData, configs: list[dict], seeds: np.ndarray):
-    """The host arguments of one device's call: the flow, the start pose, its seeds and its
-    configurations' ``Params``."""
-    return (data.flows, data.T_w_c0.astype(np.float32), seeds, batched_params(configs))
+    """The host arguments of one device's call: the flow (and the keyframe flow, None
+    without keyframes), the start pose, its seeds and its configurations' ``Params``."""
+    return (data.flows, data.keyframes, data.T_w_c0.astype(np.float32), seeds,
+            batched_params(configs))
 
 
 _compiled: dict[tuple, Any] = {}
@@ -258,27 +259,32 @@ def agree(problem: InputError | None) -> None:
         raise problem or InputError("the first process stopped the study; see its message")
 
 
-def share_data(data: SequenceData | None) -> SequenceData:
-    """The first process's flow on every process: the others need neither the frames nor
-    the cache, and every device computes on the same flow."""
+def share_data(data: SequenceData | None, cfg: Config) -> SequenceData:
+    """The first process's flow (and, with ``cfg.keyframes``, keyframe flow) on every
+    process: the others need neither the frames nor the cache, and every device computes on
+    the same flow."""
     import jax
 
     if jax.process_count() == 1:
         return data
-    from jaxvo.host.flow import GridFlow
+    from jaxvo.host.flow import invalid_flow, stack_flows
+    from jaxvo.host.keyframes import invalid_keyframe_flow
 
     head = np.zeros(4, np.int64)
     if data is not None:
         T, n = data.flows.valid.shape
         head[:] = (T, n, data.height, data.width)
     T, n, h, w = (int(v) for v in from_first(head))
-    if data is None:
-        flows = GridFlow(np.zeros((T, n, 3), np.float32), np.zeros((T, n, 3), np.float32),
-                         np.zeros((T, n, 2), np.float32), np.zeros((T, n, 2), np.float32),
-                         np.zeros((T, n), bool), np.zeros((T,), np.int32),
-                         np.zeros((T,), np.float32), np.zeros((T, n), bool),
-                         np.zeros((T, n), np.float32), np.zeros((T, n), np.float32))
-        data = SequenceData("", flows, np.eye(4), np.zeros(T + 1), None, None, h, w)
-    flows = GridFlow(*(from_first(np.asarray(a)) for a in data.flows))
+    if data is None:  # the shapes and types of the first process's, to receive them in
+        flows = stack_flows([invalid_flow(np.zeros((n, 2)))] * T)
+        kf = stack_flows([invalid_keyframe_flow(n, cfg.keyframe_window)] * T) \
+            if cfg.keyframes else None
+        data = SequenceData("", flows, kf, np.eye(4), np.zeros(T + 1), None, None, h, w)
     T0 = from_first(np.asarray(data.T_w_c0, np.float64))
-    return data._replace(flows=flows, T_w_c0=T0)
+    return data._replace(flows=_from_first_tree(data.flows),
+                         keyframes=_from_first_tree(data.keyframes), T_w_c0=T0)
+
+
+def _from_first_tree(tree):
+    """Every array of a NamedTuple of arrays (or None) as the first process has it."""
+    return None if tree is None else type(tree)(*(from_first(np.asarray(a)) for a in tree))

@@ -303,7 +303,7 @@ def _group_data(s: SequenceSpec, cfg: Config, cache: Path, tally: _Tally, *, fir
                 log(f"{s.label}: {len(data.timestamps) - 1} frame pairs, flow " + (
                     "from the cache" if cached else f"in {took:.1f} s"))
     agree(problem)
-    return share_data(data)
+    return share_data(data, cfg)
 
 
 def _rows(spec: StudySpec, data: SequenceData, chunk: list[tuple[str, Run]], outs,
