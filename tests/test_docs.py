@@ -133,3 +133,15 @@ def test_the_top_level_is_the_user_names_and_python_md_says_where_every_name_liv
             assert name not in jaxvo.__all__, name
     with pytest.raises(AttributeError, match="docs/python.md"):
         jaxvo.jit_step  # noqa: B018 - under jaxvo.core.pipeline now
+
+
+def test_the_report_readme_names_every_report_in_its_folder():
+    """docs/report/README.md says what each file there is (``x.md`` / ``.json`` names both;
+    the map's reports were missing)."""
+    text = (ROOT / "docs" / "report" / "README.md").read_text(encoding="utf-8")
+    named = set(re.findall(r"`([\w.]+\.\w+)`", text))
+    named |= {md.replace(".md", ".json")
+              for md in re.findall(r"`([\w.]+\.md)`\s*/\s*`\.json`", text)}
+    missing = [p.name for p in sorted((ROOT / "docs" / "report").iterdir())
+               if p.suffix in (".md", ".json") and p.name != "README.md" and p.name not in named]
+    assert not missing, f"docs/report/README.md does not say what these are: {missing}"
