@@ -435,6 +435,23 @@ def test_two_processes_give_the_same_bits_as_one(tiny, one_device):
     assert "the first process stopped the study" in outs[1][1]
 
 
+def test_a_process_receives_the_flow_in_arrays_of_the_first_process_s_shapes(tmp_path):
+    """The processes after the first receive the first's flow (and keyframe flow) into
+    arrays they make themselves (``share_data``): each must have the shape and type of the
+    first's, or the exchange fails or garbles it."""
+    from jaxvo.study.devices import receiving_data
+
+    for cfg in (Config(cell=32), Config(cell=32, keyframes=True)):
+        data, _ = study.sequence_data(study.SequenceSpec("x", "handheld_fast", None, 3, 0, 1,
+                                                         None), cfg, None)
+        T, n = data.flows.valid.shape
+        got = receiving_data(T, n, data.height, data.width, cfg)
+        assert (got.keyframes is None) == (not cfg.keyframes)
+        for mine, first in ((got.flows, data.flows), (got.keyframes, data.keyframes)):
+            assert jax.tree.map(lambda a: (a.shape, a.dtype), mine) == \
+                jax.tree.map(lambda a: (np.shape(a), np.asarray(a).dtype), first)
+
+
 def test_an_interrupted_study_resumes_where_it_stopped(tiny, tmp_path):
     spec, _, root, first = tiny
     out = tmp_path / "resumed"

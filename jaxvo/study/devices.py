@@ -163,10 +163,10 @@ _compiled: dict[tuple, Any] = {}
 
 def compiled_program(cfg: Config, grid: tuple[int, int], args, devices):
     """The study program for ``devices`` (this process's), compiled once for all of them
-    (one ``shard_map`` program: the same computation on each device's block, so the same
-    bits on 1, 2 or N devices; it used to be compiled once per device, the device being
-    part of the compile's key on the CPU), loaded from the persistent compile cache where
-    it is there. ``args``: the call's host arguments (:func:`_call_args`), ``batch``
+    (one ``shard_map`` program: the same computation on each device's block; the tests
+    hold 4 devices and 2 processes to one device's bits. It used to be compiled once per
+    device, the device being part of the compile's key on the CPU), loaded from the
+    persistent compile cache where it is there. ``args``: the call's host arguments (:func:`_call_args`), ``batch``
     configurations a device.
 
     Returns:
@@ -295,22 +295,30 @@ def share_data(data: SequenceData | None, cfg: Config) -> SequenceData:
 
     if jax.process_count() == 1:
         return data
-    from jaxvo.host.flow import invalid_flow, stack_flows
-    from jaxvo.host.keyframes import invalid_keyframe_flow
-
     head = np.zeros(4, np.int64)
     if data is not None:
         T, n = data.flows.valid.shape
         head[:] = (T, n, data.height, data.width)
     T, n, h, w = (int(v) for v in from_first(head))
-    if data is None:  # the shapes and types of the first process's, to receive them in
-        flows = stack_flows([invalid_flow(np.zeros((n, 2)))] * T)
-        kf = stack_flows([invalid_keyframe_flow(n, cfg.keyframe_window)] * T) \
-            if cfg.keyframes else None
-        data = SequenceData("", flows, kf, np.eye(4), np.zeros(T + 1), None, None, h, w)
+    if data is None:
+        data = receiving_data(T, n, h, w, cfg)
     T0 = from_first(np.asarray(data.T_w_c0, np.float64))
     return data._replace(flows=_from_first_tree(data.flows),
                          keyframes=_from_first_tree(data.keyframes), T_w_c0=T0)
+
+
+def receiving_data(pairs: int, n: int, height: int, width: int, cfg: Config) -> SequenceData:
+    """What a process other than the first holds before the first's flow arrives
+    (:func:`share_data`): arrays of the shapes and types of the first's, ``pairs`` frame
+    pairs of ``n`` grid points (the keyframe flow with ``cfg.keyframes``), all invalid."""
+    from jaxvo.host.flow import invalid_flow, stack_flows
+    from jaxvo.host.keyframes import invalid_keyframe_flow
+
+    flows = stack_flows([invalid_flow(np.zeros((n, 2)))] * pairs)
+    kf = (stack_flows([invalid_keyframe_flow(n, cfg.keyframe_window)] * pairs)
+          if cfg.keyframes else None)
+    return SequenceData("", flows, kf, np.eye(4), np.zeros(pairs + 1), None, None, height,
+                        width)
 
 
 def _from_first_tree(tree):
