@@ -54,6 +54,21 @@ def spec_of(text: str, tmp_path: Path, name: str = "spec.toml") -> Path:
     return path
 
 
+def folder_spec(tmp_path: Path, folder: Path, *, seed: int, **fixed):
+    """A parsed study of one sequence folder under one seed, in calls of one
+    configuration, with the ``fixed`` settings."""
+    settings = "\n".join(f"{k} = {json.dumps(v)}" for k, v in fixed.items())
+    return study.load_spec(spec_of(f"""
+name = "{folder.name}"
+seeds = [{seed}]
+batch = 1
+[[sequences]]
+path = "{folder}"
+[fixed]
+{settings}
+""", tmp_path))
+
+
 # ----------------------------------------------------------------------------- the spec
 
 
@@ -593,17 +608,8 @@ def test_a_dropped_frame_scores_as_jaxvo_run_scores_it(tmp_path):
     write_sequence(make_sequence("handheld_slow", frames=9, seed=0), folder)
     black = sorted((folder / "rgb").iterdir())[4]
     cv2.imwrite(str(black), np.zeros((480, 640, 3), np.uint8))
-    spec = study.load_spec(spec_of(f"""
-name = "dropped"
-seeds = [0]
-batch = 1
-[[sequences]]
-path = "{folder}"
-[fixed]
-cell = 32
-num_hypotheses = 4
-noise_calibration = true
-""", tmp_path))
+    spec = folder_spec(tmp_path, folder, seed=0, cell=32, num_hypotheses=4,
+                       noise_calibration=True)
     res = study.run_spec(spec, tmp_path / "out", flow_cache=tmp_path / "flows")
     data, cached = study.sequence_data(spec.sequences[0], Config(cell=32), tmp_path / "flows")
     assert cached
@@ -638,15 +644,7 @@ def test_a_study_with_keyframes_scores_as_jaxvo_run_keyframes(tmp_path, capsys):
                  "--json"]) == 0
     summary = json.loads(capsys.readouterr().out)
     assert summary["keyframes"] >= 2  # the window refined at least once
-    spec = study.load_spec(spec_of(f"""
-name = "keyframes"
-seeds = [3]
-batch = 1
-[[sequences]]
-path = "{folder}"
-[fixed]
-keyframes = true
-""", tmp_path))
+    spec = folder_spec(tmp_path, folder, seed=3, keyframes=True)
     res = study.run_spec(spec, tmp_path / "out", flow_cache=tmp_path / "flows")
     data, cached = study.sequence_data(spec.sequences[0], Config(keyframes=True),
                                        tmp_path / "flows")
