@@ -67,7 +67,7 @@ class Odometry:
 
     Example::
 
-        odo = Odometry(jaxvo.preset("tum_fr3"))          # depth_scale 5000 per metre
+        odo = Odometry("tum_fr3")          # a preset: depth_scale 5000 per metre
         for bgr, depth, t in camera:   # depth: uint16 raw units or float32 metres
             r = odo.process(bgr, depth, t)
             print(r.T_w_c[:3, 3], r.status.reason)

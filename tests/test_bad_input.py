@@ -506,7 +506,8 @@ def test_masks_and_overlays_are_png_named_by_rgb_timestamp(base, tmp_path, capsy
 def test_demo_creates_its_out_folder(tmp_path, capsys, monkeypatch):
     """The README's own example wrote the peers' trajectories before creating the folder."""
     out = tmp_path / "demo_out" / "nested"
-    res = cli(capsys, "demo", "--frames", "3", "--peers", "opencv_rgb", "--out", out, "--json")
+    # 4 frames: the scan of examples/quickstart_synthetic.py in test_examples.py (3 pairs)
+    res = cli(capsys, "demo", "--frames", "4", "--peers", "opencv_rgb", "--out", out, "--json")
     assert res.rc == 0
     names = sorted(p.name for p in out.iterdir())
     assert {"jaxvo.txt", "opencv_rgb.txt", "groundtruth.txt"} <= set(names)

@@ -210,7 +210,8 @@ def test_the_demos_timed_scan_compiles_nothing(capsys, monkeypatch):
             _COMPILING["on"] = False
 
     monkeypatch.setattr(demo, "_timed_scan", watched)
-    assert main(["demo", "--frames", "3", "--peers", "none", "--json"]) == 0
+    # 4 frames: the scan of examples/quickstart_synthetic.py in test_examples.py (3 pairs)
+    assert main(["demo", "--frames", "4", "--peers", "none", "--json"]) == 0
     row = json.loads(capsys.readouterr().out)["methods"]["jaxvo"]
     assert len(seconds) == 1 and _COMPILING["events"] == []  # no trace, no compile
     assert row["ms_per_frame"] > 0

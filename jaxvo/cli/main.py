@@ -57,6 +57,19 @@ COMMANDS: dict[str, tuple[str, str]] = {
 COMPILING = ("demo", "run", "synth", "study")
 
 
+def add_seed_option(p: argparse.ArgumentParser, what: str) -> None:
+    """``--seed``, default 0, in the range every command checks (``errors.check_seed``);
+    ``what`` says what it seeds."""
+    p.add_argument("--seed", type=int, default=0, help=f"{what}, 0 .. 2**32-1 (default 0)")
+
+
+def add_summary_options(p: argparse.ArgumentParser, *, summary: str, quiet: str) -> None:
+    """``--json`` (the command's ``summary`` printed as JSON) and ``--quiet`` / ``-q``
+    (``quiet``: what it leaves out), as the commands that compute and report give them."""
+    p.add_argument("--json", action="store_true", help=f"print {summary} as JSON")
+    p.add_argument("--quiet", "-q", action="store_true", help=quiet)
+
+
 def build_parser() -> argparse.ArgumentParser:
     parser = argparse.ArgumentParser(
         prog="jaxvo",

@@ -63,7 +63,7 @@ output: the trajectory is camera-to-world in TUM format, one pose per frame kept
 
 
 def add_arguments(p: argparse.ArgumentParser) -> None:
-    from jaxvo.cli.main import EXIT_STATUSES
+    from jaxvo.cli.main import EXIT_STATUSES, add_seed_option, add_summary_options
     from jaxvo.host.camera import PRESETS
 
     p.epilog = EPILOG + "\n" + EXIT_STATUSES
@@ -97,8 +97,7 @@ def add_arguments(p: argparse.ArgumentParser) -> None:
                    "associating, seconds (default 0.02)")
     p.add_argument("--frames", type=int, metavar="N",
                    help="process only the first N frames (default all)")
-    p.add_argument("--seed", type=int, default=0,
-                   help="PRNG seed of the hypothesis sampling, 0 .. 2**32-1 (default 0)")
+    add_seed_option(p, "PRNG seed of the hypothesis sampling")
     p.add_argument("--cell", type=int, default=16,
                    help="grid cell size in pixels, at least 4 (default 16)")
     p.add_argument("--hypotheses", type=int, default=20,
@@ -114,16 +113,15 @@ def add_arguments(p: argparse.ArgumentParser) -> None:
                    help="first pose of the trajectory: 'gt' the ground-truth pose of the first "
                    "frame (groundtruth.txt, within --max-diff), or 'identity' (default: gt where "
                    "there is one, else identity; the summary says which)")
-    p.add_argument("--masks", metavar="DIR",
-                   help="write per-frame label masks (PNG, pixel value = identifier, 1 = static)")
-    p.add_argument("--dynamic-masks", metavar="DIR",
-                   help="write per-frame dynamic-pixel masks (PNG, 255 = dynamic, 0 = static) "
-                   "for other odometry to ignore; the last frame takes the last pair's labels. "
-                   "A cell is dynamic once its evidence of moving has built up over frames, so "
-                   "the first frame's mask is empty (its overlay's Segments panel shows the "
-                   "motions measured there)")
-    p.add_argument("--overlays", metavar="DIR",
-                   help="write per-frame overlay panels of the labels (PNG, see below)")
+    for flag, images in (  # the folders of per-frame images (see "output" below)
+            ("--masks", "label masks (PNG, pixel value = identifier, 1 = static)"),
+            ("--dynamic-masks", (
+                "dynamic-pixel masks (PNG, 255 = dynamic, 0 = static) for other odometry to "
+                "ignore; the last frame takes the last pair's labels. A cell is dynamic once its "
+                "evidence of moving has built up over frames, so the first frame's mask is empty "
+                "(its overlay's Segments panel shows the motions measured there)")),
+            ("--overlays", "overlay panels of the labels (PNG, see below)")):
+        p.add_argument(flag, metavar="DIR", help=f"write per-frame {images}")
     p.add_argument("--rerun", action="store_true",
                    help="open the Rerun viewer and show the run as it goes: images, labels, "
                    "depth, 3D points, the camera and its path, the per-frame numbers (needs a "
@@ -136,9 +134,8 @@ def add_arguments(p: argparse.ArgumentParser) -> None:
                    "pixels left out, as jaxvo map does (FILE_all.ply: nothing left out; "
                    "FILE.png: both pictured); the map's options are jaxvo map's defaults")
     _add_bag_arguments(p.add_argument_group("ROS 2 bag output (docs/ros.md)"))
-    p.add_argument("--json", action="store_true", help="print the summary as JSON")
-    p.add_argument("--quiet", "-q", action="store_true",
-                   help="no progress line, and no line saying that the step compiles")
+    add_summary_options(p, summary="the summary",
+                        quiet="no progress line, and no line saying that the step compiles")
 
 
 def _add_bag_arguments(g) -> None:

@@ -56,7 +56,7 @@ from jaxvo.study.devices import (
     batched_params,
     bytes_per_config,
     call_batch,
-    compiled_programs,
+    compiled_program,
     free_memory,
     from_first,
     init_distributed,
@@ -79,7 +79,7 @@ __all__ = [
     "CPU_BATCH", "DEFAULT_METRICS", "MAX_ACCELERATOR_BATCH", "MEMORY_SHARE", "METRICS",
     "ROW_FIELDS", "RUNS_FILE", "Run", "SequenceData", "SequenceSpec", "StudyResult", "StudySpec",
     "accelerator_batch", "batched_params", "bytes_per_config", "call_batch", "check_study",
-    "code_hash", "compiled_programs", "config_fields", "finished_rows", "flow_fields",
+    "code_hash", "compiled_program", "config_fields", "finished_rows", "flow_fields",
     "free_memory", "group_config", "init_distributed", "load_spec", "open_study_sequence",
     "parse_spec", "read_runs", "run_call", "run_id", "run_spec", "score_run",
     "sequence_data", "sequence_key", "spec_runs", "study_devices",
@@ -313,7 +313,7 @@ def _group_data(s: SequenceSpec, cfg: Config, cache: Path, tally: _Tally, *, fir
                 log(f"{s.label}: {len(data.timestamps) - 1} frame pairs, flow " + (
                     "from the cache" if cached else f"in {took:.1f} s"))
     agree(problem)
-    return share_data(data)
+    return share_data(data, cfg)
 
 
 def _rows(spec: StudySpec, data: SequenceData, chunk: list[tuple[str, Run]], outs,
