@@ -41,7 +41,7 @@ def test_every_core_and_host_module_has_a_row_in_the_architecture():
 
 # what a dotted name in the page may start with besides a module of jaxvo: libraries, and
 # a Config (`cfg.cell`) or Params (`params.confidence`) value, whose fields are checked
-LIBRARIES = {"jax", "lax", "cv2"}
+LIBRARIES = {"jax", "lax", "cv2", "os"}
 FILE_TYPES = {"md", "jsonl", "json", "csv", "png", "txt", "toml", "ply", "npz", "rrd", "zip"}
 
 
