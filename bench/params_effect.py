@@ -21,7 +21,10 @@ import jax.numpy as jnp
 import numpy as np
 
 import jaxvo
-from jaxvo.config import _PARAM_RANGES, Params
+from jaxvo.config import _PARAM_RANGES, Params, grid_shape
+from jaxvo.core.pipeline import batch_params, run_study
+from jaxvo.host.compile_cache import setup_compile_cache
+from jaxvo.host.flow import flows_for_sequence
 
 SCENES = ("fixed_camera_1", "fixed_camera_2", "handheld_fast", "handheld_slow", "enter_leave",
           "stop_start")
@@ -69,7 +72,7 @@ def main() -> None:
     ap.add_argument("--frames", type=int, default=25)
     ap.add_argument("--out", default="docs/report/params_effect.md")
     args = ap.parse_args()
-    jaxvo.setup_compile_cache()
+    setup_compile_cache()
 
     base = Params()
     configs = [("default", None, None)]
@@ -77,18 +80,18 @@ def main() -> None:
         configs += [(field, field, v) for v in perturbed(field, getattr(base, field))]
     sweeps = {f: [getattr(base, f) if k != f else v for _, k, v in configs]
               for f in Params._fields}
-    params = jaxvo.batch_params(base, **sweeps)
+    params = batch_params(base, **sweeps)
     cfg = jaxvo.Config()
     # field -> per scene: (frames differing, ATE mm, F) for each perturbed value
     found: dict[str, list] = {f: [] for f in Params._fields}
     base_scores = []
     for scene in SCENES:
         seq = jaxvo.make_sequence(scene, frames=args.frames, seed=0)
-        flows = jaxvo.flows_for_sequence(seq, cfg)
-        grid = jaxvo.grid_shape(seq.height, seq.width, cfg.cell)
+        flows = flows_for_sequence(seq, cfg)
+        grid = grid_shape(seq.height, seq.width, cfg.cell)
         keys = jnp.stack([jax.random.key(0)] * len(configs))
         T0 = jnp.asarray(seq.groundtruth.poses[0], jnp.float32)
-        outs = jax.tree.map(np.asarray, jaxvo.run_study(flows, keys, params, T0, cfg=cfg,
+        outs = jax.tree.map(np.asarray, run_study(flows, keys, params, T0, cfg=cfg,
                                                         grid=grid))
 
         base_scores.append(scores(seq, outs, 0, cfg))

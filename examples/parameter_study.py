@@ -12,18 +12,22 @@ import jax.numpy as jnp
 import numpy as np
 
 import jaxvo
+from jaxvo.config import grid_shape
+from jaxvo.core.pipeline import batch_params, run_study
+from jaxvo.host.compile_cache import setup_compile_cache
+from jaxvo.host.flow import flows_for_sequence
 
-jaxvo.setup_compile_cache()  # later runs load the compiled programs (~20 s saved)
+setup_compile_cache()  # later runs load the compiled programs (~20 s saved)
 cfg = jaxvo.Config()
 seq = jaxvo.make_sequence("fixed_camera_1", frames=60, seed=0)
-flows = jaxvo.flows_for_sequence(seq, cfg)
-grid = jaxvo.grid_shape(seq.height, seq.width, cfg.cell)
+flows = flows_for_sequence(seq, cfg)
+grid = grid_shape(seq.height, seq.width, cfg.cell)
 combos = list(itertools.product([5.0, 15.0, 30.0], [0.95, 0.99, 0.999]))
-params = jaxvo.batch_params(jaxvo.Params(), max_age=[a for a, _ in combos],
+params = batch_params(jaxvo.Params(), max_age=[a for a, _ in combos],
                             confidence=[c for _, c in combos])
 keys = jnp.stack([jax.random.key(0)] * len(combos))
 T0 = jnp.asarray(seq.groundtruth.poses[0], jnp.float32)
-outs = jaxvo.run_study(flows, keys, params, T0, cfg=cfg, grid=grid)
+outs = run_study(flows, keys, params, T0, cfg=cfg, grid=grid)
 
 print(f"{'max_age':>8} {'confidence':>11} {'ATE [mm]':>9} {'F-measure':>10}")
 for b, (age, conf) in enumerate(combos):

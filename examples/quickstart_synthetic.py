@@ -6,8 +6,9 @@
 import sys
 
 import jaxvo
+from jaxvo.host.compile_cache import setup_compile_cache
 
-jaxvo.setup_compile_cache()  # later runs load the compiled programs (~20 s saved)
+setup_compile_cache()  # later runs load the compiled programs (~20 s saved)
 scenario = sys.argv[1] if len(sys.argv) > 1 else "handheld_fast"
 seq = jaxvo.make_sequence(scenario, frames=60, seed=0)  # exact ground truth, no download
 res = jaxvo.run_sequence(seq, seed=0)  # grid flow on the host, then one jitted lax.scan

@@ -13,12 +13,13 @@ from pathlib import Path
 import cv2
 
 import jaxvo
+from jaxvo.host.compile_cache import setup_compile_cache
 from jaxvo.host.io import data_root
 from jaxvo.host.masks import overlay_panel
 
 default = data_root() / "tum_fr3_walking_halfsphere_50"
 root = Path(sys.argv[1]) if len(sys.argv) > 1 else default
-jaxvo.setup_compile_cache()  # later runs load the compiled step (~20 s saved)
+setup_compile_cache()  # later runs load the compiled step (~20 s saved)
 try:
     seq = jaxvo.open_sequence(root)  # intrinsics from its camera.txt (or camera="tum_fr3")
 except jaxvo.InputError as exc:  # one line, no traceback: say what to pass

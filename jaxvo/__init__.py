@@ -1,15 +1,19 @@
 """jaxvo: robust RGB-D visual odometry for dynamic scenes via rigid motion segmentation.
 
-The pipeline, in the order data flows (one module per stage):
+The top level holds the names a user types (``__all__``: the odometry, its sequences and
+settings, trajectories and their scores, studies); every other public name lives in its
+subpackage, in the order data flows:
 
-``io`` (TUM sequences, trajectories) -> ``flow`` (grid LK flow, host) ->
-``spatial`` (hypotheses + clustering, device) -> ``temporal`` (label matching + grid
-model, device) -> ``egomotion`` -> ``pipeline`` (per-frame step, scan, streaming) ->
-``metrics`` (ATE, RPE, segmentation scores).
+``host`` (frames and files, the grid flow with OpenCV, masks, the compile cache) ->
+``core`` (the traced per-frame step: spatial and temporal segmentation, ego-motion,
+keyframes; ``core.pipeline`` joins them) -> ``odometry`` (``Odometry``, ``run_sequence``)
+-> ``evaluation`` (ATE, RPE, segmentation scores); beside them ``synth`` (scenes with
+exact ground truth), ``study`` (studies over sequences, settings and seeds) and ``cli``
+(the ``jaxvo`` command). ``docs/python.md`` lists which name lives where.
 
-The public names below load lazily: ``import jaxvo`` imports neither JAX nor OpenCV, so
-``jaxvo --help``, ``--version`` and one-line errors answer at once; ``jaxvo.Odometry``
-imports its module (and JAX) on first use.
+The names load lazily: ``import jaxvo`` imports neither JAX nor OpenCV, so ``jaxvo
+--help``, ``--version`` and one-line errors answer at once; ``jaxvo.Odometry`` imports its
+module (and JAX) on first use.
 """
 
 from __future__ import annotations
@@ -19,38 +23,20 @@ from typing import Any
 
 __version__ = "0.1.0"
 
-# module -> the public names it defines, in the pipeline's order
+# module -> the user-level names it gives the top level, in the pipeline's order
 _EXPORTS: dict[str, tuple[str, ...]] = {
     "jaxvo.errors": ("InputError",),
-    "jaxvo.config": ("Config", "Params", "check_config", "check_params", "default_params",
-                     "grid_shape", "params_as_arrays"),
+    "jaxvo.config": ("Config", "Params"),
     "jaxvo.status": ("Status",),
-    "jaxvo.host.camera": ("PRESETS", "Intrinsics", "check_intrinsics", "preset",
-                     "read_camera_file"),
-    "jaxvo.host.io": ("Frame", "Trajectory", "TumSequence", "associate", "open_sequence",
-                 "read_trajectory", "write_trajectory"),
-    "jaxvo.synth.scenes": ("SCENARIOS", "ObjectSpec", "Scenario", "SensorOptions",
-                    "SyntheticSequence", "composite_sequence", "make_sequence",
-                    "write_sequence"),
-    "jaxvo.host.flow": ("FrameChain", "GridFlow", "GridFlowTracker", "SequenceFlows",
-                   "flows_for_sequence", "grid_flow", "sequence_flows"),
-    "jaxvo.core.procrustes": ("fit_rigid", "residuals"),
-    "jaxvo.core.spatial": ("Segmentation", "segment"),
-    "jaxvo.core.temporal": ("TemporalOut", "TemporalState", "init_temporal", "update_temporal"),
-    "jaxvo.core.egomotion": ("estimate_egomotion",),
-    "jaxvo.core.lm": ("levenberg_marquardt",),
-    "jaxvo.core.pipeline": ("PipelineState", "StepOutput", "batch_params", "init_pipeline",
-                       "jit_step", "run_scan", "run_study", "step"),
-    "jaxvo.odometry": ("FrameResult", "Odometry", "SequenceResult", "run_sequence"),
-    "jaxvo.host.plugin": ("dynamic_masks", "iter_dynamic_masks"),
-    "jaxvo.host.mapping": ("FusedMaps", "PointMap", "fuse_maps", "matched_poses", "write_ply"),
-    "jaxvo.host.recording": ("RerunLogger",),
-    "jaxvo.evaluation.metrics": ("SegmentationScores", "align_umeyama", "ate", "rpe"),
+    "jaxvo.host.camera": ("Intrinsics",),
+    "jaxvo.host.io": ("Trajectory", "open_sequence", "read_trajectory", "write_trajectory"),
+    "jaxvo.synth.scenes": ("composite_sequence", "make_sequence", "write_sequence"),
+    "jaxvo.odometry": ("Odometry", "run_sequence"),
+    "jaxvo.host.plugin": ("dynamic_masks",),
+    "jaxvo.evaluation.metrics": ("ate", "rpe"),
     "jaxvo.evaluation.scores": ("segmentation_scores", "trajectory_scores"),
-    "jaxvo.study.spec": ("StudySpec", "load_spec", "parse_spec"),
-    "jaxvo.study.runner": ("StudyResult", "run_spec"),
-    "jaxvo.study.report": ("write_report",),
-    "jaxvo.host.compile_cache": ("setup_compile_cache",),
+    "jaxvo.study.spec": ("load_spec",),
+    "jaxvo.study.runner": ("run_spec",),
 }
 
 _MODULE_OF = {name: module for module, names in _EXPORTS.items() for name in names}
@@ -61,7 +47,9 @@ __all__ = sorted(_MODULE_OF)  # noqa: PLE0605 (built from _EXPORTS: one list to 
 def __getattr__(name: str) -> Any:
     module = _MODULE_OF.get(name)
     if module is None:
-        raise AttributeError(f"module 'jaxvo' has no attribute {name!r}")
+        raise AttributeError(f"module 'jaxvo' has no attribute {name!r} (the top level holds "
+                             "the names a user types; the others live in their subpackage, "
+                             "docs/python.md says which)")
     value = getattr(importlib.import_module(module), name)
     globals()[name] = value  # later look-ups skip this function
     return value

@@ -107,6 +107,39 @@ class Config:
     keyframe_iters: int = 5
 
 
+# Config fields that are gone, and what replaced them: Config(window=5) and a study's
+# `window = 5` are told this instead of Python's "unexpected keyword argument"
+REMOVED_CONFIG = {
+    "window": "the consecutive-frame window was removed (issue 21): Config(keyframes=True) "
+              "refines a window over the latest keyframes instead (Config.keyframe_window of "
+              "them; --keyframes on the command line)",
+}
+
+
+def _checked_init(init):
+    """``Config.__init__`` saying, for a field it does not have, what replaced it
+    (:data:`REMOVED_CONFIG`) or which fields are near in name."""
+    import functools
+
+    @functools.wraps(init)
+    def __init__(self, *args, **kwargs):
+        known = {f.name for f in dataclasses.fields(Config)}
+        for name in kwargs:
+            if name not in known:
+                import difflib
+
+                near = difflib.get_close_matches(name, sorted(known), n=3)
+                raise TypeError(f"Config has no field {name!r}: " + (
+                    REMOVED_CONFIG.get(name) or ("did you mean " + " or ".join(near) + "?"
+                                                 if near else "see jaxvo.Config's fields")))
+        init(self, *args, **kwargs)
+
+    return __init__
+
+
+Config.__init__ = _checked_init(Config.__init__)
+
+
 class Params(NamedTuple):
     """Numeric settings a parameter study may batch over (any field may be an array).
 
@@ -294,8 +327,10 @@ def check_config(
     The grid cell must be at least :data:`MIN_CELL` pixels (and leave 2 x 2 cells on the
     image, when its size is given); there must be at least one hypothesis, minimal samples
     of at least 3 points, and room for at least one segment; the keyframe window holds at
-    least one keyframe, its points every stride-th grid point, with no negative iteration
-    count.
+    least one keyframe, its points every stride-th grid point (with keyframes, enough of
+    them for a fit when the image size is given), with no negative iteration count; every
+    other whole number at its least, every float in its range (not NaN), every switch a
+    bool.
 
     Args:
       cfg: the settings.
@@ -308,16 +343,7 @@ def check_config(
     def name(field: str) -> str:
         return (names or {}).get(field, f"Config.{field}")
 
-    checks = (
-        ("cell", MIN_CELL, "pixels"),
-        ("num_hypotheses", 1, "hypothesis"),
-        ("sample_size", 3, "points (a rigid fit needs 3)"),
-        ("max_segments", 1, "segment"),
-        ("keyframe_window", 1, "keyframe"),
-        ("keyframe_stride", 1, "grid row and column"),
-        ("keyframe_iters", 0, "iterations"),
-    )
-    for field, least, unit in checks:
+    for field, least, unit in _CONFIG_LEAST:
         value = getattr(cfg, field)
         try:
             whole = operator.index(value)  # Python and NumPy integers, not floats
@@ -325,11 +351,96 @@ def check_config(
             raise InputError(f"{name(field)} must be a whole number, got {value!r}") from None
         if whole < least:
             raise InputError(f"{name(field)} must be at least {least} {unit}, got {value}")
+    for field, (low, low_in, high, high_in) in _CONFIG_RANGES.items():
+        value = getattr(cfg, field)
+        ok = isinstance(value, int | float) and not isinstance(value, bool) or (
+            hasattr(value, "dtype") and getattr(value, "ndim", 1) == 0)
+        v = float(value) if ok else float("nan")
+        inside = (v >= low if low_in else v > low) and (high is None or (
+            v <= high if high_in else v < high))
+        if not inside:  # also NaN, and what is no number
+            span = f"{'[' if low_in else '('}{low:g}, " + (
+                f"{high:g}{']' if high_in else ')'}" if high is not None else "inf)")
+            raise InputError(f"{name(field)} must be a number in {span}, got {value!r}")
+    if not cfg.depth_max > cfg.depth_min:
+        raise InputError(f"{name('depth_max')} {cfg.depth_max} must be beyond "
+                         f"{name('depth_min')} {cfg.depth_min}")
+    for field in ("depth_smooth", "textured_points", "noise_calibration", "keyframes"):
+        if not isinstance(getattr(cfg, field), bool | np_bool()):
+            raise InputError(f"{name(field)} must be True or False, got {getattr(cfg, field)!r}")
     if height is not None and width is not None and min(height, width) // cfg.cell < 2:
         raise InputError(
             f"{name('cell')} {cfg.cell} leaves fewer than 2 x 2 grid cells on the "
             f"{width}x{height} image: at most {min(height, width) // 2} pixels"
         )
+    if cfg.keyframes and height is not None and width is not None:
+        rows, cols = height // cfg.cell, width // cfg.cell
+        kept = -(-rows // cfg.keyframe_stride) * -(-cols // cfg.keyframe_stride)
+        least = int(Params().min_static_points)
+        if kept < least:
+            best = _largest_stride(rows, cols, least)
+            raise InputError(
+                f"{name('keyframe_stride')} {cfg.keyframe_stride} keeps {kept} of the "
+                f"{rows}x{cols} grid's points in a keyframe, fewer than the {least} a fit of "
+                "the camera's motion needs (Params.min_static_points): " + (
+                    f"at most {best}" if best else f"the grid itself is too coarse: a smaller "
+                    f"{name('cell')}"))
+
+
+def np_bool():
+    """NumPy's bool type (a ``Config`` built from arrays may hold one)."""
+    import numpy as np
+
+    return np.bool_
+
+
+def _largest_stride(rows: int, cols: int, least: int) -> int:
+    """The largest keyframe stride that keeps ``least`` points of a ``rows`` x ``cols`` grid
+    (0: none does)."""
+    best = 0
+    for stride in range(1, max(rows, cols) + 1):
+        if -(-rows // stride) * -(-cols // stride) >= least:
+            best = stride
+    return best
+
+
+# The least value of each whole-number Config field, and its unit in messages
+_CONFIG_LEAST = (
+    ("cell", MIN_CELL, "pixels"),
+    ("num_hypotheses", 1, "hypothesis"),
+    ("sample_size", 3, "points (a rigid fit needs 3)"),
+    ("max_segments", 1, "segment"),
+    ("keyframe_window", 1, "keyframe"),
+    ("keyframe_stride", 1, "grid row and column"),
+    ("keyframe_iters", 0, "iterations"),
+    ("lk_window", 3, "pixels"),
+    ("lk_levels", 0, "pyramid levels"),
+    ("patch", 3, "pixels"),
+    ("lk_iters", 1, "iteration"),
+    ("fill_radius", 0, "pixels"),
+    ("fill_min_valid", 0, "neighbours"),
+    ("sample_radius", 1, "grid cell"),
+    ("num_candidates", 1, "candidate"),
+    ("refine_iters", 0, "iterations"),
+    ("cluster_refine_iters", 0, "iterations"),
+    ("max_ids", 1, "identifier"),
+    ("match_window", 1, "frame"),
+    ("ego_iters", 0, "iterations"),
+    ("ego_reprojection_iters", 0, "iterations"),
+)
+# The values each float Config field can take: (lowest, lowest allowed?, highest, highest
+# allowed?), None for no bound; NaN is refused everywhere (keyframe_overlap = nan took no
+# keyframe ever, silently)
+_CONFIG_RANGES = {
+    "lk_fast_px": (0.0, False, None, False),
+    "lk_eps": (0.0, False, None, False),
+    "fb_max": (0.0, False, None, False),
+    "min_similarity": (-1.0, True, 1.0, True),
+    "depth_min": (0.0, True, None, False),
+    "depth_max": (0.0, False, None, False),
+    "depth_jump": (0.0, False, None, False),
+    "keyframe_overlap": (0.0, True, 1.0, True),
+}
 
 
 def grid_shape(height: int, width: int, cell: int) -> tuple[int, int]:

@@ -67,7 +67,7 @@ class Odometry:
 
     Example::
 
-        odo = Odometry(jaxvo.preset("tum_fr3"))          # depth_scale 5000 per metre
+        odo = Odometry("tum_fr3")          # a preset: depth_scale 5000 per metre
         for bgr, depth, t in camera:   # depth: uint16 raw units or float32 metres
             r = odo.process(bgr, depth, t)
             print(r.T_w_c[:3, 3], r.status.reason)
@@ -142,7 +142,19 @@ class Odometry:
         """Give every frame's result from now on to ``logger``: an object with
         ``setup(intrinsics, cell)`` (called here) and ``log_frame(result, bgr, depth)``
         (called as each result comes out, with the frame's colour image and its depth in
-        float32 metres), such as :class:`jaxvo.host.recording.RerunLogger`."""
+        float32 metres), such as :class:`jaxvo.host.recording.RerunLogger`.
+
+        Raises:
+          ValueError: ``logger`` lacks those methods (a file name: give
+            ``RerunLogger(save=...)``).
+        """
+        if not (callable(getattr(logger, "setup", None))
+                and callable(getattr(logger, "log_frame", None))):
+            hint = (f"; for a recording, logger=RerunLogger(save={str(logger)!r}) (from "
+                    "jaxvo.host.recording)" if isinstance(logger, str | Path) else "")
+            raise ValueError("logger must have setup(intrinsics, cell) and log_frame(result, "  # noqa: TRY004 (the API says ValueError for any bad input)
+                             "bgr, depth), as jaxvo.host.recording.RerunLogger does; got "
+                             f"{type(logger).__name__}" + hint)
         logger.setup(self.intrinsics, self.cfg.cell)
         self.logger = logger
 
@@ -289,9 +301,11 @@ def timestamp_seconds(timestamp) -> float:
     if isinstance(timestamp, np.datetime64 | np.timedelta64):
         if np.isnat(timestamp):
             raise ValueError(f"{accepted}; got NaT")
-        zero = np.timedelta64(0, "ns") if isinstance(timestamp, np.timedelta64) else (
-            np.datetime64(0, "ns"))
-        return int((timestamp - zero) / np.timedelta64(1, "ns")) * 1e-9
+        seconds = _datetime_seconds(timestamp)
+        if abs(seconds) >= _MAX_SECONDS:
+            raise ValueError(f"timestamp {timestamp} is {seconds:.3g} s from 1970, beyond any "
+                             f"recording; {accepted}")
+        return seconds
     for sec, nsec in (("sec", "nanosec"), ("secs", "nsecs")):
         if hasattr(timestamp, sec) and hasattr(timestamp, nsec):
             return int(getattr(timestamp, sec)) + int(getattr(timestamp, nsec)) * 1e-9
@@ -307,6 +321,28 @@ def timestamp_seconds(timestamp) -> float:
         raise ValueError(f"timestamp {timestamp} is neither seconds nor nanoseconds (milli- or "
                          f"microseconds?); {accepted}")
     return float(timestamp)
+
+
+# seconds in one tick of each linear unit of np.datetime64 / np.timedelta64
+_TICK_SECONDS = {"W": 604800.0, "D": 86400.0, "h": 3600.0, "m": 60.0, "s": 1.0, "ms": 1e-3,
+                 "us": 1e-6, "ns": 1e-9, "ps": 1e-12, "fs": 1e-15, "as": 1e-18}
+
+
+def _datetime_seconds(timestamp) -> float:
+    """Seconds since the epoch of an ``np.datetime64`` (or in an ``np.timedelta64``), in its
+    own unit: going through nanoseconds wrapped a date past 2262 to about 1830."""
+    unit, count = np.datetime_data(timestamp.dtype)
+    if unit in ("Y", "M"):  # years and months are not of one length: as days
+        if isinstance(timestamp, np.timedelta64):
+            raise ValueError(f"a time of {timestamp} has no fixed length in seconds")
+        timestamp, unit, count = timestamp.astype("datetime64[D]"), "D", 1
+    if unit not in _TICK_SECONDS:
+        raise ValueError(f"timestamp {timestamp!r} has no unit of time")
+    ticks = int(timestamp.astype(np.int64)) * count
+    ns = ticks * round(_TICK_SECONDS[unit] * 1e9) if _TICK_SECONDS[unit] >= 1e-9 else None
+    if ns is not None and abs(ns) < 2**63:  # as before for every date NumPy holds in ns
+        return ns * 1e-9
+    return ticks * _TICK_SECONDS[unit]
 
 
 def _frame_arrays(bgr, depth, K: Intrinsics) -> tuple[np.ndarray, np.ndarray]:

@@ -1,6 +1,7 @@
-"""The background choice's evidence of which motion lies behind (jaxvo.core.background):
-depth order at the boundaries between motions, its log-likelihood, and the choice and the
-"no background in view" state built on them."""
+"""The background's choice (jaxvo.core.background): depth order at the boundaries between
+motions and its log-likelihood, the choice among candidates and the "no background in
+view" state, the swap that renumbers every later stage's state, the belief weights and the
+support against hand-computed sums."""
 
 from __future__ import annotations
 
@@ -9,18 +10,17 @@ import functools
 import jax
 import jax.numpy as jnp
 import numpy as np
+from temporal_frames import N, params, random_state
 
-from jaxvo.config import Config, Params
-from jaxvo.core.background import (
-    choose_background,
-    depth_order,
-    order_loglik,
-)
+from jaxvo.config import Config, Params, params_as_arrays
+from jaxvo.core.background import choose_background, depth_order, order_loglik
+from jaxvo.core.grid_model import update_grid_model
+from jaxvo.core.identifiers import permute_identifiers, swap_perm
 
 CFG = Config()
 S, M = CFG.max_segments, CFG.max_ids
 GRID = (6, 8)
-N = GRID[0] * GRID[1]
+N_SMALL = GRID[0] * GRID[1]  # the small grid of the depth-order tests
 
 
 def _pad(values, fill=0.0, dtype=jnp.float32):
@@ -61,10 +61,10 @@ def test_depth_order_counts_the_decisive_pairs_between_motions_as_a_loop_does():
     """Random segments, depths and explanations on a small grid: the counts of pairs where
     each segment lies behind / in front of each other equal a plain loop's."""
     rng = np.random.default_rng(0)
-    labels = rng.integers(0, 4, N).astype(np.int32)
-    z = rng.uniform(0.5, 4.0, N).astype(np.float32)
+    labels = rng.integers(0, 4, N_SMALL).astype(np.int32)
+    z = rng.uniform(0.5, 4.0, N_SMALL).astype(np.float32)
     sigma = (1.5e-3 * z * z).astype(np.float32)
-    explained = rng.random((S, N)) < 0.4
+    explained = rng.random((S, N_SMALL)) < 0.4
     tie = 6.63
     behind, front = _order(jnp.asarray(labels), jnp.asarray(z), jnp.asarray(sigma),
                            jnp.asarray(explained), jnp.float32(tie), grid=GRID)
@@ -84,7 +84,7 @@ def test_a_near_mover_lies_in_front_and_pieces_of_one_body_say_nothing():
     labels[1:4, 2:5] = 2
     z = np.where(labels == 2, 1.0, 3.0).astype(np.float32)
     sigma = (1.5e-3 * z * z).astype(np.float32)
-    unlike = np.zeros((S, N), bool)
+    unlike = np.zeros((S, N_SMALL), bool)
     unlike[0] = labels.ravel() == 1  # each motion explains its own points only
     unlike[1] = labels.ravel() == 2
     args = (jnp.asarray(labels.ravel()), jnp.asarray(z.ravel()), jnp.asarray(sigma.ravel()))
@@ -93,7 +93,7 @@ def test_a_near_mover_lies_in_front_and_pieces_of_one_body_say_nothing():
     # box cell, each ring side 2 + 3 + 2: 32 pairs
     assert float(behind[0, 1]) == 32 and float(front[1, 0]) == 32
     assert float(jnp.sum(behind)) == 32 and float(jnp.sum(front)) == 32
-    one_body = np.ones((S, N), bool)
+    one_body = np.ones((S, N_SMALL), bool)
     behind, front = _order(*args, jnp.asarray(one_body), jnp.float32(6.63), grid=GRID)
     assert float(jnp.sum(behind)) == 0 and float(jnp.sum(front)) == 0
     one_way = unlike.copy()
@@ -143,3 +143,107 @@ def test_no_background_in_view_when_no_segment_can_be_it():
     ids, background, *_ = _choose([1, 0], [1.0, 10.0])
     assert int(background) == 2
     np.testing.assert_array_equal(np.asarray(ids)[:2], [0, 1])
+
+
+_choose_jit = jax.jit(choose_background, static_argnames=("max_ids",))
+
+
+def test_a_segment_that_does_not_move_as_predicted_loses_the_background():
+    """Two segments with as much support: the one whose surface the predicted camera
+    motion does not explain (consistency near 0: an object a first frame merged with the
+    background) loses to the one that moves as the camera was predicted to; with the
+    consistency of both, the support decides."""
+    ids, background, reacquired, _ = choose_background(
+        _pad([1, 2], 0, jnp.int32), _pad([10.0, 9.0]), _pad([1e-3, 1.1]), jnp.bool_(True),
+        Params(), max_ids=M)
+    assert int(background) == 2 and bool(reacquired)
+    np.testing.assert_array_equal(np.asarray(ids)[:2], [2, 1])
+    _, background, *_ = _choose([1, 2], [10.0, 9.0])
+    assert int(background) == 1
+
+
+def test_the_swap_relabels_every_map_model_and_count_consistently():
+    """Choosing identifier 3 exchanges identifiers 1 and 3 everywhere: by its permutation
+    in each later stage's own state the label maps, the window, both models' probability
+    vectors and the observation counts; everything else is untouched."""
+    rng = np.random.default_rng(8)
+    state, prob, _, ids, _ = random_state(9)
+    state = state._replace(identifiers=state.identifiers._replace(
+        history=jnp.asarray(rng.integers(0, M + 1, (CFG.match_window, N)), jnp.int32),
+        obs_count=jnp.asarray(rng.integers(0, 50, M), jnp.int32),
+        last_seen=jnp.asarray(rng.integers(-5, 30, M), jnp.int32),
+        frame=jnp.int32(30), initialised=jnp.bool_(True),
+    ))
+    seg_ids = _pad([1, 3, 2], 0, jnp.int32)
+    new_ids, background, reacquired, perm_out = _choose_jit(
+        seg_ids, _pad([5.0, 60.0, 1.0]), _pad([0.1, 1.1, 0.1]), jnp.bool_(True), params(),
+        max_ids=M)
+    assert int(background) == 2 and bool(reacquired)
+    perm = np.arange(M + 1)
+    perm[[1, 3]] = [3, 1]  # identifier -> identifier, 0 stays 0
+    np.testing.assert_array_equal(np.asarray(perm_out), perm[1:] - 1)
+    np.testing.assert_array_equal(np.asarray(new_ids)[:3], [3, 1, 2])
+    cols = perm[1:] - 1  # column j of the new vectors is column cols[j] of the old
+    # each later stage renumbers its own state: an update without a measurement only does
+    new_id = jax.jit(permute_identifiers)(state.identifiers, perm_out)
+    new_model = jax.jit(lambda m, p: update_grid_model(
+        m, jnp.zeros((N,), jnp.int32), params(), cfg=CFG, permutation=p))(state.model, perm_out)
+    np.testing.assert_array_equal(np.asarray(new_model.ids), perm[ids])
+    np.testing.assert_array_equal(np.asarray(new_id.history),
+                                  perm[np.asarray(state.identifiers.history)])
+    np.testing.assert_array_equal(np.asarray(new_model.app_prob), prob[:, cols])
+    np.testing.assert_array_equal(np.asarray(new_model.cand_prob), prob[::-1][:, cols])
+    np.testing.assert_array_equal(np.asarray(new_id.obs_count),
+                                  np.asarray(state.identifiers.obs_count)[cols])
+    np.testing.assert_array_equal(np.asarray(new_id.last_seen),
+                                  np.asarray(state.identifiers.last_seen)[cols])
+    # a cell's apparent label follows its probability vector
+    np.testing.assert_array_equal(np.argmax(np.asarray(new_model.app_prob), axis=1) + 1,
+                                  perm[np.argmax(prob, axis=1) + 1])
+    for name in ("app_age", "cand_age"):
+        np.testing.assert_array_equal(np.asarray(getattr(new_model, name)),
+                                      np.asarray(getattr(state.model, name)), err_msg=name)
+    for name in ("history_valid", "frame", "initialised"):
+        np.testing.assert_array_equal(np.asarray(getattr(new_id, name)),
+                                      np.asarray(getattr(state.identifiers, name)), err_msg=name)
+    # swapping back restores the state
+    back = jax.jit(permute_identifiers)(new_id, swap_perm(3, M))
+    for a, b in zip(jax.tree.leaves(back), jax.tree.leaves(state.identifiers)):
+        np.testing.assert_array_equal(np.asarray(a), np.asarray(b))
+
+
+def test_belief_weights_follow_the_evidence():
+    from jaxvo.core.background import belief_weights
+
+    L = np.log(0.99 / 0.01)  # logit of the confidence, 4.595
+    prior = jnp.asarray([-6.0, -L - 1e-3, -L + 1e-3, 0.0, L - 1e-3, L + 1e-3, 6.0], jnp.float32)
+    got = np.asarray(belief_weights(prior, params_as_arrays(Params())))
+    np.testing.assert_array_equal(got, np.float32([1, 1, 0.1, 0.1, 0.1, 0, 0]))
+
+
+def test_background_support_is_the_surface_explained_and_its_share_that_follows():
+    """Support: the surface (z^2 per point, times its belief) of every point a segment's
+    motion explains; consistency: 0.1 plus the share of it the predicted motion explains
+    too (1.1 before any ego-motion)."""
+    from jaxvo.core.background import background_support
+
+    z = np.r_[np.full(6, 1.0), np.full(4, 3.0)]  # 6 near points, 4 far
+    weights = np.r_[np.ones(9), 0.5]
+    d2_seg = np.full((3, 10), 100.0)
+    d2_seg[0, :6] = 1.0  # segment 1: the near points
+    d2_seg[1, 6:] = 1.0  # segment 2: the far points, and two of the near
+    d2_seg[1, :2] = 2.0
+    d2_pred = np.full(10, 100.0)
+    d2_pred[6:] = 0.5  # the prediction explains the far points
+    sizes = np.array([6, 4, 0])
+    args = [jnp.asarray(a, jnp.float32) for a in (d2_seg, sizes, weights, z, d2_pred)]
+    support, consistency = background_support(*args, jnp.bool_(True), jnp.float32(11.345),
+                                              jnp.float32(0.1))
+    far = 3 * 9.0 + 0.5 * 9.0
+    # float32 sums of a few terms: 1e-6 relative
+    np.testing.assert_allclose(np.asarray(support), [6.0, far + 2.0, 0.0], rtol=1e-6)
+    np.testing.assert_allclose(np.asarray(consistency), [0.1, 0.1 + far / (far + 2.0), 0.0],
+                               rtol=1e-6)
+    _, consistency = background_support(*args, jnp.bool_(False), jnp.float32(11.345),
+                                        jnp.float32(0.1))
+    np.testing.assert_allclose(np.asarray(consistency), [1.1, 1.1, 0.0], rtol=1e-6)

@@ -13,6 +13,7 @@ runs share one compile of the per-frame step (the same settings everywhere).
 
 from __future__ import annotations
 
+import contextlib
 import json
 import os
 import re
@@ -505,7 +506,8 @@ def test_masks_and_overlays_are_png_named_by_rgb_timestamp(base, tmp_path, capsy
 def test_demo_creates_its_out_folder(tmp_path, capsys, monkeypatch):
     """The README's own example wrote the peers' trajectories before creating the folder."""
     out = tmp_path / "demo_out" / "nested"
-    res = cli(capsys, "demo", "--frames", "3", "--peers", "opencv_rgb", "--out", out, "--json")
+    # 4 frames: the scan of examples/quickstart_synthetic.py in test_examples.py (3 pairs)
+    res = cli(capsys, "demo", "--frames", "4", "--peers", "opencv_rgb", "--out", out, "--json")
     assert res.rc == 0
     names = sorted(p.name for p in out.iterdir())
     assert {"jaxvo.txt", "opencv_rgb.txt", "groundtruth.txt"} <= set(names)
@@ -1312,3 +1314,135 @@ def test_map_options_and_outputs_are_checked_first(base, tmp_path, unwritable, c
                               unwritable / "m.ply"), "--out", "cannot write")
     assert_one_line_error(cli(capsys, "map", base, "--traj", traj, "--out", traj),
                           "--out", "would overwrite the input")
+
+
+# --- nothing lost at the new doors (issue 46) ------------------------------------------------
+
+
+def test_no_file_of_the_sequence_can_be_an_output(base, tmp_path, capsys):
+    """Only the frames a run read were protected: --frames 2 --out SEQ/rgb/<3rd image> filled
+    an image with the trajectory, --map SEQ/rgb/<image>.ply its picture; a hard link to the
+    ground truth was written through."""
+    seq = copy_seq(base, tmp_path / "seq", images=("rgb",))
+    shutil.copy(seq / "rgb" / min(os.listdir(seq / "rgb")), seq / "rgb" / "unlisted.png")
+    images = sorted((seq / "rgb").iterdir())
+    before = {p: p.read_bytes() for p in images}
+    assert_one_line_error(cli(capsys, "run", seq, "--frames", 2, "--out", images[2]),
+                          "--out", "would overwrite the input")
+    assert_one_line_error(cli(capsys, "run", seq, "--out", seq / "rgb" / "unlisted.png"),
+                          "--out", "would overwrite a file of the input folder")
+    assert_one_line_error(cli(capsys, "run", seq, "--frames", 2, "--out", tmp_path / "t.txt",
+                              "--map", images[3].with_suffix(".ply")),
+                          "--map's map picture", "would overwrite the input")
+    os.link(seq / "groundtruth.txt", tmp_path / "hard.txt")
+    assert_one_line_error(cli(capsys, "run", seq, "--out", tmp_path / "hard.txt"),
+                          "would overwrite the input", "groundtruth.txt")
+    for option in ("--rerun-save", "--map"):  # wrote files named '-'
+        assert_one_line_error(cli(capsys, "run", seq, "--out", tmp_path / "t.txt", option, "-"),
+                              f"{option} -: {option} writes a file, not standard output")
+    assert {p: p.read_bytes() for p in images} == before and not Path("-").exists()
+    assert not (tmp_path / "t.txt").exists()
+
+
+def test_out_dev_stdout_is_standard_output_written_once(base, capfd):
+    """``--out /dev/stdout > f``: the summary, printed to the same file after the
+    trajectory, overwrote it."""
+    rc = main(["run", str(base), "--out", "/dev/stdout", "-q"])
+    cap = capfd.readouterr()
+    assert rc == 0 and cap.out.startswith("# jaxvo run") and "jaxvo run:" not in cap.out
+    assert len(read_trajectory_text(cap.out)) == FRAMES
+    assert "poses -> standard output" in cap.err
+
+
+def read_trajectory_text(text: str):
+    return read_trajectory("-", text=text)
+
+
+def test_a_closed_or_broken_standard_output(base, capsys, monkeypatch):
+    """``--out - >&-`` raised AttributeError: 'NoneType' object has no attribute 'write';
+    ``--out - | head`` ended 'jaxvo: error: -: Broken pipe', exit 2."""
+    import errno
+
+    from jaxvo.host import outputs
+
+    monkeypatch.setattr(outputs, "STDOUT_CLOSED", False)
+    monkeypatch.setattr(sys, "stdout", None)
+    rc = main(["run", str(base), "--out", "-", "-q"])
+    assert rc == 2 and "--out -: standard output is closed" in capsys.readouterr().err
+
+    class ReaderGone:
+        def write(self, text):
+            raise BrokenPipeError(errno.EPIPE, "Broken pipe")
+
+        flush = write
+
+    monkeypatch.setattr(outputs, "STDOUT_CLOSED", False)
+    monkeypatch.setattr(sys, "stdout", ReaderGone())
+    rc = main(["run", str(base), "--out", "-", "-q"])
+    assert rc == 141 and capsys.readouterr().err == ""  # quiet, as other tools end
+
+
+def test_ctrl_c_while_jax_starts_is_not_lost(base, tmp_path):
+    """Ctrl-C 2 s after start: 'Exception ignored in: <function _xla_gc_callback>', the
+    interrupt lost and the run ended with exit 0."""
+    proc = subprocess.Popen(
+        [sys.executable, "-c", "import sys; from jaxvo.cli.main import main; sys.exit(main())",
+         "run", str(base), "--out", str(tmp_path / "t.txt"), "-q"],
+        stdout=subprocess.PIPE, stderr=subprocess.PIPE, text=True,
+        env=dict(os.environ, JAX_PLATFORMS="cpu"))
+    maps = Path(f"/proc/{proc.pid}/maps")
+    end = time.monotonic() + 60
+    while time.monotonic() < end and proc.poll() is None:  # until jaxlib is being loaded
+        with contextlib.suppress(OSError):
+            if "jaxlib" in maps.read_text():
+                break
+        time.sleep(0.02)
+    proc.send_signal(signal.SIGINT)
+    _, err = proc.communicate(timeout=120)
+    assert proc.returncode == 130, err[-2000:]
+    assert "Exception ignored" not in err and "Traceback" not in err, err[-2000:]
+    if (tmp_path / "t.txt").exists():  # the signal came after JAX loaded: whole, and short
+        assert len(read_trajectory(tmp_path / "t.txt")) <= 1
+
+
+@pytest.mark.parametrize("suffix", [".tiff", ".npy"])
+def test_depth_scale_on_float_depth_is_refused(base, tmp_path, capsys, suffix):
+    """Float depth is metres: --depth-scale was ignored without a word."""
+    seq = copy_seq(base, tmp_path / "seq", images=("depth",))
+    _rewrite_depth(seq, lambda png, metres: _save_depth(png, metres, suffix))
+    res = run_json(capsys, seq, tmp_path / "t.txt", "--depth-scale", "1000")
+    assert_one_line_error(res, "depth is float metres", "--depth-scale is for 16-bit depth")
+
+
+def test_config_names_the_replacement_and_checks_every_value():
+    """Config(window=5): TypeError 'unexpected keyword argument'; keyframe_overlap = nan and
+    keyframe_stride = 1000 ran, taking no keyframe or one point a keyframe."""
+    with pytest.raises(TypeError, match="keyframes=True.* refines a window over the latest"):
+        Config(window=5)
+    with pytest.raises(TypeError, match="did you mean cell"):
+        Config(cel=8)
+    for cfg, needle in ((Config(keyframe_overlap=float("nan")), ("keyframe_overlap must be a "
+                         r"number in \[0, 1\], got nan")),
+                        (Config(keyframes=True, keyframe_stride=1000),
+                         "keyframe_stride 1000 keeps 1 of the 30x40 grid's points"),
+                        (Config(fb_max=-1.0), r"fb_max must be a number in \(0, inf\)"),
+                        (Config(lk_levels=-1), "lk_levels must be at least 0"),
+                        (Config(keyframes="no"), "keyframes must be True or False"),
+                        (Config(depth_min=5.0, depth_max=1.0), "depth_max 1.0 must be beyond")):
+        with pytest.raises(InputError, match=needle):
+            check_config(cfg, height=480, width=640)
+    check_config(Config(keyframes=True), height=480, width=640)  # the defaults pass
+    with pytest.raises(InputError, match="the grid itself is too coarse"):
+        check_config(Config(keyframes=True, cell=200), height=480, width=640)
+
+
+def test_a_date_past_2262_is_not_wrapped():
+    """np.datetime64 went through nanoseconds, which hold dates up to 2262: 2300 came back
+    as about 1830 and was taken."""
+    from jaxvo.odometry import timestamp_seconds
+
+    want = (np.datetime64("2300-01-01", "D") - np.datetime64("1970-01-01", "D")).astype(int)
+    for t in (np.datetime64("2300-01-01", "D"), np.datetime64("2300-01-01T00:00:00", "s")):
+        assert timestamp_seconds(t) == pytest.approx(float(want) * 86400.0, abs=1e-3)  # 1 ms
+    with pytest.raises(ValueError, match="beyond any recording"):
+        timestamp_seconds(np.datetime64("9999-01-01", "D"))

@@ -132,18 +132,27 @@ def test_interrupted_run_keeps_every_pose_computed(seq_dir, tmp_path, capsys, mo
     monkeypatch.setattr(Odometry, "submit", submit)
     traj = tmp_path / "traj.txt"
     masks = tmp_path / "masks"
-    rc = main(["run", str(seq_dir), "--out", str(traj), "--masks", str(masks), "-q", "--json"])
+    (tmp_path / "map.ply").write_bytes(b"an earlier map")
+    rc = main(["run", str(seq_dir), "--out", str(traj), "--masks", str(masks), "-q", "--json",
+               "--map", str(tmp_path / "map.ply")])
     summary = json.loads(capsys.readouterr().out)
     assert rc == 130 and summary["interrupted"]
     est = read_trajectory(traj)
     assert len(est) == 5 and summary["poses_written"] == 5
     assert len(list(masks.glob("*.png"))) == 4  # one label mask per frame pair
+    # it said "frames 8 processed" for 5 poses, and nothing of the map it did not write
+    assert summary["frames"] == 8 and summary["frames_processed"] == 6
+    assert summary["map_not_written"] == ("the run was interrupted (an earlier "
+                                          f"{tmp_path / 'map.ply'} is as it was)")
+    assert (tmp_path / "map.ply").read_bytes() == b"an earlier map"
 
 
 def test_an_image_that_cannot_be_written_mid_run_is_one_line_and_exit_2(
         seq_dir, tmp_path, capsys, monkeypatch):
     """Masks are written on a background thread: a write that fails there (a full disk)
-    still ends the run with one line naming the file, and the poses so far are kept."""
+    still ends the run with one line naming the file. A failed run replaces no file: the
+    earlier trajectory stays as it was (an interrupted one keeps its poses: the test above),
+    and the folder keeps the masks written whole before the failure."""
     import jaxvo.host.io
 
     real_write = jaxvo.host.io.write_image
@@ -157,15 +166,18 @@ def test_an_image_that_cannot_be_written_mid_run_is_one_line_and_exit_2(
 
     monkeypatch.setattr(jaxvo.host.io, "write_image", write_image)
     traj = tmp_path / "traj.txt"
+    traj.write_text("# an earlier run\n")
     rc = main(["run", str(seq_dir), "--out", str(traj), "--masks", str(tmp_path / "m"), "-q"])
     err = capsys.readouterr().err.strip().splitlines()
     assert rc == 2 and len(err) == 1
     assert err[0].startswith("jaxvo: error: ") and "No space left on device" in err[0]
     assert ".png" in err[0]
-    # the run stops at the next frame after the failure, or at the end: the poses it
-    # computed are kept, and no mask after the failed one is written
-    assert len(read_trajectory(traj)) >= 3
+    # the run stops at the next frame after the failure, or at the end; no mask after the
+    # failed one is written, and nothing is left half-written beside them
+    assert traj.read_text() == "# an earlier run\n"
+    assert sorted(p.name for p in tmp_path.iterdir()) == ["m", "traj.txt"]
     assert len(list((tmp_path / "m").glob("*.png"))) == 2
+    assert not list((tmp_path / "m").glob(".*"))
 
 
 _COMPILING = {"on": False, "events": []}
@@ -198,7 +210,8 @@ def test_the_demos_timed_scan_compiles_nothing(capsys, monkeypatch):
             _COMPILING["on"] = False
 
     monkeypatch.setattr(demo, "_timed_scan", watched)
-    assert main(["demo", "--frames", "3", "--peers", "none", "--json"]) == 0
+    # 4 frames: the scan of examples/quickstart_synthetic.py in test_examples.py (3 pairs)
+    assert main(["demo", "--frames", "4", "--peers", "none", "--json"]) == 0
     row = json.loads(capsys.readouterr().out)["methods"]["jaxvo"]
     assert len(seconds) == 1 and _COMPILING["events"] == []  # no trace, no compile
     assert row["ms_per_frame"] > 0

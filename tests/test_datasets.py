@@ -281,3 +281,34 @@ def test_only_the_sequence_folder_is_moved_out_of_the_archive(sequence_dir, tmp_
     tops = unpack(archive, dest, require=f"{sequence_dir.name}/rgb.txt")
     assert tops == [dest / sequence_dir.name]
     assert sorted(p.name for p in dest.iterdir()) == [sequence_dir.name]
+
+
+@pytest.mark.skipif(not Path("/dev/full").exists(), reason="needs /dev/full (Linux)")
+def test_a_full_disk_names_the_file_not_the_network(sequence_dir, tmp_path, capsys,
+                                                     monkeypatch):
+    """It advised to resume ('run the same command again') or to download again, neither of
+    which helps on a full disk."""
+    name = "rgbd_dataset_freiburg3_walking_xyz.tgz"
+    part = tmp_path / (name + ".part")
+    part.symlink_to("/dev/full")  # the download's bytes land on a full disk
+    with Server({name: tgz_of(sequence_dir)}) as srv:
+        code, _, err = cli(capsys, "data", "get", "tum", "fr3/walking_xyz", "--dir", tmp_path,
+                           "--mirror", srv.url, "-q")
+    assert code == 2 and err == f"jaxvo: error: {part}: No space left on device\n", err
+    # unpacking onto a full disk: the file that could not be written, not the archive's fault
+    from jaxvo.host import datasets
+
+    real_copy = datasets._copy
+
+    def onto_full_disk(src, target):
+        target.symlink_to("/dev/full")
+        real_copy(src, target)
+
+    monkeypatch.setattr(datasets, "_copy", onto_full_disk)
+    archive = tmp_path / "a.tgz"
+    archive.write_bytes(tgz_of(sequence_dir))
+    (tmp_path / "out").mkdir()
+    with pytest.raises(OSError, match="No space left on device") as got:
+        unpack(archive, tmp_path / "out")
+    assert "download it" not in str(got.value) and ".a.tgz.unpacking" in got.value.filename
+    assert list((tmp_path / "out").iterdir()) == []  # nothing unpacked, no staging left

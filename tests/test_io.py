@@ -400,3 +400,21 @@ def test_the_data_root_defaults_to_shared_data_beside_the_checkout(monkeypatch):
     assert data_root() == checkout.parent / "shared" / "data"
     monkeypatch.setenv("JAXVO_DATA", "/elsewhere")
     assert data_root() == Path("/elsewhere")
+
+
+def test_a_trajectory_writer_reads_back_its_own_poses_whoever_replaced_the_file(tmp_path):
+    """Two runs into one --out: each file whole, the last one kept; the first run scored
+    (and mapped) the second's file. written() is the text this writer wrote, parsed as the
+    file is (its rounding), never the file."""
+    from jaxvo.host.io import TrajectoryWriter
+
+    path = tmp_path / "t.txt"
+    T = np.eye(4)
+    T[0, 3] = 0.123456789123
+    with TrajectoryWriter(path) as w:
+        w.write(1.0, T)
+        assert not path.exists()  # a reader sees the old file (none) until it is whole
+    path.write_text("2.0 9 9 9 0 0 0 1\n")  # another run's, whole
+    got = w.written()
+    np.testing.assert_array_equal(got.timestamps, [1.0])
+    np.testing.assert_allclose(got.poses[0], T, atol=5e-10)  # printed to 1e-9 m

@@ -104,9 +104,14 @@ def test_update_keyframe_takes_a_keyframe_only_when_told():
                   win_valid=seen)
     new, out = _update(same, kf, T, static)
     assert int(out.count) == 2 and bool(new.taken[-1]) and bool(new.taken[-2])
-    np.testing.assert_array_equal(np.asarray(new.point[-1]), p1)
+    # the points are copied into their slots, then the window's refinement scales their
+    # depths by (1 + s) with s about 0: exact readings leave s within float32 rounding (a
+    # 2-core AMD EPYC moved 3 of 150 values by one float32 step, 2.4e-7), so compared
+    # within 1e-6 relative; the flags, the readings and the poses without a keyframe are
+    # copied or selected (jnp.where), bit for bit on any machine
+    np.testing.assert_allclose(np.asarray(new.point[-1]), p1, rtol=1e-6, atol=0)
     np.testing.assert_array_equal(np.asarray(new.static[-1]), static)
-    np.testing.assert_array_equal(np.asarray(new.point[-2]), p0)  # the first keyframe, shifted
+    np.testing.assert_allclose(np.asarray(new.point[-2]), p0, rtol=1e-6, atol=0)  # shifted
     np.testing.assert_array_equal(np.asarray(new.seen[-1, -2]), np.ones(n, bool))
     np.testing.assert_array_equal(np.asarray(new.obs[-1, -2]), p1)
     assert not bool(new.seen[-1, 0].any())  # slot 0 is still empty
@@ -210,7 +215,8 @@ def test_tracker_follows_the_keyframe_and_renews_when_the_overlap_is_gone(shifte
 
 @pytest.fixture(scope="module")
 def kf_seq():
-    return make_sequence("handheld_slow", frames=10, seed=3)
+    # test_pipeline.py's sequence: its frame-to-frame scan below is the program compiled there
+    return make_sequence("handheld_slow", frames=12, seed=3)
 
 
 @pytest.mark.slow

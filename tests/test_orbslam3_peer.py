@@ -80,7 +80,8 @@ def test_streaming_masks_are_the_runs_plugin_masks():
     from jaxvo.host.io import InMemorySequence
     from jaxvo.synth.scenes import make_sequence
 
-    seq = InMemorySequence(make_sequence("fixed_camera_2", frames=8, seed=0))
+    # test_pipeline.py's sequence: the scan is the program compiled there
+    seq = InMemorySequence(make_sequence("handheld_slow", frames=12, seed=3))
     res = jaxvo.run_sequence(seq, start_pose="identity")
     cell = jaxvo.Config().cell
     want = jaxvo.dynamic_masks(res, seq.height, seq.width, cell)

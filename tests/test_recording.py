@@ -9,8 +9,13 @@ skip, saying so, where it is absent; the one-line error for a missing extra runs
 
 from __future__ import annotations
 
+import contextlib
+import signal
+import socket
+import subprocess
 import sys
 from collections import defaultdict
+from pathlib import Path
 
 import numpy as np
 import pytest
@@ -115,3 +120,183 @@ def test_a_missing_rerun_is_one_line_naming_the_extra(seq_dir, tmp_path, capsys,
     err = capsys.readouterr().err.strip().splitlines()
     assert rc == 2 and len(err) == 1 and "pip install 'jaxvo[viz]'" in err[0], err
     assert not (tmp_path / "t.txt").exists()  # refused before any work
+
+
+# --- nothing lost (issue 46) -----------------------------------------------------------------
+
+
+_FAKE_RUN = """
+import sys
+from types import SimpleNamespace
+import numpy as np
+from jaxvo.host.camera import Intrinsics
+from jaxvo.host.recording import RerunLogger
+
+def frames(logger, n):
+    logger.setup(Intrinsics(525.0, 525.0, 31.5, 23.5), 16)
+    for i in range(n):
+        T = np.eye(4)
+        T[0, 3] = 0.01 * i
+        r = SimpleNamespace(index=i, timestamp=i / 30, T_w_c=T, dropped=None, output=None)
+        logger.log_frame(r, np.zeros((48, 64, 3), np.uint8), np.full((48, 64), 2.0, np.float32))
+"""
+
+
+def _camera_poses(path) -> int:
+    chunks, _ = read_back(path)
+    return len(column(chunks["/world/camera"], "frame"))
+
+
+def test_a_logger_never_closed_keeps_every_pose(tmp_path):
+    """docs/cli.md showed RerunLogger without close(): the recording held 5 of 6 poses."""
+    _rerun()
+    code = _FAKE_RUN + f"frames(RerunLogger(save={str(tmp_path / 'r.rrd')!r}), 6)\n"
+    done = subprocess.run([sys.executable, "-c", code], capture_output=True, text=True,
+                          timeout=120, check=False)
+    assert done.returncode == 0, done.stderr[-2000:]
+    assert _camera_poses(tmp_path / "r.rrd") == 6
+    assert [p.name for p in tmp_path.iterdir()] == ["r.rrd"]  # no temporary left
+
+
+def test_the_with_form_writes_whole_or_leaves_the_earlier_file(tmp_path):
+    _rerun()
+    from jaxvo.host.recording import RerunLogger
+
+    namespace = {}
+    exec(_FAKE_RUN, namespace)  # noqa: S102 (the helper above, shared with the child)
+    rrd = tmp_path / "r.rrd"
+    rrd.write_bytes(b"an earlier recording")
+    with pytest.raises(ValueError, match="the run failed"), RerunLogger(save=rrd) as logger:
+        namespace["frames"](logger, 3)
+        raise ValueError("the run failed")
+    assert rrd.read_bytes() == b"an earlier recording"
+    with RerunLogger(save=rrd) as logger:  # Ctrl-C keeps what was recorded, whole
+        namespace["frames"](logger, 3)
+    assert _camera_poses(rrd) == 3 and sorted(p.name for p in tmp_path.iterdir()) == ["r.rrd"]
+    with pytest.warns(RuntimeWarning, match="frames after close"):
+        namespace["frames"](logger, 1)  # RuntimeError: BackgroundWriter.submit after close
+
+
+@pytest.mark.skipif(not Path("/dev/full").exists(), reason="needs /dev/full (Linux)")
+def test_a_full_disk_or_a_missing_folder_is_one_line_naming_the_file(tmp_path):
+    """A full disk raised Rerun's 'File-writer thread shut down prematurely'; a missing
+    folder Rerun's own RuntimeError."""
+    _rerun()
+    from jaxvo.host.recording import RerunLogger
+
+    with pytest.raises(OSError, match="No space left on device") as got:
+        RerunLogger(save="/dev/full")
+    assert got.value.filename == "/dev/full"
+    with pytest.raises(InputError, match="save= .*/nonexistent/x.rrd: folder .* does not exist"):
+        RerunLogger(save=tmp_path / "nonexistent" / "x.rrd")
+
+
+def test_a_tmpfs_that_fills_mid_recording_names_the_file(tmp_path):
+    """A disk that fills while Rerun writes (a 64 KiB tmpfs in a user namespace, where the
+    kernel allows one): one OSError naming the file, the earlier recording kept."""
+    _rerun()
+    mount = tmp_path / "small"
+    mount.mkdir()
+    code = _FAKE_RUN + (
+        "import errno, os\n"
+        f"path = {str(mount / 'r.rrd')!r}\n"
+        "open(path, 'wb').write(b'earlier')\n"
+        "try:\n"
+        "    with RerunLogger(save=path) as logger:\n"
+        "        frames(logger, 40)\n"
+        "except OSError as exc:\n"
+        "    print(exc.errno == errno.ENOSPC, exc.filename == path, open(path, 'rb').read(),\n"
+        "          sorted(os.listdir(os.path.dirname(path))))\n")
+    script = tmp_path / "fill.py"
+    script.write_text(code)
+    shell = (f"mount -t tmpfs -o size=64k tmpfs {mount} && {sys.executable} {script}")
+    done = subprocess.run(["unshare", "-rm", "sh", "-c", shell], capture_output=True,
+                          text=True, timeout=120, check=False)
+    if done.returncode != 0 and "mount" in done.stderr + done.stdout:
+        pytest.skip(f"no tmpfs in a user namespace here: {done.stderr.strip()[:200]}")
+    assert done.stdout.strip() == "True True b'earlier' ['r.rrd']", done.stderr[-2000:]
+
+
+def test_loggers_that_are_no_loggers_and_a_viewer_that_cannot_start(tmp_path, monkeypatch):
+    _rerun()
+    from jaxvo.host import recording
+    from jaxvo.odometry import Odometry
+
+    for bad in ("run.rrd", object()):  # AttributeError: ... no attribute 'setup'
+        with pytest.raises(ValueError, match="logger must have setup"):
+            Odometry((525.0, 525.0, 319.5, 239.5), logger=bad)
+    monkeypatch.setenv("PATH", str(tmp_path))  # no viewer executable to find
+    with pytest.raises(InputError, match="--rerun: the Rerun viewer cannot start"):
+        recording.RerunLogger(spawn=True)
+    # a viewer that starts but never listens (no display to open): 11 s of gRPC, then a
+    # RuntimeError at the end of the run
+    monkeypatch.setattr(recording, "VIEWER_WAIT", 0.5)
+    monkeypatch.setattr(recording, "_VIEWER_PORT", _free_port())
+    monkeypatch.setattr("rerun.RecordingStream.spawn", lambda self, **kw: None)
+    with pytest.raises(InputError, match="did not start listening on port"):
+        recording.RerunLogger(spawn=True)
+
+
+def _free_port() -> int:
+    with socket.socket() as s:
+        s.bind(("127.0.0.1", 0))
+        return s.getsockname()[1]
+
+
+def test_sigterm_and_a_second_ctrl_c_leave_whole_files(seq_dir, tmp_path):
+    """SIGTERM left a .rrd that `rerun rrd verify` rejects; two Ctrl-C an atexit traceback.
+    Now SIGTERM stops the run at the next frame (exit 143) with the trajectory and the
+    recording whole; after a second Ctrl-C (exit 130, at once) the trajectory is whole and
+    the recording the earlier one, and nothing else is printed."""
+    _rerun()
+    long = _looped(seq_dir, tmp_path / "long", 60)  # long enough to be signalled mid-run
+    for signals, status in (((signal.SIGTERM,), 143), ((signal.SIGINT, signal.SIGINT), 130)):
+        out = tmp_path / str(status)
+        out.mkdir()
+        (out / "r.rrd").write_bytes(b"an earlier recording")
+        proc = subprocess.Popen(
+            [sys.executable, "-c", ("import sys; from jaxvo.cli.main import main; "
+             "sys.exit(main())"), "run", str(long), "--out", str(out / "t.txt"),
+             "--rerun-save", str(out / "r.rrd"), "-q"],
+            stdout=subprocess.PIPE, stderr=subprocess.PIPE, text=True)
+        _wait_for_a_pose(out, proc)
+        for sig in signals:
+            proc.send_signal(sig)
+        _, err = proc.communicate(timeout=120)
+        assert proc.returncode == status, err[-2000:]
+        assert "Traceback" not in err and "Exception ignored" not in err, err[-2000:]
+        traj = read_trajectory(out / "t.txt")  # whole: every line a pose
+        assert 1 <= len(traj) < 60
+        if status == 143:
+            assert _camera_poses(out / "r.rrd") >= len(traj) - 1
+        else:
+            assert (out / "r.rrd").read_bytes() == b"an earlier recording" or (
+                _camera_poses(out / "r.rrd") >= 1)
+        assert sorted(p.name for p in out.iterdir()) == ["r.rrd", "t.txt"]
+
+
+def _looped(seq: Path, out: Path, frames: int) -> Path:
+    """A sequence of ``frames`` frames at 30 Hz going round ``seq``'s images (no new image
+    rendered or written: the lists name the same files again)."""
+    rows = [ln.split() for ln in (seq / "associations.txt").read_text().splitlines()
+            if ln and not ln.startswith("#")]
+    out.mkdir()
+    (out / "camera.txt").write_text((seq / "camera.txt").read_text())
+    (out / "associations.txt").write_text("".join(
+        f"{k / 30:.6f} {seq / rows[k % len(rows)][1]} {k / 30:.6f} "
+        f"{seq / rows[k % len(rows)][3]}\n" for k in range(frames)))
+    return out
+
+
+def _wait_for_a_pose(folder: Path, proc, timeout: float = 120.0) -> None:
+    """Until the run's temporary trajectory beside ``folder/t.txt`` holds a pose."""
+    import time
+
+    end = time.monotonic() + timeout
+    while time.monotonic() < end and proc.poll() is None:
+        for part in folder.glob(".t.txt.jaxvo-*"):
+            with contextlib.suppress(OSError):
+                if any(not ln.startswith("#") for ln in part.read_text().splitlines()):
+                    return
+        time.sleep(0.05)
+    raise AssertionError(f"no pose written: {proc.poll()}")

@@ -54,6 +54,21 @@ def spec_of(text: str, tmp_path: Path, name: str = "spec.toml") -> Path:
     return path
 
 
+def folder_spec(tmp_path: Path, folder: Path, *, seed: int, **fixed):
+    """A parsed study of one sequence folder under one seed, in calls of one
+    configuration, with the ``fixed`` settings."""
+    settings = "\n".join(f"{k} = {json.dumps(v)}" for k, v in fixed.items())
+    return study.load_spec(spec_of(f"""
+name = "{folder.name}"
+seeds = [{seed}]
+batch = 1
+[[sequences]]
+path = "{folder}"
+[fixed]
+{settings}
+""", tmp_path))
+
+
 # ----------------------------------------------------------------------------- the spec
 
 
@@ -237,10 +252,12 @@ def test_flow_cache_key_covers_every_config_field_the_flow_reads():
     from jaxvo.synth.scenes import make_sequence
 
     seen: set[str] = set()
-    flows_for_sequence(make_sequence("handheld_fast", frames=3, seed=0),
-                       _Recorder(Config(cell=32), seen))
+    for keyframes in (False, True):  # the keyframe tracker reads settings of its own
+        flows_for_sequence(make_sequence("handheld_fast", frames=3, seed=0),
+                           _Recorder(Config(cell=32, keyframes=keyframes), seen))
     read = seen & set(study.config_fields())
     assert read and read <= set(study.flow_fields())
+    assert {"keyframes", "keyframe_stride", "keyframe_overlap"} <= read
     assert "num_hypotheses" not in study.flow_fields()
 
     s = study.SequenceSpec("x", "static", None, 5, 0, 1, None)
@@ -433,6 +450,23 @@ def test_two_processes_give_the_same_bits_as_one(tiny, one_device):
     assert "the first process stopped the study" in outs[1][1]
 
 
+def test_a_process_receives_the_flow_in_arrays_of_the_first_process_s_shapes(tmp_path):
+    """The processes after the first receive the first's flow (and keyframe flow) into
+    arrays they make themselves (``share_data``): each must have the shape and type of the
+    first's, or the exchange fails or garbles it."""
+    from jaxvo.study.devices import receiving_data
+
+    for cfg in (Config(cell=32), Config(cell=32, keyframes=True)):
+        data, _ = study.sequence_data(study.SequenceSpec("x", "handheld_fast", None, 3, 0, 1,
+                                                         None), cfg, None)
+        T, n = data.flows.valid.shape
+        got = receiving_data(T, n, data.height, data.width, cfg)
+        assert (got.keyframes is None) == (not cfg.keyframes)
+        for mine, first in ((got.flows, data.flows), (got.keyframes, data.keyframes)):
+            assert jax.tree.map(lambda a: (a.shape, a.dtype), mine) == \
+                jax.tree.map(lambda a: (np.shape(a), np.asarray(a).dtype), first)
+
+
 def test_an_interrupted_study_resumes_where_it_stopped(tiny, tmp_path):
     spec, _, root, first = tiny
     out = tmp_path / "resumed"
@@ -562,7 +596,8 @@ def test_a_dropped_frame_scores_as_jaxvo_run_scores_it(tmp_path):
     last good one; the study's timestamps, start pose and scores must be those of the
     frames kept, as in ``run_sequence`` (all of them shifted one frame before). Nine
     frames, one dropped, in calls of one configuration: the tiny study's 7 pairs, batch
-    and Config, so the study runs the program the tiny study compiled."""
+    and Config (the noise calibration on), so the study runs the program the tiny study
+    compiled."""
     import cv2
 
     from jaxvo.host.io import open_sequence
@@ -573,21 +608,14 @@ def test_a_dropped_frame_scores_as_jaxvo_run_scores_it(tmp_path):
     write_sequence(make_sequence("handheld_slow", frames=9, seed=0), folder)
     black = sorted((folder / "rgb").iterdir())[4]
     cv2.imwrite(str(black), np.zeros((480, 640, 3), np.uint8))
-    spec = study.load_spec(spec_of(f"""
-name = "dropped"
-seeds = [0]
-batch = 1
-[[sequences]]
-path = "{folder}"
-[fixed]
-cell = 32
-num_hypotheses = 4
-""", tmp_path))
+    spec = folder_spec(tmp_path, folder, seed=0, cell=32, num_hypotheses=4,
+                       noise_calibration=True)
     res = study.run_spec(spec, tmp_path / "out", flow_cache=tmp_path / "flows")
     data, cached = study.sequence_data(spec.sequences[0], Config(cell=32), tmp_path / "flows")
     assert cached
 
-    ref = run_sequence(open_sequence(folder), cfg=Config(cell=32, num_hypotheses=4))
+    ref = run_sequence(open_sequence(folder),
+                      cfg=Config(cell=32, num_hypotheses=4, noise_calibration=True))
     assert list(ref.dropped) == [4] and list(ref.frames) == [0, 1, 2, 3, 5, 6, 7, 8]
     np.testing.assert_array_equal(data.timestamps, ref.trajectory.timestamps)
     np.testing.assert_array_equal(data.T_w_c0, ref.trajectory.poses[0])
@@ -595,3 +623,82 @@ num_hypotheses = 4
     # the study vmaps the scan that run_sequence runs alone: float32 rounding apart
     expected = trajectory_scores(data.groundtruth, ref.trajectory)["ate_rmse_m"]
     assert res.rows[0]["ate_rmse_m"] == pytest.approx(expected, rel=1e-3, abs=1e-5)
+
+
+@pytest.mark.slow  # the keyframe study compiled afresh (the keyframe step: test_cli_run's)
+def test_a_study_with_keyframes_scores_as_jaxvo_run_keyframes(tmp_path, capsys):
+    """``keyframes = true`` in a spec runs the keyframes: the study's ATE is that of
+    ``jaxvo run --keyframes`` on the same frames with the same seed and settings (the study
+    vmaps the scan, the command streams the step: float32 rounding apart, measured 1.7e-4
+    relative). 24 frames of the fast hand-held scene at the default settings take a second
+    keyframe (the window refines); frame to frame the study's ATE there is 0.50 mm, with
+    keyframes 0.17 mm, so a study that ran frame to frame could not pass. The command's
+    step is the one ``jaxvo run --keyframes`` compiles in test_cli_run.py."""
+    from jaxvo.host.io import open_sequence, read_trajectory
+    from jaxvo.synth.scenes import make_sequence, write_sequence
+
+    folder = tmp_path / "seq"
+    write_sequence(make_sequence("handheld_fast", frames=24, seed=1), folder)
+    traj = tmp_path / "traj.txt"
+    assert main(["run", str(folder), "--out", str(traj), "--keyframes", "--seed", "3", "-q",
+                 "--json"]) == 0
+    summary = json.loads(capsys.readouterr().out)
+    assert summary["keyframes"] >= 2  # the window refined at least once
+    spec = folder_spec(tmp_path, folder, seed=3, keyframes=True)
+    res = study.run_spec(spec, tmp_path / "out", flow_cache=tmp_path / "flows")
+    data, cached = study.sequence_data(spec.sequences[0], Config(keyframes=True),
+                                       tmp_path / "flows")
+    # the cache holds the keyframe flow: the same keyframes as the command took
+    assert cached and data.keyframes is not None
+    assert data.keyframes.valid.shape[0] == data.flows.valid.shape[0] == 23
+    assert 1 + int(np.sum(data.keyframes.renew)) == summary["keyframes"]
+    gt = open_sequence(folder).groundtruth
+    expected = trajectory_scores(gt, read_trajectory(traj))["ate_rmse_m"]
+    assert res.rows[0]["ate_rmse_m"] == pytest.approx(expected, rel=1e-3, abs=0)
+
+
+# --- nothing lost (issue 46) -----------------------------------------------------------------
+
+
+def test_rows_holding_only_ids_are_no_finished_runs(tiny, tmp_path):
+    """--resume over a runs.jsonl whose rows held only run ids: KeyError: 'sequence'."""
+    import shutil
+
+    spec, _, root, _res = tiny
+    out = tmp_path / "out"
+    shutil.copytree(root / "one", out, ignore=shutil.ignore_patterns("flows"))
+    lines = (out / study.RUNS_FILE).read_text().splitlines()
+    ids = [json.loads(line)["id"] for line in lines]
+    (out / study.RUNS_FILE).write_text("\n".join(
+        [json.dumps({"id": i}) for i in ids[:2]] + lines[2:]) + "\n")
+    with pytest.warns(UserWarning, match="2 line.* hold no finished run"):
+        rows = study.finished_rows(spec, out)
+    assert [r["id"] for r in rows] == ids[2:]
+    write_report(spec, rows, out, plot=False)  # the tables of what did finish
+    # resumed: the first process says the size before any flow or compile (a study of
+    # 100,000 configurations printed 0/200000 for minutes), and runs the two again
+    said = []
+    with pytest.warns(UserWarning, match="2 line.* hold no finished run"):
+        again = study.run_spec(spec, out, resume=True, flow_cache=root / "flows",
+                               log=said.append)
+    assert said[0].startswith("2 of 6 runs to do (1 sequences x 3 configurations x 2 seeds)")
+    assert again.ran == 2 and len(again.rows) == 6
+
+
+def test_processes_say_they_wait_and_stop_in_one_line(tmp_path):
+    """--num-processes 2 --process-id 0 with no second process: silent for 300 s, then exit
+    134 with a native stack trace from JAX."""
+    port = _free_port()
+    for pid, needle in ((0, r"process\(es\) 1 did not join at 127.0.0.1"),
+                        (1, "process 0 did not answer within 0.5 s")):
+        said = []
+        with pytest.raises(InputError, match=needle):
+            study.init_distributed(f"127.0.0.1:{port}", 2, pid, timeout=0.5, say=said.append)
+        assert said and "waiting up to 0.5 s" in said[0]
+
+
+@pytest.mark.skipif(not Path("/dev/full").exists(), reason="needs /dev/full (Linux)")
+def test_a_full_disk_names_the_runs_file():
+    with pytest.raises(OSError, match="No space left on device") as got:
+        study._append_runs(Path("/dev/full"), [{"id": "x"}])
+    assert got.value.filename == "/dev/full"

@@ -10,21 +10,23 @@ import argparse
 import json
 from typing import Any, NamedTuple
 
+PEERS = "opencv_rgb,opencv_rgbd"  # the peers a demo compares with unless told
+
+
 
 def add_arguments(p: argparse.ArgumentParser) -> None:
+    from jaxvo.cli.main import add_seed_option, add_summary_options
+
     p.add_argument("--scenario", default="fixed_camera_2",
                    help="synthetic scenario (see `jaxvo synth --help`; default fixed_camera_2)")
     p.add_argument("--frames", type=int, default=90, help="frames to synthesise (default 90)")
-    p.add_argument("--seed", type=int, default=0,
-                   help="seed of the scene and of the sampling, 0 .. 2**32-1 (default 0)")
-    p.add_argument("--peers", default="opencv_rgb,opencv_rgbd",
-                   help="comma-separated peers to compare with, 'all' or 'none' "
-                   "(default opencv_rgb,opencv_rgbd)")
+    add_seed_option(p, "seed of the scene and of the sampling")
+    p.add_argument("--peers", default=PEERS, help="comma-separated peers to compare with, "
+                   f"'all' or 'none' (default {PEERS})")
     p.add_argument("--out", metavar="DIR",
                    help="also write the trajectories (TUM format) and a few overlay panels "
                    "(PNG named by timestamp, see `jaxvo run --help`) here (created)")
-    p.add_argument("--json", action="store_true", help="print the scores as JSON")
-    p.add_argument("--quiet", "-q", action="store_true", help="no progress lines")
+    add_summary_options(p, summary="the scores", quiet="no progress lines")
 
 
 def _peer_list(text: str) -> list[str]:

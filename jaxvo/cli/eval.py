@@ -88,7 +88,9 @@ def _common(p: argparse.ArgumentParser) -> None:
     from jaxvo.evaluation.evo_results import PLOT_MODES
 
     p.add_argument("gt", metavar="GT", help="ground-truth trajectory, TUM format")
-    p.add_argument("est", metavar="EST", help="estimated trajectory, TUM format")
+    p.add_argument("est", metavar="EST", help="estimated trajectory, TUM format; - (or "
+                   "/dev/stdin) reads it from standard input: jaxvo run SEQ --out - | jaxvo "
+                   "eval ate GT -")
     p.add_argument("-a", "--align", dest="align", action="store_const", const=True,
                    default=None, help="rigid Umeyama alignment (evo's -a; jaxvo's ATE default)")
     p.add_argument("-s", "--correct_scale", action="store_true",
@@ -177,6 +179,8 @@ def run(args: argparse.Namespace) -> int:
     align, scale = _alignment(args)
     delta, unit = _delta(args) if args.metric == "rpe" else (None, None)
     _outputs(args)
+    if sum(_is_stdin(p) for p in (args.gt, args.est)) > 1:
+        raise InputError("only one of the trajectories can come from standard input (-)")
     gt = read_trajectory(args.gt)
     est = read_trajectory(args.est)
     names = (args.gt, args.est)
@@ -200,6 +204,18 @@ def run(args: argparse.Namespace) -> int:
     else:
         print(_table(report))
     return 0
+
+
+def _is_stdin(path: str) -> bool:
+    """``-``, or a path that is this process's standard input (``/dev/stdin``)."""
+    import os
+
+    if path == "-":
+        return True
+    try:
+        return os.path.samestat(os.stat(path), os.fstat(0))
+    except (OSError, ValueError):
+        return False
 
 
 def _report_head(metric: str, args, res, n_gt: int, n_est: int) -> dict:

@@ -28,6 +28,7 @@ from jaxvo.errors import InputError
 from jaxvo.host.compile_cache import add_compile_cache_options, setup_compile_cache
 
 EXIT_OK, EXIT_NOTHING_ESTIMATED, EXIT_BAD_INPUT, EXIT_INTERRUPTED = 0, 1, 2, 130
+EXIT_PIPE = 141  # 128 + SIGPIPE: the reader of standard output closed it
 
 EXIT_STATUSES = """\
 exit status:
@@ -36,7 +37,9 @@ exit status:
        (every pair skipped or dropped; the summary says why)
   2    bad input or usage: a missing, unreadable or malformed file or option, or an
        output that cannot be written (one line 'jaxvo: error: ...')
-  130  interrupted (Ctrl-C); what was computed so far is kept"""
+  130  interrupted (Ctrl-C; 143: SIGTERM); what was computed so far is kept, each
+       file whole
+  141  the reader of standard output closed it (jaxvo run --out - | head); quiet"""
 
 # name -> (module, one-line help); the order is the order --help lists them in.
 COMMANDS: dict[str, tuple[str, str]] = {
@@ -52,6 +55,19 @@ COMMANDS: dict[str, tuple[str, str]] = {
 
 # The commands that compile XLA programs: they take --compile-cache / --no-compile-cache.
 COMPILING = ("demo", "run", "synth", "study")
+
+
+def add_seed_option(p: argparse.ArgumentParser, what: str) -> None:
+    """``--seed``, default 0, in the range every command checks (``errors.check_seed``);
+    ``what`` says what it seeds."""
+    p.add_argument("--seed", type=int, default=0, help=f"{what}, 0 .. 2**32-1 (default 0)")
+
+
+def add_summary_options(p: argparse.ArgumentParser, *, summary: str, quiet: str) -> None:
+    """``--json`` (the command's ``summary`` printed as JSON) and ``--quiet`` / ``-q``
+    (``quiet``: what it leaves out), as the commands that compute and report give them."""
+    p.add_argument("--json", action="store_true", help=f"print {summary} as JSON")
+    p.add_argument("--quiet", "-q", action="store_true", help=quiet)
 
 
 def build_parser() -> argparse.ArgumentParser:
@@ -75,20 +91,32 @@ def build_parser() -> argparse.ArgumentParser:
 
 
 class StopRequest:
-    """Whether Ctrl-C was pressed inside :func:`interrupt_at_safe_points`; calling it raises
-    ``KeyboardInterrupt`` then, at a point the caller chose as safe."""
+    """Whether Ctrl-C (or SIGTERM) came inside :func:`interrupt_at_safe_points`; calling it
+    raises ``KeyboardInterrupt`` then, at a point the caller chose as safe."""
 
     def __init__(self) -> None:
         self.requested = False
+        self.signum: int | None = None  # the signal that asked to stop
 
     def __call__(self) -> None:
         if self.requested:
             raise KeyboardInterrupt
 
+    @property
+    def exit_status(self) -> int:
+        """128 + the signal's number, as shells report a process a signal ended (130 for
+        Ctrl-C, 143 for SIGTERM)."""
+        return 128 + (self.signum or signal.SIGINT)
+
+
+# the stop request of the command under way: one per process, so that a command's own
+# `with interrupt_at_safe_points()` takes the one main() installed before JAX loaded
+_CURRENT: StopRequest | None = None
+
 
 @contextlib.contextmanager
-def interrupt_at_safe_points() -> Iterator[StopRequest]:
-    """Turn Ctrl-C into a request that the work checks between steps.
+def interrupt_at_safe_points(*, safe: bool = True) -> Iterator[StopRequest]:
+    """Turn Ctrl-C and SIGTERM into a request that the work checks between steps.
 
     Python raises ``KeyboardInterrupt`` wherever the main thread is. Inside JAX's
     ``backend.compile_and_load`` (the first frame's 3-25 s compile) the main thread stops
@@ -97,38 +125,58 @@ def interrupt_at_safe_points() -> Iterator[StopRequest]:
     on freed state (core dump: ``PjRtLoadedExecutable::Create`` calling a null pointer in
     ``SingleDeviceSharding::Create`` while the main thread joined the pool in
     ``~ThreadPool``; exit -11 in 8 of 8 tries interrupting 0.3-3 s into the compile). The
-    grid-flow helper thread plays no part.
+    grid-flow helper thread plays no part. While JAX loads, a ``KeyboardInterrupt`` raised
+    in its garbage-collection callback was swallowed (``Exception ignored in:
+    <function _xla_gc_callback>``) and the run went on to exit 0.
 
-    Here the first Ctrl-C only sets a flag, said on stderr; the caller calls the yielded
-    :class:`StopRequest` between steps, where stopping is safe, and it raises
-    ``KeyboardInterrupt`` there. A second Ctrl-C ends the process at once with status 130,
-    without the interpreter's clean-up that crashed (every pose written so far is already
-    flushed to disk). Off the main thread, or where SIGINT is ignored, interrupts are left
-    as they are.
+    Here the first Ctrl-C (or SIGTERM, as a process manager stops a program) only sets a
+    flag, said on stderr; the caller calls the yielded :class:`StopRequest` between steps,
+    where stopping is safe, and it raises ``KeyboardInterrupt`` there. With ``safe=False``
+    (a command with no JAX under way) the first one raises ``KeyboardInterrupt`` at once,
+    as Python does. A second one ends the process at once with 128 + the signal's number,
+    without the interpreter's clean-up that crashed: the outputs being written are settled
+    first (:func:`jaxvo.host.outputs.abort_pending`: the trajectory, whole at every pose,
+    is kept; a file half-written is not). Off the main thread, or where SIGINT is ignored,
+    interrupts are left as they are. Nested, it yields the request already installed.
     """
+    global _CURRENT
+    if _CURRENT is not None:
+        yield _CURRENT
+        return
+    from jaxvo.host.outputs import abort_pending
+
     stop = StopRequest()
 
-    def on_sigint(signum, frame) -> None:
+    def on_signal(signum, frame) -> None:
         if stop.requested:
-            sys.stdout.flush()
-            print("jaxvo: interrupted again: stopping at once", file=sys.stderr, flush=True)
-            os._exit(EXIT_INTERRUPTED)
-        stop.requested = True
-        print("jaxvo: interrupt: stopping after the current step (Ctrl-C again to stop at "
-              "once)", file=sys.stderr, flush=True)
+            with contextlib.suppress(OSError, ValueError):
+                sys.stdout.flush()
+            with contextlib.suppress(OSError, ValueError):
+                print("jaxvo: interrupted again: stopping at once", file=sys.stderr,
+                      flush=True)
+            abort_pending()
+            os._exit(128 + signum)
+        stop.requested, stop.signum = True, signum
+        if not safe:
+            raise KeyboardInterrupt
+        with contextlib.suppress(OSError, ValueError):
+            print("jaxvo: interrupt: stopping after the current step (Ctrl-C again to stop "
+                  "at once)", file=sys.stderr, flush=True)
 
+    previous = {}
     try:
-        if signal.getsignal(signal.SIGINT) is signal.SIG_IGN:
-            previous = None
-        else:
-            previous = signal.signal(signal.SIGINT, on_sigint)
+        if signal.getsignal(signal.SIGINT) is not signal.SIG_IGN:
+            for sig in (signal.SIGINT, signal.SIGTERM):
+                previous[sig] = signal.signal(sig, on_signal)
     except ValueError:  # not the main thread
-        previous = None
+        previous = {}
+    _CURRENT = stop if previous else None
     try:
         yield stop
     finally:
-        if previous is not None:
-            signal.signal(signal.SIGINT, previous)
+        _CURRENT = None
+        for sig, handler in previous.items():
+            signal.signal(sig, handler)
 
 
 def _os_error(exc: OSError) -> str:
@@ -137,25 +185,93 @@ def _os_error(exc: OSError) -> str:
     return f"{exc.filename}: {what}" if exc.filename else what
 
 
+def _standard_streams() -> None:
+    """Standard input, output and error that are closed (``>&-``) become the null device,
+    so that no file this command opens takes their descriptor (a library's message on fd 2
+    would land in it) and printing ends nowhere quietly. A closed standard output is
+    remembered: ``--out -`` is refused then (:func:`jaxvo.host.outputs.output_file`)."""
+    from jaxvo.host import outputs
+
+    for fd in (0, 1, 2):
+        try:
+            os.fstat(fd)
+        except OSError:
+            null = os.open(os.devnull, os.O_RDWR)
+            if null != fd:
+                os.dup2(null, fd)
+                os.close(null)
+            if fd == 1:
+                outputs.STDOUT_CLOSED = True
+    if sys.stdout is None:
+        outputs.STDOUT_CLOSED = True
+        sys.stdout = open(os.devnull, "w")  # noqa: SIM115 (for the process's life)
+    if sys.stderr is None:
+        sys.stderr = open(os.devnull, "w")  # noqa: SIM115 (for the process's life)
+
+
+def _one_line_warning(message, category, filename, lineno, file=None, line=None) -> None:
+    """A warning as one line ``jaxvo: warning: ...``, as the commands' own warnings."""
+    with contextlib.suppress(OSError, ValueError):
+        print(f"jaxvo: warning: {message}", file=sys.stderr)
+
+
+def _quiet_end_of_pipe() -> int:
+    """The reader of standard output went away (``jaxvo run --out - | head``): not an
+    error, as for other command-line tools. Standard output is pointed at the null device
+    so that the interpreter's last flush says nothing; the status is 141 (128 + SIGPIPE),
+    what a shell reports for a tool the closed pipe ended."""
+    with contextlib.suppress(OSError, ValueError, AttributeError):  # no file descriptor
+        null = os.open(os.devnull, os.O_WRONLY)
+        try:
+            os.dup2(null, sys.stdout.fileno())
+        finally:
+            os.close(null)
+    return EXIT_PIPE
+
+
 def main(argv: list[str] | None = None) -> int:
-    parser = build_parser()
-    args = parser.parse_args(argv)
-    try:
-        module = importlib.import_module(args._module)
-        if not hasattr(module, "prepare"):
-            return int(module.run(args) or 0)
-        prepared = module.prepare(args)  # options and files checked before JAX loads
-        if args.command in COMPILING:  # before the command's first compile
-            setup_compile_cache(args.compile_cache)
-        return int(module.run(args, prepared) or 0)
-    except InputError as exc:
-        msg = str(exc)
-    except OSError as exc:  # a file that vanished or cannot be written mid-run
-        msg = _os_error(exc)
-    except KeyboardInterrupt:
-        print("jaxvo: interrupted", file=sys.stderr)
-        return EXIT_INTERRUPTED
-    print(f"jaxvo: error: {msg}", file=sys.stderr)
+    import warnings
+
+    _standard_streams()
+    # Rerun's own log lines (a full disk: ERROR and WARN lines of its file writer) stay
+    # quiet; the command says what failed in one line of its own (RUST_LOG set wins)
+    os.environ.setdefault("RUST_LOG", "off")
+    stop = None
+    with warnings.catch_warnings():
+        warnings.showwarning = _one_line_warning
+        try:
+            try:  # --help, --version and usage errors end in SystemExit, as argparse's do
+                args = build_parser().parse_args(argv)
+            except SystemExit:
+                sys.stdout.flush()  # a closed pipe (jaxvo --help | head -1) is found here
+                raise
+            module = importlib.import_module(args._module)
+            if not hasattr(module, "prepare"):
+                with interrupt_at_safe_points(safe=False) as stop:
+                    status = int(module.run(args) or 0)
+            else:
+                prepared = module.prepare(args)  # options and files checked before JAX loads
+                # from here a Ctrl-C waits for a safe point: JAX loads and compiles
+                with interrupt_at_safe_points(safe=args.command in COMPILING) as stop:
+                    if args.command in COMPILING:  # before the command's first compile
+                        setup_compile_cache(args.compile_cache)
+                    stop()
+                    status = int(module.run(args, prepared) or 0)
+            sys.stdout.flush()  # a closed pipe is found here, not at the interpreter's exit
+            return status
+        except BrokenPipeError:  # also an output FIFO whose reader left: the same answer
+            return _quiet_end_of_pipe()
+        except InputError as exc:
+            msg = str(exc)
+        except OSError as exc:  # a file that vanished or cannot be written mid-run
+            msg = _os_error(exc)
+        except KeyboardInterrupt:
+            with contextlib.suppress(OSError, ValueError):
+                print("jaxvo: interrupted", file=sys.stderr)
+            return stop.exit_status if stop is not None and stop.requested else (
+                EXIT_INTERRUPTED)
+    with contextlib.suppress(OSError, ValueError):
+        print(f"jaxvo: error: {msg}", file=sys.stderr)
     return EXIT_BAD_INPUT
 
 

@@ -10,6 +10,7 @@ from __future__ import annotations
 
 import argparse
 import json
+import sys
 from pathlib import Path
 
 EPILOG = """\
@@ -29,7 +30,14 @@ the static map: a reading in a dynamic mask (nonzero pixels of DIR/<rgb timestam
   every reading in a cube of --vote-voxel metres where more than --vote-share of the
   readings were in a mask. A frame of the trajectory without a mask file is left out of
   the static map (the summary counts them). Every pose of --traj must have a frame of
-  SEQ_DIR within --max-diff seconds.
+  SEQ_DIR within --max-diff seconds, a frame of its own.
+
+camera and depth: as jaxvo run read them. A trajectory jaxvo run wrote names in its first
+  lines the sequence, its camera and its depth scale: the map reads the depth the same way
+  (jaxvo run --depth-scale 1000, then jaxvo map: at 1000), and a trajectory of another
+  sequence is refused. --camera, --intrinsics and --depth-scale override that, as they
+  override the folder's camera.txt (with a warning where they differ). Where the
+  trajectory's motion fits the depth worse than no motion, a warning says so.
 """
 
 
@@ -49,7 +57,15 @@ def add_arguments(p: argparse.ArgumentParser) -> None:
     p.add_argument("--out", "-o", required=True, metavar="FILE.ply",
                    help="the static map (FILE_all.ply and FILE.png are written beside it)")
     add_map_options(p, GROW, VOTE_VOXEL, VOTE_SHARE)
-    p.add_argument("--camera", metavar="PRESET", help="intrinsics preset, as jaxvo run's")
+    camera = p.add_mutually_exclusive_group()
+    camera.add_argument("--camera", metavar="PRESET",
+                        help="intrinsics preset, as jaxvo run's (default: the camera the run "
+                        "read, named in --traj's first lines, else the folder's)")
+    camera.add_argument("--intrinsics", metavar="FX,FY,CX,CY",
+                        help="the camera's intrinsics in pixels, as jaxvo run's")
+    p.add_argument("--depth-scale", type=float, metavar="UNITS",
+                   help="raw depth units per metre of the 16-bit depth images, as jaxvo run's "
+                   "(default: the run's, named in --traj's first lines, else the camera's)")
     p.add_argument("--max-diff", type=float, default=0.02, metavar="S",
                    help="largest timestamp difference between a pose and its frame, seconds "
                    "(default 0.02)")
@@ -74,20 +90,48 @@ def add_map_options(p: argparse.ArgumentParser, grow: int, vote_voxel: float,
                    f"masks is left out whole (default {vote_share}; 1: no vote)")
 
 
-def check_map_options(args: argparse.Namespace) -> None:
-    """The fusion's options checked (InputError naming the option)."""
-    import math
+def check_map_options(args: argparse.Namespace, *, height: int | None = None,
+                      width: int | None = None) -> None:
+    """The fusion's options checked (InputError naming the option); ``--grow`` against the
+    frames' size where it is given."""
+    from jaxvo.host.mapping import check_map_settings
 
-    from jaxvo.errors import InputError
+    check_map_settings(voxel=args.voxel, max_depth=args.max_depth, grow=args.grow,
+                       vote_voxel=args.vote_voxel, vote_share=args.vote_share,
+                       height=height, width=width, names={
+                           "voxel": "--voxel", "max_depth": "--max-depth", "grow": "--grow",
+                           "vote_voxel": "--vote-voxel", "vote_share": "--vote-share"})
 
-    for option, value in (("--voxel", args.voxel), ("--max-depth", args.max_depth),
-                          ("--vote-voxel", args.vote_voxel)):
-        if not (math.isfinite(value) and value > 0):
-            raise InputError(f"{option} must be a positive number of metres, got {value}")
-    if args.grow < 0:
-        raise InputError(f"--grow must be 0 or more pixels, got {args.grow}")
-    if not (math.isfinite(args.vote_share) and 0 <= args.vote_share <= 1):
-        raise InputError(f"--vote-share must be from 0 to 1, got {args.vote_share}")
+
+# A run's trajectory names what it ran on in a comment line (RUN_TAG, then JSON): jaxvo map
+# reads the depth as the run read it, and refuses a trajectory of another sequence
+RUN_TAG = "jaxvo-run "
+
+
+def run_header(where: str | Path, seq) -> str:
+    """The comment lines a run's trajectory starts with (without ``#``): the command, and
+    the sequence's name, frames, first frame's time and camera as the run read them."""
+    K = seq.intrinsics
+    info = {"sequence": seq.name, "frames_listed": int(getattr(seq, "frames_listed", len(seq))),
+            "first_time": round(float(seq.timestamps[0]), 6),
+            "intrinsics": [float(K.fx), float(K.fy), float(K.cx), float(K.cy)],
+            "depth_scale": float(K.depth_scale)}
+    return f"jaxvo run {where}\n{RUN_TAG}{json.dumps(info)}"
+
+
+def read_run_header(path: str | Path) -> dict | None:
+    """What :func:`run_header` wrote at the top of a trajectory file, or None (another
+    tool's trajectory, or a header that does not parse)."""
+    from jaxvo.host.camera import Intrinsics
+
+    try:
+        with open(path, encoding="utf-8", errors="replace") as fh:
+            lines = [line for _, line in zip(range(8), fh) if line.startswith("# " + RUN_TAG)]
+        info = json.loads(lines[0][2 + len(RUN_TAG):])
+        K = Intrinsics(*(float(v) for v in info["intrinsics"]), float(info["depth_scale"]))
+    except (OSError, ValueError, KeyError, TypeError, IndexError):
+        return None
+    return {**info, "intrinsics": K}
 
 
 def map_outputs(path: str | Path) -> dict[str, Path]:
@@ -99,77 +143,159 @@ def map_outputs(path: str | Path) -> dict[str, Path]:
 
 
 def make_maps(seq, traj, dynamic, args, outputs: dict[str, Path], *, where: str,
-              frames: int | None = None, logger=None) -> dict:
-    """Fuse, write the maps and their picture (and into ``logger``); the summary's part."""
+              frames: int | None = None, logger=None, on_static=None) -> dict:
+    """Fuse, write the maps and their picture (and into ``logger``, and the static map to
+    ``on_static``: ``jaxvo run --out-bag``); the summary's part. Each file is written whole
+    or not at all; a failure leaves the earlier maps as they were, all three."""
+    from jaxvo.errors import InputError
     from jaxvo.host.io import write_image
-    from jaxvo.host.mapping import fuse_maps, map_picture, matched_poses, write_ply
+    from jaxvo.host.mapping import fuse_maps, map_picture, matched_poses, trajectory_fit, write_ply
 
     poses = matched_poses(seq, traj, where=where, max_diff=args.max_diff, frames=frames)
+    fit = trajectory_fit(seq, poses)
+    if fit is not None:
+        print(f"jaxvo: warning: {where}: {fit}", file=sys.stderr)
     maps = fuse_maps(seq, poses, dynamic, voxel=args.voxel, max_depth=args.max_depth,
                      grow=args.grow, vote_voxel=args.vote_voxel, vote_share=args.vote_share)
+    if not len(maps.full.points):  # an empty map is no map: the earlier files stay
+        raise InputError(f"none of the {len(poses)} frames with a pose has a depth reading "
+                         f"within --max-depth {args.max_depth:g} m: no map written")
+    if dynamic is not None and not len(maps.static.points):
+        print("jaxvo: warning: the static map is empty: every reading lies in a dynamic mask "
+              f"(grown by --grow {args.grow}) or a frame without one", file=sys.stderr)
+    picture = map_picture(maps, seq.intrinsics, poses[0][1], seq.height, seq.width)
     write_ply(outputs["map"], maps.static)
     summary = {"map": str(outputs["map"]), "map_points": len(maps.static.points),
-               "frames_fused": maps.frames, "frames_without_mask": maps.no_mask}
+               "masks": dynamic is not None, "frames_fused": maps.frames,
+               "frames_in_sequence": len(seq), "frames_without_mask": maps.no_mask,
+               "trajectory_fit": fit}
     if dynamic is not None:
         full = outputs["map (nothing left out)"]
         write_ply(full, maps.full)
         summary.update(map_all=str(full), map_all_points=len(maps.full.points))
-    picture = outputs["map picture"]
-    write_image(picture, map_picture(maps, seq.intrinsics, poses[0][1], seq.height, seq.width))
-    summary["map_picture"] = str(picture)
+    write_image(outputs["map picture"], picture)
+    summary["map_picture"] = str(outputs["map picture"])
     if logger is not None:
         logger.log_map("static", maps.static)
         if dynamic is not None:
             logger.log_map("full", maps.full)
+    if on_static is not None:
+        on_static(maps.static)
     return summary
+
+
+def open_mapped(args: argparse.Namespace):
+    """The sequence to map and the trajectory, the depth read as the run read it: ``(seq,
+    traj, warnings)``. A trajectory jaxvo run wrote names its sequence and camera in its
+    first lines (:func:`jaxvo.host.io.run_header`): one of another sequence is refused, and
+    its camera and depth scale are used unless an option gives them."""
+    from jaxvo.errors import InputError
+    from jaxvo.host.camera import intrinsics_option
+    from jaxvo.host.frames import describe
+    from jaxvo.host.io import open_sequence, read_trajectory
+
+    camera = intrinsics_option(args.intrinsics) if args.intrinsics else args.camera
+    if args.depth_scale is not None:
+        from jaxvo.host.camera import check_depth_scale_value
+
+        check_depth_scale_value(args.depth_scale, name="--depth-scale")
+    traj = read_trajectory(args.traj)
+    run = read_run_header(args.traj)
+    seq = open_sequence(args.sequence, camera=camera, max_diff=args.max_diff,
+                        depth_scale=args.depth_scale)
+    notes = list(seq.warnings)
+    if run is None:
+        return seq, traj, notes
+    listed = int(getattr(seq, "frames_listed", len(seq)))
+    if run["sequence"] != seq.name and (run["frames_listed"], run["first_time"]) != (
+            listed, round(float(seq.timestamps[0]), 6)):
+        raise InputError(
+            f"--traj {args.traj}: jaxvo run wrote it over the sequence {run['sequence']!r} "
+            f"({run['frames_listed']} frames listed, its first lines say), not over "
+            f"{seq.name!r} ({listed} frames): map it over its own sequence")
+    K = run["intrinsics"]
+    if camera is None and args.depth_scale is None:
+        if K != seq.intrinsics:  # the run was given a camera or depth scale: read as it did
+            seq = open_sequence(args.sequence, camera=K, max_diff=args.max_diff,
+                                depth_scale=K.depth_scale)
+            notes = [w for w in seq.warnings if "overrides" not in w]
+            seq.camera_source = f"as jaxvo run read it ({describe(K)}; --traj's first lines)"
+    elif seq.intrinsics != K:
+        notes.append(f"the camera {describe(seq.intrinsics)} differs from the one jaxvo run "
+                     f"read ({describe(K)}, --traj's first lines): the map is not at the "
+                     "trajectory's scale unless the run's was wrong")
+    return seq, traj, notes
 
 
 def run(args: argparse.Namespace) -> int:
     from jaxvo.errors import InputError
-    from jaxvo.host.io import check_outputs, open_sequence, output_file, read_trajectory
+    from jaxvo.host.io import check_outputs, output_file
     from jaxvo.host.mapping import mask_reader
+    from jaxvo.host.outputs import file_id, stream_target
 
     check_map_options(args)
-    seq = open_sequence(args.sequence, camera=args.camera, max_diff=args.max_diff)
+    seq, traj, notes = open_mapped(args)
+    check_map_options(args, height=seq.height, width=seq.width)
     outputs = map_outputs(args.out)
     if args.dynamic_masks is None:
         del outputs["map (nothing left out)"]
     files = {("--out" if k == "map" else f"--out's {k}"): v for k, v in outputs.items()}
     if args.rerun_save:
         files["--rerun-save"] = Path(args.rerun_save)
+    files = {what: stream_target(path, what=what) for what, path in files.items()}
     reads = seq.files() + [Path(args.traj)]
     if args.dynamic_masks:
         masks = Path(args.dynamic_masks)
         if not masks.is_dir():
             raise InputError(f"--dynamic-masks {masks}: not a folder")
-        reads += sorted(masks.glob("*.png"))
+        image_folders = {file_id(p if p.is_dir() else p.parent) for p in seq.files()}
+        if file_id(masks) in image_folders:  # TUM names its images by time, as masks are
+            raise InputError(f"--dynamic-masks {masks}: holds the sequence's own images, not "
+                             "dynamic masks (jaxvo run --dynamic-masks DIR writes those)")
+        reads.append(masks)  # every file of it
     check_outputs(reads, files=files)
     for what, path in files.items():
         output_file(path, what=what)
-    logger = None
-    if args.rerun_save:
-        from jaxvo.host.recording import RerunLogger, import_rerun
-
-        import_rerun("--rerun-save")
-        logger = RerunLogger(save=args.rerun_save)
-    traj = read_trajectory(args.traj)
-    dynamic = mask_reader(args.dynamic_masks) if args.dynamic_masks else None
-    try:
+    for note in notes:
+        print(f"jaxvo: warning: {note}", file=sys.stderr)
+    dynamic = (mask_reader(args.dynamic_masks, shape=(seq.height, seq.width))
+               if args.dynamic_masks else None)
+    with _logger(args) as logger:
         summary = make_maps(seq, traj, dynamic, args, outputs, where=f"--traj {args.traj}",
                             logger=logger)
-    finally:
-        if logger is not None:
-            logger.close()
+    summary.update(camera=getattr(seq, "camera_source", "given"), warnings=notes)
     if args.json:
         print(json.dumps(summary, indent=1))
     else:
-        print(f"jaxvo map: {summary['map_points']} points -> {summary['map']} (dynamic pixels "
-              f"left out), from {summary['frames_fused']} frames")
-        if "map_all" in summary:
-            print(f"  beside it  {summary['map_all_points']} points -> {summary['map_all']} "
-                  "(nothing left out)")
-        if summary["frames_without_mask"]:
-            print(f"  left out   {summary['frames_without_mask']} frames without a dynamic "
-                  "mask (from the static map)")
-        print(f"  picture    {summary['map_picture']}")
+        _print_summary(summary)
     return 0
+
+
+def _logger(args: argparse.Namespace):
+    """``--rerun-save``'s logger (a context that closes it), or a context holding None."""
+    import contextlib
+
+    if not args.rerun_save:
+        return contextlib.nullcontext(None)
+    from jaxvo.host.recording import RerunLogger, import_rerun
+
+    import_rerun("--rerun-save")
+    return RerunLogger(save=args.rerun_save, what="--rerun-save")
+
+
+def _print_summary(summary: dict) -> None:
+    fused, listed = summary["frames_fused"], summary["frames_in_sequence"]
+    frames = f"{fused} frames" + (f" of {listed}" if fused != listed else "")
+    if summary["masks"]:
+        print(f"jaxvo map: {summary['map_points']} points -> {summary['map']} (dynamic pixels "
+              f"left out), from {frames}")
+        print(f"  beside it  {summary['map_all_points']} points -> {summary['map_all']} "
+              "(nothing left out)")
+    else:
+        print(f"jaxvo map: {summary['map_points']} points -> {summary['map']} (nothing left "
+              f"out: no --dynamic-masks), from {frames}")
+    if summary["frames_without_mask"]:
+        print(f"  left out   {summary['frames_without_mask']} frames without a dynamic "
+              "mask (from the static map)")
+    print(f"  camera     {summary['camera']}")
+    print(f"  picture    {summary['map_picture']}")

@@ -7,6 +7,8 @@ next frames are read and decoded on other threads meanwhile, and masks and overl
 encoded and written on another (:mod:`jaxvo.host.prefetch`), so neither waits on the other.
 The per-frame step is compiled on the first run on a machine and loaded from the persistent
 compile cache afterwards (:mod:`jaxvo.host.compile_cache`); the terminal says when it compiles.
+With ``--out-bag`` the results also go to a ROS 2 bag (:mod:`jaxvo.host.bagout`), written on
+its own thread and renamed into place once finished.
 """
 
 from __future__ import annotations
@@ -32,7 +34,8 @@ input: SEQ_DIR in the TUM RGB-D layout: rgb.txt and depth.txt ('timestamp filena
   order are sorted and repeated timestamps dropped, with a warning. Or a ROS bag (ROS 1
   SEQ.bag, or a ROS 2 bag folder): --rgb-topic and --depth-topic (TUM's topics by default),
   paired by header stamp within --max-diff; the camera from the camera_info beside the
-  colour topic unless --camera.
+  colour topic unless --camera. A RealSense Viewer recording (.bag): its Color and Depth
+  streams, cameras, depth units and extrinsics found, the depth registered to colour.
 
 camera: --camera or --intrinsics, else camera.txt, else ETH3D's calibration.txt ('fx fy cx
   cy'), else the folder's name as the TUM and Bonn benchmarks name their downloads
@@ -53,19 +56,22 @@ output: the trajectory is camera-to-world in TUM format, one pose per frame kept
   panels side by side at half size (1280x240 for 640x480 images): Model (the image tinted
   by temporal identifier: grey-blue static, colours moving objects), Hypotheses (best raw
   motion hypothesis per cell), Segments (spatial segments) and Group (segments after
-  label matching), as thesis Fig. 5.1.
+  label matching), as thesis Fig. 5.1. --out-bag writes a new ROS 2 bag folder (MCAP):
+  /jaxvo/odometry, /tf (odom -> camera_optical_frame), /jaxvo/dynamic_mask and its
+  /jaxvo/camera_info, stamped with each frame's own time (docs/ros.md).
 """
 
 
 def add_arguments(p: argparse.ArgumentParser) -> None:
-    from jaxvo.cli.main import EXIT_STATUSES
+    from jaxvo.cli.main import EXIT_STATUSES, add_seed_option, add_summary_options
     from jaxvo.host.camera import PRESETS
 
     p.epilog = EPILOG + "\n" + EXIT_STATUSES
     p.formatter_class = argparse.RawDescriptionHelpFormatter
     p.add_argument("sequence", metavar="SEQ_DIR",
                    help="folder in the TUM RGB-D layout, or a ROS bag (SEQ.bag, or a ROS 2 "
-                   "bag folder): colour, depth and camera info, TUM's topics by default")
+                   "bag folder): colour, depth and camera info, TUM's topics by default; or "
+                   "a RealSense Viewer recording (.bag)")
     p.add_argument("--rgb-topic", metavar="TOPIC",
                    help="a bag's colour topic (sensor_msgs/Image; default /camera/rgb/image_color"
                    "; the camera info beside it, e.g. /camera/rgb/camera_info)")
@@ -91,8 +97,7 @@ def add_arguments(p: argparse.ArgumentParser) -> None:
                    "associating, seconds (default 0.02)")
     p.add_argument("--frames", type=int, metavar="N",
                    help="process only the first N frames (default all)")
-    p.add_argument("--seed", type=int, default=0,
-                   help="PRNG seed of the hypothesis sampling, 0 .. 2**32-1 (default 0)")
+    add_seed_option(p, "PRNG seed of the hypothesis sampling")
     p.add_argument("--cell", type=int, default=16,
                    help="grid cell size in pixels, at least 4 (default 16)")
     p.add_argument("--hypotheses", type=int, default=20,
@@ -108,16 +113,15 @@ def add_arguments(p: argparse.ArgumentParser) -> None:
                    help="first pose of the trajectory: 'gt' the ground-truth pose of the first "
                    "frame (groundtruth.txt, within --max-diff), or 'identity' (default: gt where "
                    "there is one, else identity; the summary says which)")
-    p.add_argument("--masks", metavar="DIR",
-                   help="write per-frame label masks (PNG, pixel value = identifier, 1 = static)")
-    p.add_argument("--dynamic-masks", metavar="DIR",
-                   help="write per-frame dynamic-pixel masks (PNG, 255 = dynamic, 0 = static) "
-                   "for other odometry to ignore; the last frame takes the last pair's labels. "
-                   "A cell is dynamic once its evidence of moving has built up over frames, so "
-                   "the first frame's mask is empty (its overlay's Segments panel shows the "
-                   "motions measured there)")
-    p.add_argument("--overlays", metavar="DIR",
-                   help="write per-frame overlay panels of the labels (PNG, see below)")
+    for flag, images in (  # the folders of per-frame images (see "output" below)
+            ("--masks", "label masks (PNG, pixel value = identifier, 1 = static)"),
+            ("--dynamic-masks", (
+                "dynamic-pixel masks (PNG, 255 = dynamic, 0 = static) for other odometry to "
+                "ignore; the last frame takes the last pair's labels. A cell is dynamic once its "
+                "evidence of moving has built up over frames, so the first frame's mask is empty "
+                "(its overlay's Segments panel shows the motions measured there)")),
+            ("--overlays", "overlay panels of the labels (PNG, see below)")):
+        p.add_argument(flag, metavar="DIR", help=f"write per-frame {images}")
     p.add_argument("--rerun", action="store_true",
                    help="open the Rerun viewer and show the run as it goes: images, labels, "
                    "depth, 3D points, the camera and its path, the per-frame numbers (needs a "
@@ -129,9 +133,28 @@ def add_arguments(p: argparse.ArgumentParser) -> None:
                    help="after the run, fuse the depth into a static map with the dynamic "
                    "pixels left out, as jaxvo map does (FILE_all.ply: nothing left out; "
                    "FILE.png: both pictured); the map's options are jaxvo map's defaults")
-    p.add_argument("--json", action="store_true", help="print the summary as JSON")
-    p.add_argument("--quiet", "-q", action="store_true",
-                   help="no progress line, and no line saying that the step compiles")
+    _add_bag_arguments(p.add_argument_group("ROS 2 bag output (docs/ros.md)"))
+    add_summary_options(p, summary="the summary",
+                        quiet="no progress line, and no line saying that the step compiles")
+
+
+def _add_bag_arguments(g) -> None:
+    from jaxvo.host.bagout import CAMERA_FRAME, STORAGES, WORLD_FRAME
+
+    g.add_argument("--out-bag", metavar="DIR",
+                   help="also write a ROS 2 bag (a new folder): the odometry "
+                   "(nav_msgs/Odometry), /tf and the dynamic masks, stamped with each frame's "
+                   "own time; with --map the static map (PointCloud2) at the end")
+    g.add_argument("--bag-storage", choices=STORAGES, help="the bag's storage (default mcap)")
+    g.add_argument("--world-frame", metavar="NAME", help=f"the odometry's fixed frame (default {WORLD_FRAME}, "
+                   "REP 105; its axes: the first camera's, or the ground truth's)")
+    g.add_argument("--camera-frame", metavar="NAME", help="the colour camera's optical frame (default "
+                   f"{CAMERA_FRAME}: z forward, x right, y down, REP 103)")
+    g.add_argument("--bag-overlay", action="store_true",
+                   help="also the image tinted by identifier (/jaxvo/overlay)")
+    g.add_argument("--with-input", action="store_true",
+                   help="also the input: a bag's every message, or a folder's frames on TUM's "
+                   "bag topics, so that one bag replays everything")
 
 
 def _peak_rss_mib() -> float:
@@ -157,7 +180,8 @@ def _check_options(args: argparse.Namespace):
 
     from jaxvo.config import Config, check_config
     from jaxvo.errors import InputError, check_seed
-    from jaxvo.host.camera import as_intrinsics, check_depth_scale_value, check_intrinsics
+    from jaxvo.host.bagout import check_bag_options
+    from jaxvo.host.camera import check_depth_scale_value, intrinsics_option
 
     if not (math.isfinite(args.max_diff) and args.max_diff >= 0):
         raise InputError(f"--max-diff must be a number of seconds >= 0, got {args.max_diff}")
@@ -172,18 +196,10 @@ def _check_options(args: argparse.Namespace):
     cfg = Config(cell=args.cell, num_hypotheses=args.hypotheses,
                  keyframes=Config.keyframes if args.keyframes is None else args.keyframes)
     check_config(cfg, names=_CONFIG_OPTIONS)
+    check_bag_options(args)
     camera = args.camera
     if args.intrinsics is not None:
-        try:
-            camera = as_intrinsics([float(v) for v in args.intrinsics.split(",")],
-                                   where="--intrinsics")
-        except ValueError:
-            raise InputError(f"--intrinsics must be four numbers fx,fy,cx,cy in pixels, got "
-                             f"{args.intrinsics!r}") from None
-        if len(camera) != 5 or args.intrinsics.count(",") != 3:
-            raise InputError(f"--intrinsics must be four numbers fx,fy,cx,cy in pixels, got "
-                             f"{args.intrinsics!r}")
-        check_intrinsics(camera, where="--intrinsics")
+        camera = intrinsics_option(args.intrinsics)
     return cfg, camera
 
 
@@ -192,8 +208,10 @@ def _open(args: argparse.Namespace, cfg, camera):
     nothing is written here but the output folders (created)."""
     from jaxvo.config import check_config
     from jaxvo.errors import InputError
+    from jaxvo.host.bagout import check_bag_target
     from jaxvo.host.io import STDOUT, check_outputs, open_sequence, output_file, output_folder
     from jaxvo.host.memory import check_memory, run_bytes
+    from jaxvo.host.outputs import stream_target
 
     seq = open_sequence(args.sequence, camera=camera, max_diff=args.max_diff,
                         depth_scale=args.depth_scale, rgb_topic=args.rgb_topic,
@@ -207,27 +225,32 @@ def _open(args: argparse.Namespace, cfg, camera):
     given = {option: folder for option, folder in (
         ("--masks", args.masks), ("--dynamic-masks", args.dynamic_masks),
         ("--overlays", args.overlays)) if folder}
-    to_stdout = args.out == STDOUT
-    files = {} if to_stdout else {"--out": Path(args.out)}
+    out = stream_target(args.out, what="--out", stdout=True)
+    files = {} if out == STDOUT else {"--out": out}
     if args.rerun_save:
-        files["--rerun-save"] = Path(args.rerun_save)
+        files["--rerun-save"] = args.rerun_save
     if args.map:
         from jaxvo.cli.map import map_outputs
 
         files.update({("--map" if k == "map" else f"--map's {k}"): v
                       for k, v in map_outputs(args.map).items()})
-    check_outputs(seq.files(n), files=files, folders={k: Path(v) for k, v in given.items()})
-    out = args.out if to_stdout else output_file(args.out, what="--out")
+    files = {what: stream_target(path, what=what) for what, path in files.items()}
+    bag = {"--out-bag": Path(args.out_bag)} if args.out_bag else {}
+    check_outputs(seq.files(), files=files,
+                  folders={**{k: Path(v) for k, v in given.items()}, **bag})
+    if args.out_bag:
+        check_bag_target(args.out_bag)
     for what, path in files.items():
-        if what != "--out":
-            output_file(path, what=what)
+        output_file(path, what=what)
     if args.rerun or args.rerun_save:
         from jaxvo.host.recording import check_display, import_rerun
 
         import_rerun("--rerun" if args.rerun else "--rerun-save")
         if args.rerun:
             check_display("--rerun")
-    folders = {option: output_folder(folder, what=option) for option, folder in given.items()}
+    names = {f"{t:.6f}.png" for t in seq.timestamps[:n]}
+    folders = {option: output_folder(folder, what=option, names=names)
+               for option, folder in given.items()}
     return seq, n, out, folders
 
 
@@ -249,6 +272,8 @@ def run(args: argparse.Namespace, prepared=None) -> int:
     import warnings as py_warnings
 
     from jaxvo.cli.main import EXIT_INTERRUPTED, EXIT_NOTHING_ESTIMATED, interrupt_at_safe_points
+    from jaxvo.cli.map import run_header
+    from jaxvo.host.bagout import open_bag
     from jaxvo.host.compile_cache import announce_compile
     from jaxvo.host.io import DepthScaleWarning, TrajectoryWriter, check_depth_scale, first_readable
     from jaxvo.host.prefetch import BackgroundWriter, read_ahead
@@ -275,34 +300,34 @@ def run(args: argparse.Namespace, prepared=None) -> int:
     T_w_c0, start = choose_start_pose(args.start_pose or "gt", gt, first.timestamp,
                                       max_diff=args.max_diff, required=bool(args.start_pose))
     odo = Odometry(seq.intrinsics, cfg=cfg, seed=args.seed, T_w_c0=T_w_c0)
-    logger = None
-    if args.rerun or args.rerun_save:
-        from jaxvo.host.recording import RerunLogger
-
-        logger = RerunLogger(save=args.rerun_save, spawn=args.rerun)
-        odo.attach(logger)
-        logger.log_groundtruth(gt)
     progress = Progress("jaxvo run", n - 1, enabled=not args.quiet)
-    # leaving this block, also by Ctrl-C, closes the reader, then writes every image queued
-    with (TrajectoryWriter(out, comment=f"jaxvo run {args.sequence}") as writer,
-          interrupt_at_safe_points() as stop,
-          BackgroundWriter() as images,
-          contextlib.closing(reads),
-          announce_compile("the per-frame step", stream=None if args.quiet else sys.stderr)
-          as compiling,
-          py_warnings.catch_warnings()):
-        py_warnings.simplefilter("ignore", DepthScaleWarning)  # said above, with the frame
-        rec = _Recorder(cfg, writer, images, folders, keep_dynamic=bool(args.map))
-        rec.process(odo, itertools.chain(early, ((i, fut.result) for i, fut in reads)), stop,
-                    progress)
-    progress.close()
-    summary = _summary(args, seq, n, start, rec, compiling, warnings, out)
-    try:
-        if args.map and rec.written and not rec.interrupted:
+    # the recording and the bag are whole once the run and its map are (the recording
+    # closed last); an error discards both, and an earlier recording stays
+    with _logger(args, odo, gt) as logger, open_bag(args, seq) as bag:
+        # leaving this block, also by Ctrl-C, closes the reader, writes every image queued,
+        # then puts the trajectory file in place (whole, with every pose computed)
+        with (TrajectoryWriter(out, comment=run_header(args.sequence, seq)) as writer,
+              interrupt_at_safe_points() as stop,
+              BackgroundWriter() as images,
+              contextlib.closing(reads),
+              announce_compile("the per-frame step", stream=None if args.quiet else sys.stderr)
+              as compiling,
+              py_warnings.catch_warnings()):
+            py_warnings.simplefilter("ignore", DepthScaleWarning)  # said above, with the frame
+            rec = _Recorder(cfg, writer, images, folders, keep_dynamic=bool(args.map), bag=bag)
+            rec.process(odo, itertools.chain(early, ((i, fut.result) for i, fut in reads)),
+                        stop, progress)
+        progress.close()
+        summary = _summary(args, seq, n, start, rec, compiling, warnings, out)
+        # a Ctrl-C after the last frame: no map; the bag finished with every frame, as the
+        # trajectory was put in place with every pose; then the run says it was interrupted
+        if args.map:
+            rec.interrupted = rec.interrupted or stop.requested
             summary.update(_map(args, seq, n, rec, out, writer, logger))
-    finally:
-        if logger is not None:
-            logger.close()
+        if bag is not None:
+            summary.update(bag.finish())
+        if args.map or bag is not None:
+            summary["interrupted"] = rec.interrupted = rec.interrupted or stop.requested
     if gt is not None and rec.written >= 3:
         summary.update(_scores(gt, out, writer, args.max_diff))
     # the trajectory on standard output (--out -): the summary goes beside the warnings
@@ -315,7 +340,7 @@ def run(args: argparse.Namespace, prepared=None) -> int:
     if rec.interrupted:
         print("jaxvo: interrupted; the poses computed so far are in the trajectory file",
               file=sys.stderr)
-        return EXIT_INTERRUPTED
+        return stop.exit_status if stop.requested else EXIT_INTERRUPTED
     if rec.pairs_ok == 0:
         print("jaxvo: no frame pair gave a camera motion (every pair skipped or dropped, see "
               "the summary)", file=sys.stderr)
@@ -323,14 +348,31 @@ def run(args: argparse.Namespace, prepared=None) -> int:
     return 0
 
 
+def _logger(args: argparse.Namespace, odo, gt):
+    """The run's Rerun logger attached to ``odo`` (a context that closes it), or a context
+    holding None."""
+    import contextlib
+
+    if not (args.rerun or args.rerun_save):
+        return contextlib.nullcontext(None)
+    from jaxvo.host.recording import RerunLogger
+
+    logger = RerunLogger(save=args.rerun_save, spawn=args.rerun, what="--rerun-save")
+    odo.attach(logger)
+    logger.log_groundtruth(gt)
+    return logger
+
+
 class _Recorder:
     """What a run does with each frame's result: the pose to the trajectory file, the
     pair's images to the writer thread, and the counts the summary gives."""
 
-    def __init__(self, cfg, writer, images, folders: dict, *, keep_dynamic: bool = False):
+    def __init__(self, cfg, writer, images, folders: dict, *, keep_dynamic: bool = False,
+                 bag=None):
         from collections import Counter
 
         self.cfg, self.writer, self.images, self.folders = cfg, writer, images, folders
+        self.bag = bag  # a BagWriter (--out-bag), written on the writer thread as the images
         self.skipped: Counter[str] = Counter()
         self.dropped: Counter[str] = Counter()
         self.times: list[float] = []
@@ -343,6 +385,7 @@ class _Recorder:
         self.keyframes = 1 if cfg.keyframes else 0  # keyframes taken (the first frame is one)
         self.first_unreadable = ""  # the first unreadable frame's error, for the summary
         self.interrupted = False
+        self.seen = 0  # frames taken from the sequence (read, or found unreadable)
         # frame index -> its dynamic cells (n,) bool, for --map; None: not kept
         self.dynamic: dict[int, object] | None = {} if keep_dynamic else None
 
@@ -358,6 +401,7 @@ class _Recorder:
             for i, read in frames:
                 stop()  # Ctrl-C is taken here, between frames, never inside a compile
                 t0 = time.perf_counter()
+                self.seen += 1
                 try:
                     frame = read()
                 except InputError as exc:  # unreadable frame: drop it, keep going
@@ -387,8 +431,8 @@ class _Recorder:
         if (self.dynamic is not None and self.last_moving is not None
                 and self.anchor is not None):
             self.dynamic[self.anchor.index] = self.last_moving
-        if ("--dynamic-masks" in self.folders and self.last_moving is not None
-                and self.anchor is not None):
+        if (("--dynamic-masks" in self.folders or self.bag is not None)
+                and self.last_moving is not None and self.anchor is not None):
             # the last kept frame has no pair of its own: it takes the last label map
             self.images.submit(self.write_images, self.anchor, None, self.last_moving)
 
@@ -398,10 +442,14 @@ class _Recorder:
         from jaxvo.status import Status
 
         frame = self.recent.pop(r.index)
+        if self.bag is not None and self.bag.input_frames:
+            self.images.submit(self.bag.write_frame, frame)
         if r.dropped is not None:
             self.dropped[r.dropped] += 1
             return
         self.writer.write(r.timestamp, r.T_w_c)
+        if self.bag is not None:
+            self.images.submit(self.bag.write_pose, frame.index, r.T_w_c)
         self.written += 1
         prev_frame, self.anchor = self.anchor, frame
         if r.output is None or prev_frame is None:
@@ -416,7 +464,7 @@ class _Recorder:
         self.last_moving = r.output.dynamic
         if self.dynamic is not None:
             self.dynamic[prev_frame.index] = self.last_moving
-        if self.folders:
+        if self.folders or self.bag is not None:
             self.images.submit(self.write_images, prev_frame, r, self.last_moving)
 
     def write_images(self, frame, r, moving) -> None:
@@ -435,9 +483,11 @@ class _Recorder:
         if "--masks" in self.folders and r is not None:
             ids = grid_to_pixels(r.ids, h, w, cell).astype(np.uint8)
             write_image(self.folders["--masks"] / name, ids)
-        if "--dynamic-masks" in self.folders:  # jaxvo.host.plugin: step k labels image k
-            write_image(self.folders["--dynamic-masks"] / name,
-                        mask_png(dynamic_pixels(moving, h, w, cell)))
+        mask = mask_png(dynamic_pixels(moving, h, w, cell))  # plugin: step k labels image k
+        if "--dynamic-masks" in self.folders:
+            write_image(self.folders["--dynamic-masks"] / name, mask)
+        if self.bag is not None:
+            self.bag.write_mask(frame, mask, None if r is None else r.output)
         if "--overlays" in self.folders and r is not None:
             write_image(self.folders["--overlays"] / name,
                         overlay_panel(frame.bgr, r.output, cell))
@@ -445,11 +495,15 @@ class _Recorder:
 
 def _map(args, seq, n: int, rec: _Recorder, out, writer, logger) -> dict:
     """``--map``: the maps from the trajectory written and the run's dynamic cells, as
-    ``jaxvo map`` makes them with its default options; the summary's part."""
+    ``jaxvo map`` makes them with its default options; the summary's part (why there is no
+    map, after Ctrl-C or with no pose)."""
+    if rec.interrupted or not rec.written:
+        why = "the run was interrupted" if rec.interrupted else "no pose was written"
+        kept = f" (an earlier {args.map} is as it was)" if Path(args.map).exists() else ""
+        return {"map_not_written": why + kept}
     from types import SimpleNamespace
 
     from jaxvo.cli.map import make_maps, map_outputs
-    from jaxvo.host.io import STDOUT, read_trajectory
     from jaxvo.host.mapping import GROW, VOTE_SHARE, VOTE_VOXEL
     from jaxvo.host.masks import dynamic_pixels
 
@@ -460,9 +514,11 @@ def _map(args, seq, n: int, rec: _Recorder, out, writer, logger) -> dict:
 
     options = SimpleNamespace(max_diff=args.max_diff, voxel=0.02, max_depth=4.0, grow=GROW,
                               vote_voxel=VOTE_VOXEL, vote_share=VOTE_SHARE)
-    est = writer.trajectory if str(out) == STDOUT else read_trajectory(out)
+    est = writer.written()  # as the file holds it, whoever replaced the file since
+    on_static = None if rec.bag is None else (
+        lambda static: rec.bag.write_map(static, rec.anchor.index))
     return make_maps(seq, est, dynamic, options, map_outputs(args.map),
-                     where=f"--out {out}", frames=n, logger=logger)
+                     where=f"--out {out}", frames=n, logger=logger, on_static=on_static)
 
 
 def _summary(args, seq, n: int, start: str, rec: _Recorder, compiling, warnings, out) -> dict:
@@ -474,6 +530,7 @@ def _summary(args, seq, n: int, start: str, rec: _Recorder, compiling, warnings,
         "sequence": str(args.sequence),
         "frames_listed": getattr(seq, "frames_listed", len(seq)),
         "frames": n,
+        "frames_processed": rec.seen,
         "camera": getattr(seq, "camera_source", "given"),
         "start_pose": start,
         "poses_written": rec.written,
@@ -503,9 +560,8 @@ def _scores(gt, out, writer, max_diff: float) -> dict:
 
     from jaxvo.errors import InputError
     from jaxvo.evaluation.metrics import ate, rpe
-    from jaxvo.host.io import STDOUT, read_trajectory
 
-    est = writer.trajectory if str(out) == STDOUT else read_trajectory(out)
+    est = writer.written()  # as the file holds it, whoever replaced the file since
     # a camera that never moves (a fixed camera) defines no alignment: compared as it is,
     # from the true first pose (as jaxvo.evaluation.scores.trajectory_scores does)
     aligned = bool(np.ptp(np.asarray(gt.poses)[:, :3, 3], axis=0).max() > 1e-6)
@@ -534,8 +590,9 @@ def _print_summary(summary: dict, n: int, interrupted: bool) -> None:
         print(f"  keyframes  {summary['keyframes']} taken (each frame's motion also fitted to "
               "the latest keyframe's static points; the last keyframes refined together as "
               "each was taken)")
-    listed = summary["frames_listed"]
-    print(f"  frames     {n} processed" + (f" of {listed} listed" if listed != n else ""))
+    listed, seen = summary["frames_listed"], summary["frames_processed"]
+    print(f"  frames     {seen} processed" + (f" of {n}" if seen != n else "")
+          + (f" ({listed} listed)" if listed != n else ""))
     for label, counts, unit in (("dropped", summary["dropped"], "frames"),
                                 ("skipped", summary["skipped"], "frame pairs")):
         total = sum(counts.values())
@@ -551,10 +608,16 @@ def _print_summary(summary: dict, n: int, interrupted: bool) -> None:
         print(f"  warning    {w}")
     if "scores_not_computed" in summary:
         print(f"  ATE / RPE  not computed: {summary['scores_not_computed']}")
+    if "map_not_written" in summary:
+        print(f"  map        not written: {summary['map_not_written']}")
     if "map" in summary:
         print(f"  map        {summary['map_points']} points -> {summary['map']} (dynamic pixels "
               f"left out), {summary['map_all_points']} -> {summary['map_all']} (nothing left "
               f"out), picture {summary['map_picture']}")
+    if "bag" in summary:
+        print(f"  bag        {summary['bag_messages']} messages on {summary['bag_topics']} topics "
+              f"-> {summary['bag']}" + (f" ({summary['bag_input_messages']} of them the "
+                                        "input's)" if summary["bag_input_messages"] else ""))
     if "ate_rmse_m" in summary:
         how = "aligned" if summary["ate_aligned"] else "not aligned: the camera does not move"
         print(f"  ATE        {summary['ate_rmse_m']:.4f} m rmse ({how}, ground truth in folder)")

@@ -50,6 +50,9 @@ def add_arguments(p: argparse.ArgumentParser) -> None:
                    help="address of process 0, for a study over several processes")
     p.add_argument("--num-processes", type=int, metavar="N", help="processes in the study")
     p.add_argument("--process-id", type=int, metavar="I", help="this process, 0 .. N - 1")
+    p.add_argument("--join-timeout", type=float, default=300.0, metavar="S",
+                   help="how long the processes wait for each other to join, seconds (default "
+                   "300); each says that it waits, and stops with one line past it")
     p.add_argument("--no-plot", action="store_true", help="skip plot.png")
     p.add_argument("--json", action="store_true", help="print the summary as JSON")
     p.add_argument("--quiet", "-q", action="store_true", help="no progress line")
@@ -97,6 +100,9 @@ def prepare(args: argparse.Namespace):
 
     if args.batch is not None and args.batch < 1:
         raise InputError(f"--batch must be at least 1, got {args.batch}")
+    if not (args.join_timeout > 0 and args.join_timeout < float("inf")):
+        raise InputError(f"--join-timeout must be a positive number of seconds, got "
+                         f"{args.join_timeout}")
     _check_cpu_devices(args.cpu_devices)
     spec = study.load_spec(args.spec, check_folders=False)
     dist = spec.distributed
@@ -119,7 +125,8 @@ def _start(args: argparse.Namespace, prepared):
 
     if args.cpu_devices is not None:
         jax.config.update("jax_num_cpu_devices", args.cpu_devices)
-    study.init_distributed(coordinator, nproc, pid)
+    study.init_distributed(coordinator, nproc, pid, timeout=args.join_timeout,
+                           say=lambda line: print(line, file=sys.stderr, flush=True))
     return spec, jax.process_index() == 0
 
 

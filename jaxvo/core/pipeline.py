@@ -267,7 +267,7 @@ def run_scan(flows, key, params, T_w_c0, *, cfg: Config, grid, keyframes=None):
 
 
 @functools.partial(jax.jit, static_argnames=("cfg", "grid"))
-def run_study(flows, keys, params, T_w_c0, *, cfg: Config, grid):
+def run_study(flows, keys, params, T_w_c0, *, cfg: Config, grid, keyframes=None):
     """Many configurations of one sequence in one call: ``vmap`` over keys and parameters.
 
     Args:
@@ -275,13 +275,17 @@ def run_study(flows, keys, params, T_w_c0, *, cfg: Config, grid):
       keys: (B, ...) PRNG keys, one per configuration.
       params: ``Params`` whose fields are (B,) arrays (use :func:`batch_params`).
       T_w_c0: (4, 4) first pose.
+      keyframes: with ``cfg.keyframes``, the ``KeyframeFlow`` of every pair stacked as
+        ``flows`` and shared as they are (as :func:`run_scan` takes them); None: frame to
+        frame only.
 
     Returns:
       ``StepOutput`` stacked as (B, T, ...) (the final states are dropped).
     """
 
     def one(k, p):
-        return _scan(flows, k, p, T_w_c0, cfg, grid, outer_axes=("configs",))[1]
+        return _scan(flows, k, p, T_w_c0, cfg, grid, outer_axes=("configs",),
+                     keyframes=keyframes)[1]
 
     return jax.vmap(one, axis_name="configs")(keys, params)
 

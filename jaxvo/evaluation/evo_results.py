@@ -153,10 +153,13 @@ def save_results(path: str | Path, result: EvoResult) -> None:
     """Write ``result`` as evo's result zip (``evo_res`` and evo's ``load_res_file`` read it).
 
     Args:
-      path: the ``.zip`` to write (overwritten).
+      path: the ``.zip`` to write (replaced whole, or left as it was on a failure:
+        :class:`jaxvo.host.outputs.OutputFile`).
       result: from :func:`ape_result` or :func:`rpe_result`.
     """
-    with zipfile.ZipFile(path, "w") as archive:
+    from jaxvo.host.outputs import OutputFile
+
+    with OutputFile(path) as fh, zipfile.ZipFile(fh.handle, "w") as archive:
         archive.writestr("info.json", json.dumps(result.info))
         archive.writestr("stats.json", json.dumps(result.stats))
         for name, array in result.arrays.items():
@@ -204,8 +207,17 @@ def plot_result(path: str | Path, result: EvoResult, *, plot_mode: str = "xyz") 
     ax = fig.add_subplot(1, 2, 2, projection="3d" if len(axes) == 3 else None)
     _plot_trajectory(fig, ax, result, axes)
     fig.tight_layout()
-    fig.savefig(path, dpi=110)
+    save_figure(fig, path)
     plt.close(fig)
+
+
+def save_figure(fig, path: str | Path) -> None:
+    """``fig.savefig(path)`` at 110 dpi, written whole or not at all
+    (:class:`jaxvo.host.outputs.OutputFile`; the format from the extension)."""
+    from jaxvo.host.outputs import OutputFile
+
+    with OutputFile(path) as fh:
+        fig.savefig(fh.handle, dpi=110, format=Path(path).suffix.lstrip(".").lower() or None)
 
 
 def _plot_errors(ax, result: EvoResult) -> None:

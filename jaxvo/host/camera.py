@@ -183,6 +183,20 @@ def as_intrinsics(camera, *, where: str = "intrinsics") -> Intrinsics:
     raise ValueError(f"{expected}; got shape {a.shape}")
 
 
+def camera_info_intrinsics(msg, depth_scale: float) -> Intrinsics | str:
+    """Pinhole intrinsics (pixels) from a ROS ``sensor_msgs/CameraInfo`` (ROS 1 ``K``, ROS 2
+    ``k``) with ``depth_scale``, or why it holds none, in words (an all-zero K: an
+    uncalibrated camera)."""
+    K = np.asarray(msg.K if hasattr(msg, "K") else msg.k, np.float64)
+    if K.size != 9:
+        return f"its K has {K.size} values, not 9"
+    if not np.any(K[[0, 2, 4, 5]]):
+        return "its K is all zero (the camera driver had no calibration)"
+    if not (np.all(np.isfinite(K)) and K[0] > 0 and K[4] > 0):
+        return f"its K has fx {K[0]:g}, fy {K[4]:g} (no calibration)"
+    return Intrinsics(float(K[0]), float(K[4]), float(K[2]), float(K[5]), float(depth_scale))
+
+
 # Median depth of a frame, metres, outside which no RGB-D sensor reads (host.io's
 # check_depth_scale); a depth scale that puts every 16-bit reading (1 to 65535 raw units)
 # outside it is no sensor's either.
@@ -210,6 +224,26 @@ def check_depth_scale_value(scale: float, *, name: str) -> None:
             f"{name} {scale:g} raw units per metre puts every 16-bit depth "
             f"reading (1 to {_UINT16_MAX} units: {near:.3g} to {far:.3g} m) {where_to}, where "
             "no RGB-D sensor reads; TUM's scale is 5000 per metre, millimetres 1000")
+
+
+def intrinsics_option(text: str, *, where: str = "--intrinsics") -> Intrinsics:
+    """The camera an ``--intrinsics fx,fy,cx,cy`` option gives (pixels; a negative fy: a
+    camera whose y axis points up), checked as :func:`check_intrinsics` does without an
+    image size.
+
+    Raises:
+      InputError: not four numbers, or no camera has them.
+    """
+    want = f"{where} must be four numbers fx,fy,cx,cy in pixels, got {text!r}"
+    try:
+        values = [float(v) for v in text.split(",")]
+    except ValueError:
+        raise InputError(want) from None
+    if len(values) != 4:
+        raise InputError(want)
+    camera = as_intrinsics(values, where=where)
+    check_intrinsics(camera, where=where)
+    return camera
 
 
 # The principal point of a real camera lies near the image centre: beyond a quarter of
@@ -269,7 +303,9 @@ def write_camera_file(path: str | Path, K: Intrinsics, *, comment: str = "") -> 
     lines = [f"# {comment}"] if comment else []
     lines += [f"fx {K.fx:.6g}", f"fy {K.fy:.6g}", f"cx {K.cx:.6g}", f"cy {K.cy:.6g}"]
     lines.append(f"depth_scale {K.depth_scale:.6g}")
-    Path(path).write_text("\n".join(lines) + "\n")
+    from jaxvo.host.outputs import write_text  # host.outputs imports nothing of this module
+
+    write_text(path, "\n".join(lines) + "\n")
 
 
 def depth_metres(depth: np.ndarray, K: Intrinsics) -> np.ndarray:

@@ -157,15 +157,27 @@ def download(url: str, dest: Path, *, progress=None, timeout: float = 30.0) -> P
         total = _total(resp, have)
         done = have
         try:
-            with open(part, "ab" if have else "wb") as fh:
-                while chunk := resp.read(_CHUNK):
+            fh = open(part, "ab" if have else "wb")  # noqa: SIM115 (closed below)
+        except OSError as exc:
+            raise OSError(exc.errno, exc.strerror, str(part)) from None
+        with fh:
+            while True:
+                try:
+                    chunk = resp.read(_CHUNK)
+                except (OSError, http.client.HTTPException) as exc:  # e.g. IncompleteRead
+                    raise InputError(f"{url}: the download stopped after {done} of {total} "
+                                     f"bytes ({exc}); run the same command again to resume"
+                                     ) from None
+                if not chunk:
+                    break
+                try:  # a full disk: the file and the cause, not the network's advice
                     fh.write(chunk)
-                    done += len(chunk)
-                    if progress is not None:
-                        progress(done >> 10, None if total is None else total >> 10)
-        except (OSError, http.client.HTTPException) as exc:  # e.g. IncompleteRead
-            raise InputError(f"{url}: the download stopped after {done} of {total} bytes "
-                             f"({exc}); run the same command again to resume") from None
+                    fh.flush()
+                except OSError as exc:
+                    raise OSError(exc.errno, exc.strerror, str(part)) from None
+                done += len(chunk)
+                if progress is not None:
+                    progress(done >> 10, None if total is None else total >> 10)
     if total is not None and done != total:
         raise InputError(f"{url}: the download stopped after {done} of {total} bytes; run "
                          "the same command again to resume")
@@ -256,8 +268,8 @@ def unpack(archive: Path, dest: Path, *, require: str | None = None) -> list[Pat
                 target.mkdir(parents=True, exist_ok=True)
                 continue
             target.parent.mkdir(parents=True, exist_ok=True)
-            with src, open(target, "wb") as dst:
-                shutil.copyfileobj(src, dst, _CHUNK)
+            with src:
+                _copy(src, target)
         tops = sorted(p.name for p in staging.iterdir())
         if require is not None:
             if not staging.joinpath(*Path(require).parts).is_file():
@@ -270,9 +282,30 @@ def unpack(archive: Path, dest: Path, *, require: str | None = None) -> list[Pat
                 raise InputError(f"{dest / top} exists already; remove it or choose --dir")
         for top in tops:
             (staging / top).replace(dest / top)
-    except (zipfile.BadZipFile, tarfile.TarError, EOFError, OSError) as exc:
+    except OSError as exc:
+        if exc.errno is not None:  # the system's (a full disk): said with the file, as it is
+            raise
+        raise InputError(f"{archive}: cannot unpack ({exc}); remove it and download it "
+                         "again") from None  # gzip's: not a gzip file, a CRC that fails
+    except (zipfile.BadZipFile, tarfile.TarError, EOFError) as exc:
         raise InputError(f"{archive}: cannot unpack ({exc}); remove it and download it "
                          "again") from None
     finally:
         shutil.rmtree(staging, ignore_errors=True)
     return [dest / top for top in tops]
+
+
+def _copy(src, target: Path) -> None:
+    """A member's bytes into ``target``; a write error (a full disk) names the file."""
+    try:
+        dst = open(target, "wb")  # noqa: SIM115 (closed below)
+    except OSError as exc:
+        raise OSError(exc.errno, exc.strerror, str(target)) from None
+    try:
+        with dst:
+            while chunk := src.read(_CHUNK):
+                dst.write(chunk)
+    except OSError as exc:
+        if exc.errno is None:  # the archive's (gzip: a CRC that fails)
+            raise
+        raise OSError(exc.errno, exc.strerror, str(target)) from None

@@ -33,10 +33,13 @@ from jaxvo.host.frames import (
 
 # the output checks, in a module of their own; their names stay importable from here too
 from jaxvo.host.outputs import (  # noqa: F401 (re-exported)
+    STDOUT,
+    OutputFile,
     check_outputs,
     output_file,
     output_folder,
     write_image,
+    write_text,
 )
 from jaxvo.host.rosbag import BagSequence, is_bag
 
@@ -74,9 +77,18 @@ QUAT_NORM_TOL = 1e-3
 
 
 def _read_text(path: Path) -> str:
+    """A text file's contents; ``-`` reads standard input, and a pipe (``/dev/stdin``, a
+    FIFO) is read as a file is."""
+    import sys
+
+    if str(path) == "-":  # standard input, as for other tools that read a file
+        if sys.stdin is None or sys.stdin.isatty():
+            raise InputError("-: standard input is a terminal or closed, not a trajectory "
+                             "piped in (jaxvo run --out - | jaxvo eval ate gt.txt -)")
+        return sys.stdin.read()
     if not path.exists():
         raise InputError(f"file not found: {path}")
-    if not path.is_file():
+    if path.is_dir():
         raise InputError(f"not a file: {path}")
     try:
         return path.read_text()
@@ -86,18 +98,21 @@ def _read_text(path: Path) -> str:
         raise InputError(f"{path}: cannot read ({exc.strerror})") from None
 
 
-def _data_lines(path: Path) -> list[tuple[int, list[str]]]:
-    """Non-empty, non-comment lines of a text file, split on whitespace or commas."""
+def _data_lines(path: Path, text: str | None = None) -> list[tuple[int, list[str]]]:
+    """Non-empty, non-comment lines of a text file (or of ``text``, named ``path``), split
+    on whitespace or commas."""
     out = []
-    for lineno, raw in enumerate(_read_text(path).splitlines(), start=1):
+    for lineno, raw in enumerate((_read_text(path) if text is None else text).splitlines(),
+                                 start=1):
         line = raw.split("#", 1)[0].replace(",", " ").strip()
         if line:
             out.append((lineno, line.split()))
     return out
 
 
-def read_trajectory(path: str | Path) -> Trajectory:
-    """Read a TUM trajectory file ``timestamp tx ty tz qx qy qz qw`` (``#`` comments).
+def read_trajectory(path: str | Path, *, text: str | None = None) -> Trajectory:
+    """Read a TUM trajectory file ``timestamp tx ty tz qx qy qz qw`` (``#`` comments);
+    ``-`` reads it from standard input, ``text`` is the file's text (named ``path``).
 
     Poses are sorted by time. Raises :class:`InputError` (``file:line: ...``) for a line
     that is not eight numbers, a non-finite value, a quaternion whose norm is not 1 within
@@ -112,7 +127,7 @@ def read_trajectory(path: str | Path) -> Trajectory:
 
     path = Path(path)
     rows, linenos = [], []
-    for lineno, parts in _data_lines(path):
+    for lineno, parts in _data_lines(path, text):
         if len(parts) != 8:
             raise InputError(
                 f"{path}:{lineno}: expected 8 values 'timestamp tx ty tz qx qy qz qw', "
@@ -160,7 +175,7 @@ def write_trajectory(path: str | Path, traj: Trajectory, *, comment: str = "") -
     rotations within about 1e-9 of the written ones (the printed precision).
 
     Args:
-      path: the file to write (overwritten).
+      path: the file to write (replaced whole, :class:`jaxvo.host.outputs.OutputFile`).
       traj: timestamps (N,) seconds, poses (N, 4, 4) ``T_w_c``.
       comment: an optional first line (written after ``# ``).
     """
@@ -179,10 +194,7 @@ def write_trajectory(path: str | Path, traj: Trajectory, *, comment: str = "") -
     fmt = " ".join([_TIME_FMT] + [_VALUE_FMT] * 7)
     for t, T, qi in zip(stamps, poses, q):
         lines.append(fmt % (t, *T[:3, 3], *qi))
-    try:
-        Path(path).write_text("\n".join(lines) + "\n")
-    except OSError as exc:  # a full disk fails in write() or close(), which name no file
-        raise OSError(exc.errno, exc.strerror, str(path)) from None
+    write_text(path, "\n".join(lines) + "\n")  # whole or not at all, errors name the file
 
 
 def pose_at(traj: Trajectory, t: float, *, max_diff: float = 0.02) -> np.ndarray | None:
@@ -363,6 +375,9 @@ class TumSequence:
 
         gt = root / "groundtruth.txt"
         self.groundtruth = read_trajectory(gt) if gt.is_file() else None
+        if depth_scale is not None and _stored_kind(self._depth[0]) == "f":  # metres: unused
+            raise InputError(f"{self._depth[0]}: depth is float metres; --depth-scale is for "
+                             "16-bit depth in raw units: leave it out")
 
         first = _read_image(self._rgb[0], _imread_color())
         self.height, self.width = first.shape[:2]
@@ -421,15 +436,19 @@ class TumSequence:
         return Frame(index, float(self.timestamps[index]), bgr, depth, mask)
 
     def files(self, frames: int | None = None) -> list[Path]:
-        """Every file reading the first ``frames`` frames (default all) touches: the lists,
-        the camera, the ground truth and the images (what no output may overwrite)."""
+        """What no output may overwrite (:func:`jaxvo.host.outputs.check_outputs`): the
+        lists, the camera, the ground truth, the images of the first ``frames`` frames
+        (default all), and the folders of the images, every file of which is protected (the
+        images of frames this run does not read too)."""
         names = ("rgb.txt", "depth.txt", "associations.txt", "groundtruth.txt", "camera.txt",
                  "calibration.txt", "mask.txt")
         out = [self.path / name for name in names if (self.path / name).exists()]
         n = len(self) if frames is None else min(frames, len(self))
+        folders: dict[Path, None] = {}
         for paths in (self._rgb, self._depth, self._mask or []):
             out += paths[:n]
-        return out
+            folders.update(dict.fromkeys(p.parent for p in paths if p.parent != self.path))
+        return out + [p for p in folders if p.is_dir()]
 
     def _read_mask(self, index: int) -> np.ndarray:
         path = self._mask[index]
@@ -485,6 +504,14 @@ def _read_depth(path: Path) -> np.ndarray:
     return raw
 
 
+def _stored_kind(path: Path) -> str | None:
+    """A depth image's dtype kind as stored; None if unreadable (dropped when reached)."""
+    try:
+        return _read_depth(path).dtype.kind
+    except InputError:
+        return None
+
+
 def _imread_color() -> int:
     import cv2
 
@@ -514,15 +541,14 @@ def open_sequence(path: str | Path, *, rgb_topic: str | None = None,
     return TumSequence(root, **kwargs)
 
 
-# the file name that writes a trajectory to standard output, as command-line tools take it
-STDOUT = "-"
-
-
 class TrajectoryWriter:
-    """Writes a TUM trajectory one pose at a time, flushed, so nothing computed is lost
-    when a long run is interrupted. Same format as :func:`write_trajectory`; ``"-"``
-    writes to standard output. A write that fails (a full disk) raises ``OSError`` naming
-    the file.
+    """Writes a TUM trajectory one pose at a time (as :func:`write_trajectory`; ``"-"``:
+    standard output), whole at every moment a reader can see: the poses go to a temporary
+    file beside it, flushed pose by pose, which replaces the file on :meth:`close` (also
+    after Ctrl-C, with the poses computed so far; after a second Ctrl-C as flushed,
+    :func:`jaxvo.host.outputs.abort_pending`). A failed run leaves the earlier file as it
+    was (:class:`jaxvo.host.outputs.OutputFile`); a failed write (a full disk) raises
+    ``OSError`` naming the file.
 
     Example::
 
@@ -539,12 +565,14 @@ class TrajectoryWriter:
         self.poses: list[np.ndarray] = []
         self._stdout = str(path) == STDOUT
         if self._stdout:
-            self._fh = sys.stdout
+            self._out = None
         else:
             if self.path.parent and not self.path.parent.exists():
                 raise InputError(f"folder of the output trajectory does not exist: "
                                  f"{self.path.parent}")
-            self._fh = open(self.path, "w")  # noqa: SIM115 (held open across writes; closed by close())
+            self._out = OutputFile(self.path, text=True, keep_on_abort=True)
+        self._fh = sys.stdout if self._stdout else self._out.handle
+        self._text: list[str] = []  # what the file holds
         self._fmt = " ".join([_TIME_FMT] + [_VALUE_FMT] * 7) + "\n"
         self._put("".join(f"# {line}\n" for line in comment.splitlines())
                   + "# timestamp tx ty tz qx qy qz qw\n")
@@ -555,6 +583,7 @@ class TrajectoryWriter:
             self._fh.flush()
         except OSError as exc:  # write() and flush() errors name no file of their own
             raise OSError(exc.errno, exc.strerror, str(self.path)) from None
+        self._text.append(text)
 
     def write(self, timestamp: float, T_w_c: np.ndarray) -> None:
         from jaxvo.host.transforms import rotation_to_quat
@@ -565,6 +594,14 @@ class TrajectoryWriter:
         self.timestamps.append(float(timestamp))
         self.poses.append(T)
 
+    def written(self) -> Trajectory:
+        """The poses as the file holds them (rounded as printed), read from what this writer
+        wrote, not from the file, which another run may have replaced since; standard
+        output's: :attr:`trajectory`."""
+        if self._stdout:
+            return self.trajectory
+        return read_trajectory(self.path, text="".join(self._text))
+
     @property
     def trajectory(self) -> Trajectory:
         """The poses written so far, as given (before the file's rounding)."""
@@ -572,18 +609,19 @@ class TrajectoryWriter:
                           np.asarray(self.poses, np.float64).reshape(-1, 4, 4))
 
     def close(self) -> None:
-        if self._stdout:
-            return
-        try:
-            self._fh.close()
-        except OSError as exc:
-            raise OSError(exc.errno, exc.strerror, str(self.path)) from None
+        """Put the file in place with every pose written (idempotent)."""
+        if self._out is not None:
+            self._out.commit()
 
     def __enter__(self):
         return self
 
-    def __exit__(self, *exc):
-        self.close()
+    def __exit__(self, exc_type, exc, tb):
+        # Ctrl-C (KeyboardInterrupt) keeps the poses computed; an error keeps the old file
+        if exc_type is None or issubclass(exc_type, KeyboardInterrupt):
+            self.close()
+        elif self._out is not None:
+            self._out.discard()
 
 
 # Median depth of a frame, metres: outside the hard band no RGB-D sensor reads (the depth

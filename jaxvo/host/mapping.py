@@ -21,6 +21,7 @@ optional install.
 
 from __future__ import annotations
 
+import itertools
 from collections.abc import Callable
 from pathlib import Path
 from typing import NamedTuple
@@ -30,6 +31,7 @@ import numpy as np
 from jaxvo.errors import InputError
 from jaxvo.host.camera import Intrinsics
 from jaxvo.host.io import Trajectory
+from jaxvo.host.outputs import OutputFile
 
 # OpenCV is imported in the functions that use it: `jaxvo --help` reads the defaults below
 # (jaxvo map's options) and must not wait for it
@@ -42,6 +44,9 @@ _BACKGROUND = (40, 40, 40)
 GROW = 8
 VOTE_VOXEL = 0.05
 VOTE_SHARE = 0.1
+# the smallest voxel, metres: a tenth of a millimetre, far below what any RGB-D sensor
+# resolves (about 1 mm at 0.5 m); below it the voxels' keys overflow for a room-sized map
+MIN_VOXEL = 1e-4
 
 
 class PointMap(NamedTuple):
@@ -59,6 +64,49 @@ class FusedMaps(NamedTuple):
     full: PointMap  # nothing left out
     frames: int  # frames fused (a pose and, for the static map, a mask)
     no_mask: int  # frames with a pose but no dynamic mask: left out of the static map
+
+
+def check_map_settings(*, voxel: float, max_depth: float, grow: int, vote_voxel: float,
+                       vote_share: float, stride: int = 2, edge: float = 0.0,
+                       height: int | None = None, width: int | None = None,
+                       names: dict[str, str] | None = None) -> None:
+    """Refuse fusion settings no map can use (:func:`fuse_maps`'s arguments; ``jaxvo map``'s
+    options, named as ``names`` says): sizes that are not positive finite metres (``voxel``
+    0 made a map of one point after NumPy's warnings), a share outside 0..1, and a ``grow``
+    wider than the frames (``--grow 100000`` asked for a 37 GiB kernel; any grow as wide as
+    the frame already leaves a whole frame out).
+
+    Raises:
+      InputError: one line naming the setting and its range.
+    """
+    import math
+    import operator
+
+    def name(field: str) -> str:
+        return (names or {}).get(field, field)
+
+    for field, value, least in (("voxel", voxel, MIN_VOXEL), ("max_depth", max_depth, 0.0),
+                                ("vote_voxel", vote_voxel, MIN_VOXEL)):
+        if not (isinstance(value, int | float | np.integer | np.floating)
+                and math.isfinite(value) and value > least):
+            raise InputError(f"{name(field)} must be a number of metres above {least:g}, got "
+                             f"{value!r}")
+    for field, value, least in (("grow", grow, 0), ("stride", stride, 1)):
+        try:
+            whole = operator.index(value)
+        except TypeError:
+            raise InputError(f"{name(field)} must be a whole number of pixels, got "
+                             f"{value!r}") from None
+        if whole < least:
+            raise InputError(f"{name(field)} must be {least} or more pixels, got {value}")
+    if height is not None and width is not None and grow > max(height, width):
+        raise InputError(f"{name('grow')} {grow} is wider than the {width}x{height} frames (at "
+                         f"most {max(height, width)} pixels: that already leaves out every "
+                         "frame with a dynamic pixel)")
+    for field, value in (("vote_share", vote_share), ("edge", edge)):
+        if not (isinstance(value, int | float | np.integer | np.floating)
+                and math.isfinite(value) and 0 <= value <= 1):
+            raise InputError(f"{name(field)} must be from 0 to 1, got {value!r}")
 
 
 def frame_points(bgr: np.ndarray, depth: np.ndarray, K: Intrinsics, T_w_c: np.ndarray, *,
@@ -118,6 +166,10 @@ def voxel_filter(points: np.ndarray, colours: np.ndarray, voxel: float) -> Point
 
 def _voxel_index(points: np.ndarray, voxel: float) -> tuple[np.ndarray, np.ndarray]:
     """Each point's voxel (an index into the occupied voxels) and each voxel's count."""
+    lo, hi = points.min(axis=0), points.max(axis=0)
+    if float(np.prod((hi - lo) / voxel + 1)) >= 2.0**62:  # the key below would overflow
+        raise InputError(f"voxel {voxel:g} m is too small for a map {np.ptp(points, 0).max():.3g} "
+                         "m across")
     cells = np.floor(points / voxel).astype(np.int64)
     cells -= cells.min(axis=0)
     span = cells.max(axis=0) + 1
@@ -150,7 +202,87 @@ def matched_poses(seq, traj: Trajectory, *, where: str, max_diff: float = 0.02,
             f"{where}: {int(off.sum())} of {len(traj)} poses have no frame of {seq.name} within "
             f"{max_diff:g} s (the first at {traj.timestamps[k]:.6f} s; frames "
             f"{stamps[0]:.6f} .. {stamps[-1]:.6f} s): a trajectory of another sequence?")
+    if len(np.unique(j)) < len(j):
+        raise InputError(
+            f"{where}: {len(j) - len(np.unique(j))} of its {len(traj)} poses fall on a frame "
+            f"another pose already has (within {max_diff:g} s): a trajectory at another rate "
+            f"than the frames of {seq.name} (a ground truth at 100 Hz?)")
     return [(int(i), T) for i, T in zip(j, traj.poses)]
+
+
+# Where a trajectory claims the camera moved (its motion moves at least MOVED_SHARE of a
+# frame's points beyond the depth test), that motion must explain the later frame's depth
+# better than standing still does; a trajectory of another sequence explained it worse (on
+# the shared 7-Scenes and TUM frames, 40 frames apart: 8 and 5 % of the points agreed
+# against 13 and 5 % standing still; the right trajectories 98 and 24 %, against the same).
+MOVED_SHARE = 0.5
+# a reading agrees with another frame's when their depths differ by less than this share of
+# the depth plus DEPTH_TOL_M (the sensors' noise at 4 m, with the tracker's pixel)
+DEPTH_SHARE = 0.03
+DEPTH_TOL_M = 0.01
+
+
+def trajectory_fit(seq, poses: list[tuple[int, np.ndarray]], *, stride: int = 8,
+                   pairs: int = 4) -> str | None:
+    """Whether the trajectory's motion fits the depth it is to fuse: a warning, or None.
+
+    For the frame pairs first-last and ``pairs`` consecutive stretches of the trajectory,
+    each pair's first frame's readings (every ``stride``-th pixel) are moved into the second
+    frame by the trajectory's motion and by none, and counted where they land on a reading
+    of the same depth (:data:`DEPTH_SHARE`, :data:`DEPTH_TOL_M`). Where the trajectory
+    claims the camera moved (it moves :data:`MOVED_SHARE` of the readings beyond that
+    test) but explains fewer readings than standing still, it is likely of another sequence
+    or another clock, or the depth is read at another scale than the run read it.
+    A fixed camera, or motion too small to tell, passes.
+
+    Args:
+      seq: the sequence; poses: ``(frame index, T_w_c)`` (:func:`matched_poses`).
+    Returns:
+      a one-line warning naming the frames, or None.
+    """
+    if len(poses) < 2:
+        return None
+    ends = np.unique(np.linspace(0, len(poses) - 1, pairs + 1).round().astype(int))
+    checked = [(0, len(poses) - 1)] + list(itertools.pairwise(ends))
+    K = seq.intrinsics
+    for a, b in dict.fromkeys(checked):
+        (ia, Ta), (ib, Tb) = poses[a], poses[b]
+        za, zb = seq[ia].depth, seq[ib].depth
+        ys, xs = np.nonzero(np.isfinite(za[::stride, ::stride]) & (za[::stride, ::stride] > 0))
+        z = za[ys * stride, xs * stride].astype(np.float64)
+        pa = np.stack([(xs * stride - K.cx) / K.fx * z, (ys * stride - K.cy) / K.fy * z, z], -1)
+        T = np.linalg.inv(np.asarray(Tb, np.float64)) @ np.asarray(Ta, np.float64)
+        moved_pts = pa @ T[:3, :3].T + T[:3, 3]
+        tol = DEPTH_SHARE * z + DEPTH_TOL_M
+        if np.mean(np.linalg.norm(moved_pts - pa, axis=1) > tol) < MOVED_SHARE:
+            continue  # no motion claimed that the depth could tell
+        agree = [_agreeing(q, zb, K, tol) for q in (moved_pts, pa)]
+        if min(n for _, n in agree) >= 100 and agree[0][0] < agree[1][0]:
+            (got, _), (still, _) = agree
+            return (f"the trajectory's motion from the frame at {seq.timestamps[ia]:.6f} s to "
+                    f"the one at {seq.timestamps[ib]:.6f} s fits the depth worse than no "
+                    f"motion ({100 * got:.0f} % of the readings agree, against "
+                    f"{100 * still:.0f} %): a trajectory of another sequence, or depth read "
+                    "at another scale than the run read it? The map may be smeared")
+    return None
+
+
+def _agreeing(points: np.ndarray, depth: np.ndarray, K: Intrinsics,
+              tol: np.ndarray) -> tuple[float, int]:
+    """The share of ``points`` (camera frame, metres) that land on a reading of ``depth``
+    within ``tol`` of their own depth, and how many land on a reading."""
+    h, w = depth.shape
+    z = points[:, 2]
+    front = z > 1e-3
+    safe = np.where(front, z, 1.0)
+    u = np.rint(K.fx * points[:, 0] / safe + K.cx)
+    v = np.rint(K.fy * points[:, 1] / safe + K.cy)
+    inside = front & (u >= 0) & (u < w) & (v >= 0) & (v < h)
+    seen = np.zeros(len(points))
+    seen[inside] = depth[v[inside].astype(int), u[inside].astype(int)]
+    inside &= np.isfinite(seen) & (seen > 0)
+    n = int(inside.sum())
+    return (float(np.mean(np.abs(seen[inside] - z[inside]) < tol[inside])) if n else 0.0), n
 
 
 def fuse_maps(seq, poses: list[tuple[int, np.ndarray]],
@@ -169,8 +301,8 @@ def fuse_maps(seq, poses: list[tuple[int, np.ndarray]],
     Args:
       seq: a sequence (docs/architecture.md): frames read by index.
       poses: ``(frame index, (4, 4) T_w_c)`` pairs (:func:`matched_poses`).
-      dynamic: ``dynamic(index, timestamp)`` -> the frame's (H, W) bool dynamic mask, or
-        None where it has none (that frame is left out of the static map); None: no masks
+      dynamic: ``dynamic(index, timestamp)`` -> the frame's (H, W) bool dynamic mask (the
+        frame's size), or None where it has none (that frame is left out of the static map); None: no masks
         (the static map is the full map).
       voxel: the map's voxel side, metres.
       stride, max_depth, edge: see :func:`frame_points` (``edge`` applies to both maps).
@@ -179,9 +311,15 @@ def fuse_maps(seq, poses: list[tuple[int, np.ndarray]],
         which a cube is left out (``vote_share`` >= 1: no vote).
     Returns:
       :class:`FusedMaps`.
+    Raises:
+      InputError: settings no map can use (:func:`check_map_settings`), or a mask of
+        another size than its frame.
     """
     import cv2
 
+    check_map_settings(voxel=voxel, max_depth=max_depth, grow=grow, vote_voxel=vote_voxel,
+                       vote_share=vote_share, stride=stride, edge=edge, height=seq.height,
+                       width=seq.width)
     pts, col, marked = [], [], []
     no_mask = 0
     for index, T in poses:
@@ -195,6 +333,13 @@ def fuse_maps(seq, poses: list[tuple[int, np.ndarray]],
         elif mask is None:
             dyn = np.zeros(len(p), bool)
         else:
+            mask = np.asarray(mask)
+            if mask.shape != frame.depth.shape:
+                raise InputError(
+                    f"the dynamic mask of the frame at {frame.timestamp:.6f} s is "
+                    f"{mask.shape[-1] if mask.ndim else 0}x{mask.shape[0] if mask.ndim else 0}"
+                    f", the frames {frame.depth.shape[1]}x{frame.depth.shape[0]}: masks of "
+                    "another sequence, or resized?")
             if grow > 0 and mask.any():
                 mask = cv2.dilate(mask.astype(np.uint8),
                                   np.ones((2 * grow + 1, 2 * grow + 1), np.uint8)).astype(bool)
@@ -214,9 +359,11 @@ def fuse_maps(seq, poses: list[tuple[int, np.ndarray]],
     return FusedMaps(voxel_filter(pts[keep], col[keep], voxel), full, len(poses), no_mask)
 
 
-def mask_reader(folder: str | Path) -> Callable[[int, float], np.ndarray | None]:
+def mask_reader(folder: str | Path, *, shape: tuple[int, int] | None = None
+                ) -> Callable[[int, float], np.ndarray | None]:
     """``dynamic(index, timestamp)`` reading ``folder/<timestamp>.png`` (as ``jaxvo run
-    --dynamic-masks`` names them; nonzero = dynamic), None where there is no such file."""
+    --dynamic-masks`` names them; nonzero = dynamic), None where there is no such file; a
+    mask of another size than ``shape`` (H, W) is refused naming the file."""
     import cv2
 
     folder = Path(folder)
@@ -228,6 +375,9 @@ def mask_reader(folder: str | Path) -> Callable[[int, float], np.ndarray | None]
         img = cv2.imread(str(path), cv2.IMREAD_GRAYSCALE)
         if img is None:
             raise InputError(f"{path}: not a readable PNG mask")
+        if shape is not None and img.shape != tuple(shape):
+            raise InputError(f"{path}: the mask is {img.shape[1]}x{img.shape[0]}, the frames "
+                             f"{shape[1]}x{shape[0]}: masks of another sequence, or resized?")
         return img > 0
 
     return dynamic
@@ -246,7 +396,7 @@ def write_ply(path: str | Path, pmap: PointMap) -> None:
               f"element vertex {len(rows)}\nproperty float x\nproperty float y\n"
               "property float z\nproperty uchar red\nproperty uchar green\n"
               "property uchar blue\nend_header\n")
-    with open(path, "wb") as fh:
+    with OutputFile(path) as fh:  # whole or not at all, errors name the file
         fh.write(header.encode("ascii"))
         fh.write(rows.tobytes())
 

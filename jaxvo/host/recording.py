@@ -27,16 +27,22 @@ logged at that image's time, one frame after the pose.
 
 from __future__ import annotations
 
+import atexit
+import contextlib
+import errno
 import os
 import sys
 import time
+import warnings
 from pathlib import Path
+from typing import Self
 
 import numpy as np
 
 from jaxvo.errors import InputError
 from jaxvo.host.camera import Intrinsics, grid_pixels
 from jaxvo.host.masks import _PALETTE
+from jaxvo.host.outputs import OutputFile, output_file
 from jaxvo.host.prefetch import BackgroundWriter
 
 EXTRA = "pip install 'jaxvo[viz]'"
@@ -93,30 +99,58 @@ def blueprint():
 
 
 class RerunLogger:
-    """Logs a run to Rerun: attach it with ``Odometry(..., logger=RerunLogger(save=...))``
-    or :meth:`jaxvo.Odometry.attach`.
+    """Logs a run to Rerun: attach it with ``Odometry(..., logger=...)`` or
+    :meth:`jaxvo.Odometry.attach`, and close it after the last frame, best with ``with``::
+
+        with RerunLogger(save="run.rrd") as logger:
+            odo = Odometry(K, logger=logger)
+            for bgr, depth, t in frames:
+                odo.process(bgr, depth, t)
+        # run.rrd is whole here
+
+    The recording is written whole or not at all (:class:`jaxvo.host.outputs.OutputFile`):
+    Rerun writes a temporary file beside ``save``, which replaces it when the logger closes
+    (leaving a ``with`` block, also by Ctrl-C; or at the interpreter's exit for a logger
+    never closed). A ``with`` block left by an error, or a write that fails (a full disk),
+    leaves the earlier file as it was, and the error (``OSError``) names the file.
 
     Args:
-      save: write the recording to this ``.rrd`` file.
+      save: write the recording to this ``.rrd`` file (its folder must exist).
       spawn: open the Rerun viewer and stream to it (needs a display).
       name: the recording's application id (what the viewer calls it).
+      what: how messages name the file (default ``save=``; ``--rerun-save`` in the CLI).
     Raises:
-      InputError: rerun-sdk is not installed (the message names ``jaxvo[viz]``), or neither
-        ``save`` nor ``spawn`` is given.
+      InputError: rerun-sdk is not installed (the message names ``jaxvo[viz]``), neither
+        ``save`` nor ``spawn`` is given, ``save`` cannot be written, or the viewer does not
+        start (:data:`VIEWER_WAIT` seconds).
     """
 
     def __init__(self, *, save: str | Path | None = None, spawn: bool = False,
-                 name: str = "jaxvo"):
+                 name: str = "jaxvo", what: str = "save="):
         rr = import_rerun()
         if save is None and not spawn:
             raise InputError("RerunLogger: give save=FILE.rrd, spawn=True or both")
+        self.what = what
         self.rr = rr
-        self.rec = rr.RecordingStream(name)
-        bp = blueprint()
-        if spawn:
-            self.rec.spawn(connect=False)
-        sinks = ([rr.GrpcSink()] if spawn else []) + ([rr.FileSink(str(save))] if save else [])
-        self.rec.set_sinks(*sinks, default_blueprint=bp)
+        self._file = None
+        self._closed = False
+        self._warned_closed = False
+        if save is not None:
+            save = output_file(save, what=what)
+            self._file = OutputFile(save, what=what, open_file=False)
+        try:
+            self.rec = rr.RecordingStream(name)
+            bp = blueprint()
+            if spawn:
+                _spawn_viewer(self.rec)
+            sinks = [rr.GrpcSink()] if spawn else []
+            if self._file is not None:
+                sinks.append(rr.FileSink(str(self._file.temporary or self._file.target)))
+            self._rerun(self.rec.set_sinks, *sinks, default_blueprint=bp)
+        except BaseException:
+            if self._file is not None:
+                self._file.discard()
+            raise
         self.K: Intrinsics | None = None
         self.cell = 0
         self.positions: list[np.ndarray] = []
@@ -126,6 +160,30 @@ class RerunLogger:
         self.last_clock: float | None = None
         # encoding and logging run on one thread behind the run, in order
         self._writer = BackgroundWriter(limit=4)
+        # a logger never closed is closed (its recording flushed, whole) when Python exits
+        atexit.register(self._close_at_exit)
+
+    def _rerun(self, fn, *args, **kwargs):
+        """``fn(*args, **kwargs)`` of Rerun's; its ``RuntimeError`` (a full disk: "File-writer
+        thread shut down prematurely") as an ``OSError`` naming the recording."""
+        try:
+            return fn(*args, **kwargs)
+        except RuntimeError as exc:
+            raise self._os_error(exc) from None
+
+    def _os_error(self, exc: Exception) -> OSError:
+        """Rerun's error as an ``OSError`` naming the recording: its cause where Rerun's
+        message carries one ("(os error 28)") or the disk is full, else Rerun's words."""
+        import re
+
+        said = str(exc).strip().splitlines()[0] if str(exc).strip() else type(exc).__name__
+        if self._file is None:
+            return OSError(errno.EIO, f"the Rerun viewer: {said}")
+        code = re.search(r"\(os error (\d+)\)", str(exc))
+        number = int(code[1]) if code else (
+            errno.ENOSPC if _disk_full(self._file.target.parent) else None)
+        why = os.strerror(number) if number else f"Rerun could not write it ({said})"
+        return OSError(number or errno.EIO, why, str(self._file.path))
 
     def setup(self, intrinsics: Intrinsics, cell: int) -> None:
         """The camera and grid of the run (called by :meth:`jaxvo.Odometry.attach`)."""
@@ -157,11 +215,19 @@ class RerunLogger:
     def log_frame(self, r, bgr: np.ndarray, depth: np.ndarray) -> None:
         """One frame's result (:class:`jaxvo.odometry.FrameResult`) with the images it came
         from (``bgr`` (H, W, 3) uint8, ``depth`` (H, W) float32 metres, neither changed
-        afterwards): queued, and logged on the logger's thread."""
+        afterwards): queued, and logged on the logger's thread. After :meth:`close`, nothing
+        is logged (a warning says so once)."""
+        if self._closed:
+            if not self._warned_closed:
+                self._warned_closed = True
+                warnings.warn("RerunLogger: frames after close() are not logged (its recording "
+                              "is complete); attach a new logger to record them",
+                              RuntimeWarning, stacklevel=3)
+            return
         now = time.perf_counter()
         ms = None if self.last_clock is None else 1e3 * (now - self.last_clock)
         self.last_clock = now
-        self._writer.submit(self._log_frame, r, bgr, depth, ms)
+        self._writer.submit(self._rerun, self._log_frame, r, bgr, depth, ms)
 
     def _log_frame(self, r, bgr: np.ndarray, depth: np.ndarray, ms: float | None) -> None:
         import cv2
@@ -230,20 +296,135 @@ class RerunLogger:
 
     def log_groundtruth(self, gt) -> None:
         """The sequence's ground truth (a :class:`jaxvo.host.io.Trajectory`), static."""
-        if gt is not None and len(gt):
-            self.rec.log("world/groundtruth", self.rr.LineStrips3D(
+        if gt is not None and len(gt) and not self._closed:
+            self._rerun(self.rec.log, "world/groundtruth", self.rr.LineStrips3D(
                 [gt.poses[:, :3, 3]], colors=[(80, 220, 80)]), static=True)
 
     def log_map(self, name: str, pmap) -> None:
         """A fused map (:class:`jaxvo.host.mapping.PointMap`) as ``world/map/<name>``, static."""
-        self.rec.log(f"world/map/{name}", self.rr.Points3D(pmap.points, colors=pmap.colours,
-                                                           radii=0.01), static=True)
+        if not self._closed:
+            self._rerun(self.rec.log, f"world/map/{name}", self.rr.Points3D(
+                pmap.points, colors=pmap.colours, radii=0.01), static=True)
 
     def close(self) -> None:
-        """Log what is queued and write out everything logged (the file is complete after
-        this; an error on the logger's thread is raised here)."""
+        """Log what is queued, write out everything logged and put the recording in place
+        (whole after this). Idempotent.
+
+        Raises:
+          OSError: naming the file, when it could not be written (the earlier file stays);
+            an error on the logger's thread.
+        """
+        if self._closed:
+            return
+        self._closed = True
+        atexit.unregister(self._close_at_exit)
         try:
             self._writer.close()
-        finally:
-            self.rec.flush()
+            self._flush()
             self.rec.disconnect()
+            # Rerun writes the end of the stream on disconnect and, where that fails, only
+            # logs it: a disk left full here most likely cut it
+            if (self._file is not None and self._file.temporary is not None
+                    and _disk_full(self._file.target.parent)):
+                raise self._os_error(RuntimeError("(os error 28)"))
+        except BaseException:
+            if self._file is not None:
+                self._file.discard()
+            raise
+        if self._file is not None:
+            self._file.commit()
+
+    def abandon(self) -> None:
+        """Stop logging and leave the earlier recording as it was (an error ended the run)."""
+        if self._closed:
+            return
+        self._closed = True
+        atexit.unregister(self._close_at_exit)
+        with contextlib.suppress(Exception):
+            self._writer.close()
+        if self._file is not None:
+            self._file.discard()
+
+    def _flush(self) -> None:
+        """Wait until Rerun has written everything logged. A file sink that stops growing
+        while the flush does not finish has failed (Rerun's writer thread stops on a full
+        disk; a flush would then time out, and a disconnect hang)."""
+        size = -1
+        while True:
+            try:
+                self.rec.flush(timeout_sec=FLUSH_WAIT)
+                return
+            except RuntimeError as exc:
+                if self._file is None:  # the viewer went away (closed): the run is whole
+                    warnings.warn(f"the Rerun viewer stopped taking the run "
+                                  f"({str(exc).splitlines()[0]})", RuntimeWarning, stacklevel=3)
+                    return
+                grown = (self._file is not None and self._file.temporary is not None
+                         and _size(self._file.temporary) != size)
+                if not grown:
+                    raise self._os_error(exc) from None
+                size = _size(self._file.temporary)
+
+    def _close_at_exit(self) -> None:
+        with contextlib.suppress(Exception):
+            self.close()
+
+    def __enter__(self) -> Self:
+        return self
+
+    def __exit__(self, exc_type, exc, tb) -> None:
+        # Ctrl-C keeps what was recorded (whole), as the trajectory does; an error does not
+        if exc_type is None or issubclass(exc_type, KeyboardInterrupt):
+            self.close()
+        else:
+            self.abandon()
+
+
+# The viewer is given this long to start listening (seconds); Rerun's own gRPC client waits
+# 7-11 s and then fails at the end of the run with a traceback
+VIEWER_WAIT = 10.0
+# one wait of a flush, seconds; flushes go on while the recording grows
+FLUSH_WAIT = 2.0
+# Rerun's default port, where rec.spawn starts the viewer and GrpcSink() connects
+_VIEWER_PORT = 9876
+
+
+def _spawn_viewer(rec) -> None:
+    """Start the Rerun viewer (or find one running) and wait until it listens, or raise an
+    :class:`InputError` in one line saying why it does not (no viewer executable, no
+    display it could open)."""
+    import socket
+
+    port = _VIEWER_PORT
+    try:
+        rec.spawn(connect=False, port=port)
+    except RuntimeError as exc:
+        raise InputError(f"--rerun: the Rerun viewer cannot start ({str(exc).strip().splitlines()[0]}"
+                         "); write a recording with --rerun-save FILE.rrd instead") from None
+    deadline = time.monotonic() + VIEWER_WAIT
+    while True:
+        try:
+            socket.create_connection(("127.0.0.1", port), timeout=0.5).close()
+            return
+        except OSError:
+            if time.monotonic() > deadline:
+                raise InputError(
+                    f"--rerun: the Rerun viewer did not start listening on port {port} within "
+                    f"{VIEWER_WAIT:g} s (no display it can open?); write a recording with "
+                    "--rerun-save FILE.rrd instead") from None
+            time.sleep(0.2)
+
+
+def _size(path: Path) -> int:
+    try:
+        return os.stat(path).st_size
+    except OSError:
+        return -1
+
+
+def _disk_full(folder: Path) -> bool:
+    """Whether the file system of ``folder`` has no block left for this user."""
+    try:
+        return os.statvfs(folder).f_bavail == 0
+    except OSError:
+        return False

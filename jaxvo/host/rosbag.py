@@ -17,6 +17,10 @@ timed by their header stamps (sensor time, as TUM's ``rgb.txt``), not by when th
 recorded. Opening reads the two image topics once to learn the stamps; frames are decoded
 only when asked for, each found again by its bag time and its place among the topic's
 messages at that time (a converter may write every message at one bag time).
+
+A RealSense Viewer recording (librealsense's ``/device_0/sensor_*/...`` topics) is read
+through :mod:`jaxvo.host.realsense`: its colour and depth streams, their cameras, the depth
+units and, where the depth is another camera's, the depth registered to the colour image.
 """
 
 from __future__ import annotations
@@ -27,7 +31,13 @@ from pathlib import Path
 import numpy as np
 
 from jaxvo.errors import InputError
-from jaxvo.host.camera import Intrinsics, check_intrinsics, depth_metres, preset
+from jaxvo.host.camera import (
+    Intrinsics,
+    camera_info_intrinsics,
+    check_intrinsics,
+    depth_metres,
+    preset,
+)
 from jaxvo.host.frames import (
     Frame,
     associate,
@@ -36,6 +46,7 @@ from jaxvo.host.frames import (
     given_camera,
     preset_from_name,
 )
+from jaxvo.host.realsense import find_streams, image_message, is_realsense, register_depth
 
 # colour, depth and camera-info topics of the TUM RGB-D benchmark's bags
 TUM_TOPICS = ("/camera/rgb/image_color", "/camera/depth/image", "/camera/rgb/camera_info")
@@ -57,7 +68,8 @@ def is_bag(path: str | Path) -> bool:
     return (p.is_file() and p.suffix == ".bag") or (p.is_dir() and (p / "metadata.yaml").is_file())
 
 
-def _open_reader(path: Path):
+def open_reader(path: Path):
+    """An open ``rosbags`` reader of a ROS 1 or ROS 2 bag (a damaged bag: one line)."""
     try:
         from rosbags.highlevel import AnyReader, AnyReaderError
     except ImportError:
@@ -78,9 +90,9 @@ def _why(exc: Exception) -> str:
     return f"{type(exc).__name__}: {text}" if text else type(exc).__name__
 
 
-def _stamp(msg) -> float:
-    """A message's header stamp, seconds."""
-    return msg.header.stamp.sec + msg.header.stamp.nanosec * 1e-9
+def _stamp_ns(msg) -> int:
+    """A message's header stamp, integer nanoseconds (exact, as a ROS time is)."""
+    return int(msg.header.stamp.sec) * 1_000_000_000 + int(msg.header.stamp.nanosec)
 
 
 def _pixels(msg, channels: int, dtype: str) -> np.ndarray:
@@ -125,20 +137,6 @@ def depth_m(msg, units_per_metre: float = ROS_DEPTH_UNITS_PER_METRE) -> np.ndarr
                      "millimetres are)")
 
 
-def info_intrinsics(msg) -> Intrinsics | str:
-    """Pinhole intrinsics (pixels) from a ``sensor_msgs/CameraInfo`` (ROS 1 ``K``, ROS 2
-    ``k``), or why it holds none, in words (an all-zero K: an uncalibrated camera)."""
-    K = np.asarray(msg.K if hasattr(msg, "K") else msg.k, np.float64)
-    if K.size != 9:
-        return f"its K has {K.size} values, not 9"
-    if not np.any(K[[0, 2, 4, 5]]):
-        return "its K is all zero (the camera driver had no calibration)"
-    if not (np.all(np.isfinite(K)) and K[0] > 0 and K[4] > 0):
-        return f"its K has fx {K[0]:g}, fy {K[4]:g} (no calibration)"
-    return Intrinsics(float(K[0]), float(K[4]), float(K[2]), float(K[5]),
-                      ROS_DEPTH_UNITS_PER_METRE)
-
-
 class BagSequence:
     """An RGB-D sequence in a ROS 1 or ROS 2 bag, frames decoded only when asked for.
 
@@ -147,8 +145,10 @@ class BagSequence:
       camera: a preset name or :class:`Intrinsics`; overrides the bag's camera info. Without
         either, a bag named as TUM and Bonn name theirs takes that camera's preset.
       max_diff: largest colour-depth time difference when pairing them, seconds.
-      rgb_topic: the colour topic (default TUM's ``/camera/rgb/image_color``).
-      depth_topic: the depth topic (default TUM's ``/camera/depth/image``).
+      rgb_topic: the colour topic (default TUM's ``/camera/rgb/image_color``; a RealSense
+        recording's ``Color`` stream).
+      depth_topic: the depth topic (default TUM's ``/camera/depth/image``; a RealSense
+        recording's ``Depth`` stream).
       depth_scale: raw units per metre of 16-bit depth (default 1000, ROS REP 118's
         millimetres); refused for ``32FC1`` depth, which is metres.
 
@@ -157,6 +157,9 @@ class BagSequence:
       frames_listed: colour images in the bag, paired or not.
       camera_source: where the intrinsics came from, in words.
       float_depth: the depth topic holds float metres (``32FC1``), not raw units.
+      stamps_ns: (N,) int64 each frame's colour header stamp, nanoseconds (exact).
+      record_ns: (N,) int64 the bag time each frame's colour image was recorded at, ns.
+      realsense: the :class:`jaxvo.host.realsense.Streams` of a RealSense recording, or None.
     """
 
     groundtruth = None  # bags carry the motion capture as tf frames, not read here
@@ -169,19 +172,28 @@ class BagSequence:
             raise InputError(f"max time difference must be >= 0 s, got {max_diff}")
         self.name = self.path.resolve().name.removesuffix(".bag")
         self.warnings: list[str] = []
-        rgb_topic = rgb_topic or TUM_TOPICS[0]
-        depth_topic = depth_topic or TUM_TOPICS[1]
         self._lock = threading.Lock()  # frames are read from several threads (read_ahead)
         self._cursor: dict[str, list] = {}  # topic -> [bag time, next place, messages]
         self._recent: dict[tuple, bytes] = {}  # the last messages a cursor passed
-        self._reader = _open_reader(self.path)
+        self._reader = open_reader(self.path)
+        # a RealSense Viewer recording names its own streams, cameras and depth units
+        self.realsense = (find_streams(self._reader, self.path, rgb_topic=rgb_topic,
+                                       depth_topic=depth_topic, depth_scale=depth_scale)
+                          if is_realsense(self._reader) else None)
+        if self.realsense is not None:
+            rgb_topic, depth_topic = self.realsense.colour_topic, self.realsense.depth_topic
+            self.warnings += self.realsense.warnings
+        rgb_topic = rgb_topic or TUM_TOPICS[0]
+        depth_topic = depth_topic or TUM_TOPICS[1]
         self._conns = {t: self._connection(t, IMAGE_TYPE, option)
                        for t, option in ((rgb_topic, "--rgb-topic"),
                                          (depth_topic, "--depth-topic"))}
         t_rgb, at_rgb = self._stamps(rgb_topic)
         t_depth, at_depth = self._stamps(depth_topic)
-        ia, ib = associate(t_rgb, t_depth, max_diff, names=(rgb_topic, depth_topic))
-        self.timestamps = t_rgb[ia]
+        ia, ib = associate(t_rgb / 1e9, t_depth / 1e9, max_diff, names=(rgb_topic, depth_topic))
+        self.timestamps = t_rgb[ia] / 1e9
+        # each frame's header stamp and the bag time its colour image was recorded at, ns
+        self.stamps_ns, self.record_ns = t_rgb[ia], at_rgb[ia, 0]
         self._at = [(rgb_topic, at_rgb[i], depth_topic, at_depth[j]) for i, j in zip(ia, ib)]
         self.frames_listed = len(t_rgb)
         for topic, count, other in ((rgb_topic, len(t_rgb), "depth"),
@@ -196,9 +208,15 @@ class BagSequence:
         if self.float_depth and depth_scale is not None:
             raise InputError(f"{self.path} {depth_topic}: depth is 32FC1 metres; --depth-scale "
                              "is for 16-bit depth in raw units")
-        self._units = float(depth_scale or ROS_DEPTH_UNITS_PER_METRE)
-        info_topic = rgb_topic.rsplit("/", 1)[0] + "/camera_info"
-        K, self.camera_source = self._intrinsics(camera, info_topic)
+        if self.realsense is not None:
+            self._units = self.realsense.colour.depth_scale
+            K, self.camera_source = given_camera(camera) or (self.realsense.colour,
+                                                             self.realsense.description)
+            self._check_realsense_sizes(at_depth[ib[0]])  # after self._units
+        else:
+            self._units = float(depth_scale or ROS_DEPTH_UNITS_PER_METRE)
+            info_topic = rgb_topic.rsplit("/", 1)[0] + "/camera_info"
+            K, self.camera_source = self._intrinsics(camera, info_topic)
         # the depth's own unit, whatever the camera's source says (a preset's is a folder's)
         self.intrinsics = K._replace(depth_scale=self._units)
         if depth_scale is not None:
@@ -216,14 +234,42 @@ class BagSequence:
             raise InputError(f"{self.path} {topic}: {conns[0].msgtype}, not {msgtype}")
         return conns[0]
 
+    def _check_realsense_sizes(self, at_depth) -> None:
+        """The first colour and depth images are the sizes their camera infos give, and the
+        first depth image reads (its encoding)."""
+        rs = self.realsense
+        depth = self._message(rs.depth_topic, at_depth)
+        for topic, got, want in ((rs.colour_topic, (self.height, self.width), rs.colour_size),
+                                 (rs.depth_topic, (depth.height, depth.width), rs.depth_size)):
+            if got != want:
+                raise InputError(f"{self.path} {topic}: images of {got[1]}x{got[0]}, but its "
+                                 f"camera info is for {want[1]}x{want[0]}")
+        self._decode(rs.depth_topic, at_depth, self._depth)
+
+    def _deserialize(self, raw, msgtype: str):
+        """A message deserialised (a RealSense image without the depth units after it)."""
+        if self.realsense is not None and msgtype == IMAGE_TYPE:
+            return image_message(self._reader, raw, msgtype)[0]
+        return self._reader.deserialize(raw, msgtype)
+
+    def _depth(self, msg) -> np.ndarray:
+        """(H, W) float32 metres from a depth image, registered to colour where a RealSense
+        recording's depth is another camera's."""
+        depth = depth_m(msg, self._units)
+        rs = self.realsense
+        if rs is None or rs.aligned:
+            return depth
+        return register_depth(depth, rs.depth, rs.colour, rs.T_colour_depth, self.height,
+                              self.width)
+
     def _stamps(self, topic: str) -> tuple[np.ndarray, np.ndarray]:
-        """Header stamps (N,) seconds of a topic's images in time order, and where to find
-        each again: (N, 2) int, its bag time in nanoseconds and its place among the topic's
-        messages at that time; a repeated stamp keeps the first image."""
+        """Header stamps (N,) int64 nanoseconds of a topic's images in time order, and where
+        to find each again: (N, 2) int, its bag time in nanoseconds and its place among the
+        topic's messages at that time; a repeated stamp keeps the first image."""
         stamps, at = [], []
         try:
             for conn, t_ns, raw in self._reader.messages(connections=[self._conns[topic]]):
-                stamps.append(_stamp(self._reader.deserialize(raw, conn.msgtype)))
+                stamps.append(_stamp_ns(self._deserialize(raw, conn.msgtype)))
                 same = at[-1][1] + 1 if at and at[-1][0] == t_ns else 0
                 at.append((t_ns, same))
         except Exception as exc:  # noqa: BLE001 (a damaged bag raises what the parser trips on)
@@ -231,7 +277,7 @@ class BagSequence:
                              f"({_why(exc)})") from None
         if not stamps:
             raise InputError(f"{self.path} {topic}: no images")
-        t = np.asarray(stamps, np.float64)
+        t = np.asarray(stamps, np.int64)
         order = np.argsort(t, kind="stable")
         keep = order[np.concatenate([[True], np.diff(t[order]) > 0])]
         if len(keep) < len(t):
@@ -257,7 +303,7 @@ class BagSequence:
             if raw is None:
                 raw = self._raw(conn, topic, t_ns, place)
         try:
-            return self._reader.deserialize(raw, conn.msgtype)
+            return self._deserialize(raw, conn.msgtype)
         except Exception as exc:  # noqa: BLE001 (a damaged message raises what the parser trips on)
             raise InputError(f"{self.path} {topic}: cannot read the image at bag time {t_ns} "
                              f"ns ({_why(exc)})") from None
@@ -297,7 +343,8 @@ class BagSequence:
         if conns:
             with self._lock:
                 for c, _, raw in self._reader.messages(connections=conns[:1]):
-                    K = info_intrinsics(self._reader.deserialize(raw, c.msgtype))
+                    K = camera_info_intrinsics(self._reader.deserialize(raw, c.msgtype),
+                                               ROS_DEPTH_UNITS_PER_METRE)
                     break
         if isinstance(K, Intrinsics):
             if guess is not None and preset(guess)[:4] != K[:4]:
@@ -327,7 +374,7 @@ class BagSequence:
         index = frame_index(index, len(self))
         rgb_topic, at_rgb, depth_topic, at_depth = self._at[index]
         bgr = self._decode(rgb_topic, at_rgb, colour_bgr)
-        depth = self._decode(depth_topic, at_depth, lambda m: depth_m(m, self._units))
+        depth = self._decode(depth_topic, at_depth, self._depth)
         for topic, img in ((rgb_topic, bgr), (depth_topic, depth)):
             check_frame_size(f"{self.path} {topic} frame {index}", img, self.height, self.width)
         return Frame(index, float(self.timestamps[index]), bgr, depth, None)

@@ -1,10 +1,10 @@
 """A study's sequences (host side): their frames, their flow and its cache.
 
-Every sequence's grid flow is computed once (:func:`sequence_data`) and cached on disk as
-a ``.npz`` keyed by the sequence's identity, the ``Config`` fields the flow reads and the
-code that renders and tracks (:func:`sequence_key`), beside what its runs are scored
-against: the kept frames' timestamps, the start pose, the ground truth and the moving
-masks at the grid.
+Every sequence's grid flow (with ``Config.keyframes``, also its keyframe flow) is computed
+once (:func:`sequence_data`) and cached on disk as a ``.npz`` keyed by the sequence's
+identity, the ``Config`` fields the flow reads and the code that renders and tracks
+(:func:`sequence_key`), beside what its runs are scored against: the kept frames'
+timestamps, the start pose, the ground truth and the moving masks at the grid.
 """
 
 from __future__ import annotations
@@ -13,7 +13,6 @@ import functools
 import hashlib
 import inspect
 import json
-import os
 import re
 from collections.abc import Callable
 from pathlib import Path
@@ -24,6 +23,7 @@ import numpy as np
 from jaxvo.config import Config, grid_shape
 from jaxvo.errors import InputError
 from jaxvo.host.io import Trajectory, groundtruth_of_frames
+from jaxvo.host.outputs import OutputFile
 from jaxvo.study.spec import SequenceSpec, config_fields
 
 
@@ -32,6 +32,7 @@ class SequenceData(NamedTuple):
 
     label: str
     flows: Any  # GridFlow of numpy arrays, stacked over T pairs
+    keyframes: Any  # with Config.keyframes: KeyframeFlow of numpy arrays stacked as flows; else None
     T_w_c0: np.ndarray  # (4, 4) float64 first camera pose (ground truth's, else identity)
     timestamps: np.ndarray  # (T + 1,) float64 seconds
     groundtruth: Trajectory | None  # camera-to-world ground truth, None without
@@ -87,15 +88,16 @@ class _Subset:
 def flow_fields() -> tuple[str, ...]:
     """The ``Config`` fields the grid flow reads (those its cache is keyed by).
 
-    Read off the source of :mod:`jaxvo.host.flow` and :mod:`jaxvo.host.depth` (every
-    ``cfg.<field>``), so a field that the flow starts to read keys the cache without anyone
-    listing it here; the tests check the list against the fields a real flow computation
-    reads.
+    Read off the source of :mod:`jaxvo.host.flow`, :mod:`jaxvo.host.depth` and
+    :mod:`jaxvo.host.keyframes` (every ``cfg.<field>``), so a field that the flow starts to
+    read keys the cache without anyone listing it here; the tests check the list against
+    the fields a real flow computation reads, with and without keyframes.
     """
     import jaxvo.host.depth
     import jaxvo.host.flow
+    import jaxvo.host.keyframes
 
-    used = {f for mod in (jaxvo.host.flow, jaxvo.host.depth)
+    used = {f for mod in (jaxvo.host.flow, jaxvo.host.depth, jaxvo.host.keyframes)
             for f in re.findall(r"\bcfg\.(\w+)", inspect.getsource(mod))}
     return tuple(f for f in config_fields() if f in used)
 
@@ -108,6 +110,7 @@ def code_hash() -> str:
     import jaxvo.host.flow
     import jaxvo.host.frames
     import jaxvo.host.io
+    import jaxvo.host.keyframes
     import jaxvo.host.patches
     import jaxvo.synth.render
     import jaxvo.synth.scenario
@@ -115,9 +118,9 @@ def code_hash() -> str:
     import jaxvo.synth.sequence
 
     h = hashlib.sha256()
-    for mod in (jaxvo.host.flow, jaxvo.host.depth, jaxvo.host.patches, jaxvo.host.frames,
-                jaxvo.host.io, jaxvo.synth.render, jaxvo.synth.scenario, jaxvo.synth.sequence,
-                jaxvo.synth.scenes):
+    for mod in (jaxvo.host.flow, jaxvo.host.depth, jaxvo.host.keyframes, jaxvo.host.patches,
+                jaxvo.host.frames, jaxvo.host.io, jaxvo.synth.render, jaxvo.synth.scenario,
+                jaxvo.synth.sequence, jaxvo.synth.scenes):
         h.update(inspect.getsource(mod).encode())
     h.update(inspect.getsource(sequence_data).encode())  # what it stores beside the flow
     return h.hexdigest()[:16]
@@ -143,6 +146,10 @@ def sequence_key(s: SequenceSpec, cfg: Config) -> str:
     return hashlib.sha256(blob).hexdigest()[:16]
 
 
+# the keyframe flow's fields in a cached .npz, beside the pair flow's
+KF_PREFIX = "kf_"
+
+
 def sequence_data(s: SequenceSpec, cfg: Config, cache_dir: str | Path | None, *,
                   progress: Callable[[int, int], None] | None = None) -> tuple[SequenceData, bool]:
     """The flow and scoring data of ``s`` under ``cfg``, from the cache when it is there.
@@ -151,6 +158,7 @@ def sequence_data(s: SequenceSpec, cfg: Config, cache_dir: str | Path | None, *,
       ``(data, cached)``: ``cached`` says whether it came from ``cache_dir``.
     """
     from jaxvo.host.flow import GridFlow, sequence_flows
+    from jaxvo.host.keyframes import KeyframeFlow
     from jaxvo.odometry import choose_start_pose
 
     path = None
@@ -159,7 +167,9 @@ def sequence_data(s: SequenceSpec, cfg: Config, cache_dir: str | Path | None, *,
         if path.is_file():
             z = np.load(path)
             gt = Trajectory(z["gt_t"], z["gt_poses"]) if "gt_t" in z else None
-            return SequenceData(s.label, GridFlow(*(z[f] for f in GridFlow._fields)),
+            kf = (KeyframeFlow(*(z[KF_PREFIX + f] for f in KeyframeFlow._fields))
+                  if cfg.keyframes else None)
+            return SequenceData(s.label, GridFlow(*(z[f] for f in GridFlow._fields)), kf,
                                 z["T_w_c0"], z["timestamps"], gt,
                                 z.get("truth"), int(z["height"]),
                                 int(z["width"])), True
@@ -181,19 +191,20 @@ def sequence_data(s: SequenceSpec, cfg: Config, cache_dir: str | Path | None, *,
     masks = [seq.truth.get(int(k)) for k in kept[:-1]]  # pair k is anchored on its first image
     truth = None if any(m is None for m in masks) else np.stack(masks)
     T_w_c0, _ = choose_start_pose("gt", gt, stamps[0])
-    data = SequenceData(s.label, chain.flows, T_w_c0, stamps, gt, truth, seq.height,
-                        seq.width)
+    data = SequenceData(s.label, chain.flows, chain.keyframes, T_w_c0, stamps, gt, truth,
+                        seq.height, seq.width)
     if path is not None:
         arrays = {**chain.flows._asdict(), "T_w_c0": data.T_w_c0, "timestamps": data.timestamps,
                   "height": data.height, "width": data.width}
+        if chain.keyframes is not None:
+            arrays.update({KF_PREFIX + k: v for k, v in chain.keyframes._asdict().items()})
         if gt is not None:
             arrays.update(gt_t=gt.timestamps, gt_poses=gt.poses)
         if truth is not None:
             arrays["truth"] = truth
         path.parent.mkdir(parents=True, exist_ok=True)
-        tmp = path.with_name(f".{path.name}.{os.getpid()}.tmp.npz")
-        np.savez(tmp, **arrays)
-        os.replace(tmp, path)  # whole or absent, also with several writers
+        with OutputFile(path) as fh:  # whole or absent, also with several writers
+            np.savez(fh.handle, **arrays)
     return data, False
 
 

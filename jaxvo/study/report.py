@@ -24,6 +24,8 @@ from pathlib import Path
 import numpy as np
 
 from jaxvo.config import Params
+from jaxvo.evaluation.evo_results import save_figure
+from jaxvo.host.outputs import write_text
 from jaxvo.study.spec import METRICS, StudySpec
 
 
@@ -71,11 +73,16 @@ def _key(v):
 
 
 def write_csv(path: Path, rows: list[dict], columns: list[str]) -> None:
-    with path.open("w", newline="") as fh:
+    """``rows`` as a CSV table, written whole or not at all."""
+    import io
+
+    with io.StringIO(newline="") as fh:
         w = csv.DictWriter(fh, fieldnames=columns)
         w.writeheader()
         for row in rows:
             w.writerow({c: "" if row.get(c) is None else row[c] for c in columns})
+        text = fh.getvalue()
+    write_text(path, text)
 
 
 def display(metric: str) -> tuple[str, float]:
@@ -187,14 +194,16 @@ def write_plot(spec: StudySpec, summary: list[dict], path: Path) -> str | None:
     fig.suptitle(f"{spec.name}: mean over {len(spec.seeds)} seed(s), bars one standard "
                  "deviation; dotted: base value", fontsize="small", y=0.005, va="bottom")
     fig.tight_layout(rect=(0, 0.3 / height, 1, 1 - 0.4 / height))
-    fig.savefig(path, dpi=110)
+    save_figure(fig, path)
     plt.close(fig)
     return None
 
 
 def write_report(spec: StudySpec, rows: list[dict], out_dir: str | Path, *,
                  plot: bool = True) -> dict[str, str]:
-    """Write the table, the summary and the plot of ``rows`` (runs of ``spec``).
+    """Write the table, the summary and the plot of ``rows`` (runs of ``spec``), each file
+    whole or not at all (:class:`jaxvo.host.outputs.OutputFile`; a failure, e.g. a full
+    disk, raises ``OSError`` naming the file).
 
     Returns:
       ``{file name: what happened}``: "written", or why a file was skipped.
@@ -204,11 +213,11 @@ def write_report(spec: StudySpec, rows: list[dict], out_dir: str | Path, *,
     tidy = tidy_rows(spec, rows)
     columns = table_columns(spec)
     write_csv(out / "results.csv", tidy, columns)
-    (out / "results.json").write_text(json.dumps(_finite(tidy), indent=1) + "\n")
+    write_text(out / "results.json", json.dumps(_finite(tidy), indent=1) + "\n")
     summary = summarise(spec, rows)
     write_csv(out / "summary.csv", summary, list(summary[0]) if summary else ["sequence"])
-    (out / "summary.json").write_text(json.dumps(_finite(summary), indent=1) + "\n")
-    (out / "summary.md").write_text(summary_markdown(spec, summary))
+    write_text(out / "summary.json", json.dumps(_finite(summary), indent=1) + "\n")
+    write_text(out / "summary.md", summary_markdown(spec, summary))
     status = dict.fromkeys(("results.csv", "results.json", "summary.csv", "summary.json",
                             "summary.md"), "written")
     if plot and summary:

@@ -33,9 +33,10 @@ from typing import NamedTuple
 
 import numpy as np
 
-from jaxvo.config import Config
+from jaxvo.config import Config, check_config
 from jaxvo.errors import InputError
 from jaxvo.host.io import Trajectory
+from jaxvo.host.outputs import write_text
 from jaxvo.status import Status
 from jaxvo.study.data import (
     SequenceData,
@@ -55,7 +56,7 @@ from jaxvo.study.devices import (
     batched_params,
     bytes_per_config,
     call_batch,
-    compiled_programs,
+    compiled_program,
     free_memory,
     from_first,
     init_distributed,
@@ -76,9 +77,9 @@ from jaxvo.study.spec import (
 
 __all__ = [
     "CPU_BATCH", "DEFAULT_METRICS", "MAX_ACCELERATOR_BATCH", "MEMORY_SHARE", "METRICS",
-    "RUNS_FILE", "Run", "SequenceData", "SequenceSpec", "StudyResult", "StudySpec",
+    "ROW_FIELDS", "RUNS_FILE", "Run", "SequenceData", "SequenceSpec", "StudyResult", "StudySpec",
     "accelerator_batch", "batched_params", "bytes_per_config", "call_batch", "check_study",
-    "code_hash", "compiled_programs", "config_fields", "finished_rows", "flow_fields",
+    "code_hash", "compiled_program", "config_fields", "finished_rows", "flow_fields",
     "free_memory", "group_config", "init_distributed", "load_spec", "open_study_sequence",
     "parse_spec", "read_runs", "run_call", "run_id", "run_spec", "score_run",
     "sequence_data", "sequence_key", "spec_runs", "study_devices",
@@ -201,6 +202,13 @@ def run_spec(spec: StudySpec, out_dir: str | Path, *, resume: bool = False,
             groups.setdefault((r.sequence, group_config(spec.configs[r.config])), []).append(k)
     pairs = {q: sequence_pairs(spec.sequences[q]) for q, _ in groups} if first else {}
     tally = _Tally(total=sum(len(ks) * pairs[q] for (q, _), ks in groups.items()) if first else 0)
+    if first and log is not None:  # before the first flow and compile, which take minutes
+        left = sum(len(ks) for ks in groups.values())
+        log(f"{left} of {len(runs)} runs to do ({len(spec.sequences)} sequences x "
+            f"{len(spec.configs)} configurations x {len(spec.seeds)} seeds), "
+            f"{tally.total} configuration-frames over {len(devices)} device(s); up to "
+            f"{len(groups)} compile(s), one per sequence and Config, each in its first call "
+            "(seconds to minutes); then the progress line gives the time left")
     if progress is not None:
         progress(0, tally.total)
     for (q, cfg), ks in groups.items():
@@ -273,15 +281,17 @@ def _start(spec: StudySpec, out: Path, cache: Path, ids: list[str], *, resume: b
             # accelerator's calls are sized to its own memory (call_batch)
             check_study(spec, out, cache, requested or (
                 CPU_BATCH if jax.default_backend() == "cpu" else 1))
+            if runs_path.exists() and not runs_path.is_file():
+                raise InputError(f"{runs_path}: is not a file; the study appends its runs there")
             if runs_path.is_file() and not resume:
                 raise InputError(f"{out} already holds a study's runs ({RUNS_FILE}); pass "
                                  "--resume to continue it, or choose another --out")
         except InputError as exc:
             problem = exc
         else:
-            done_ids = set(read_runs(runs_path)) if resume else set()
+            done_ids = set(_finished(spec, runs_path)) if resume else set()
             out.mkdir(parents=True, exist_ok=True)
-            (out / "spec.json").write_text(json.dumps(_spec_record(spec), indent=1) + "\n")
+            write_text(out / "spec.json", json.dumps(_spec_record(spec), indent=1) + "\n")
     agree(problem)
     return from_first(np.asarray([i in done_ids for i in ids], bool))
 
@@ -303,7 +313,7 @@ def _group_data(s: SequenceSpec, cfg: Config, cache: Path, tally: _Tally, *, fir
                 log(f"{s.label}: {len(data.timestamps) - 1} frame pairs, flow " + (
                     "from the cache" if cached else f"in {took:.1f} s"))
     agree(problem)
-    return share_data(data)
+    return share_data(data, cfg)
 
 
 def _rows(spec: StudySpec, data: SequenceData, chunk: list[tuple[str, Run]], outs,
@@ -328,7 +338,7 @@ def spec_runs(spec: StudySpec) -> tuple[list[Run], list[str]]:
 
 def finished_rows(spec: StudySpec, out_dir: str | Path) -> list[dict]:
     """The rows of ``spec``'s runs already in ``out_dir``'s ``runs.jsonl``, in spec order."""
-    finished = read_runs(Path(out_dir) / RUNS_FILE)
+    finished = _finished(spec, Path(out_dir) / RUNS_FILE)
     return [finished[i] for i in spec_runs(spec)[1] if i in finished]
 
 
@@ -377,6 +387,7 @@ def check_study(spec: StudySpec, out_dir: str | Path, flow_cache: str | Path,
         rendered_bytes = (SYNTH_BYTES_PER_FRAME + SYNTH_BYTES_PER_OBJECT_FRAME * len(
             SCENARIOS[s.scene].objects)) * rendered if s.scene else 0.0
         for cfg in cfgs:
+            check_config(cfg, height=height, width=width)  # what needs the image size
             check_memory(run_bytes(cfg, height=height, width=width, frames=frames, configs=side,
                                    host_bytes=rendered_bytes),
                          what=f"sequence {s.label!r} ({frames} frames) with num_hypotheses "
@@ -392,34 +403,61 @@ def _spec_record(spec: StudySpec) -> dict:
     return rec
 
 
+# what every row of runs.jsonl holds (_rows, score_run); a line without them is no finished
+# run of jaxvo study (a file written by hand or by another program)
+ROW_FIELDS = ("id", "sequence", "seed", "digest")
+
+
 def read_runs(path: str | Path) -> dict[str, dict]:
-    """Finished runs by id from a ``runs.jsonl`` (a line cut short by an interruption is
-    ignored: that run is simply run again)."""
+    """Finished runs by id from a ``runs.jsonl``. A line cut short by an interruption (no
+    JSON) is ignored: that run is simply run again. A JSON line that is no row of a
+    finished run (without :data:`ROW_FIELDS`: written by hand or by another program) is
+    ignored too, with a warning that counts them (those runs run again)."""
     rows: dict[str, dict] = {}
     path = Path(path)
     if not path.is_file():
         return rows
+    bad = 0
     for line in path.read_text().splitlines():
         try:
             row = json.loads(line)
         except ValueError:
             continue
-        if isinstance(row, dict) and "id" in row:
+        if isinstance(row, dict) and all(f in row for f in ROW_FIELDS):
             rows[row["id"]] = row
+        else:
+            bad += 1
+    if bad:
+        import warnings
+
+        warnings.warn(f"{path}: {bad} line(s) hold no finished run (a row has "
+                      f"{', '.join(ROW_FIELDS)} and its settings); ignored, those runs run "
+                      "again", UserWarning, stacklevel=2)
     return rows
 
 
+def _finished(spec: StudySpec, path: Path) -> dict[str, dict]:
+    """The finished runs of ``runs.jsonl`` whose rows hold every setting of ``spec`` (what
+    the tables read)."""
+    return {i: row for i, row in read_runs(path).items()
+            if all(k in row for k in spec.settings)}
+
+
 def _append_runs(path: Path, rows: list[dict]) -> None:
-    # a line cut short by a kill has no newline: end it, or the next row would join it
-    cut = False
-    if path.is_file() and path.stat().st_size > 0:
-        with path.open("rb") as fh:
-            fh.seek(-1, os.SEEK_END)
-            cut = fh.read(1) != b"\n"
-    with path.open("a") as fh:
-        if cut:
-            fh.write("\n")
-        for row in rows:
-            fh.write(json.dumps(row) + "\n")
-        fh.flush()
-        os.fsync(fh.fileno())  # a finished call survives a kill that follows it
+    """Append one call's rows to ``runs.jsonl``, the one output a study appends to rather
+    than replaces (a study of 10^5 runs would rewrite it 10^5 / batch times): each line is
+    written whole or, cut by a kill, ignored when read (:func:`read_runs`). A failure (a
+    full disk) names the file."""
+    try:
+        # a line cut short by a kill has no newline: end it, or the next row would join it
+        cut = False
+        if path.is_file() and path.stat().st_size > 0:
+            with path.open("rb") as fh:
+                fh.seek(-1, os.SEEK_END)
+                cut = fh.read(1) != b"\n"
+        with path.open("a") as fh:
+            fh.write(("\n" if cut else "") + "".join(json.dumps(row) + "\n" for row in rows))
+            fh.flush()
+            os.fsync(fh.fileno())  # a finished call survives a kill that follows it
+    except OSError as exc:
+        raise OSError(exc.errno, exc.strerror, str(path)) from None

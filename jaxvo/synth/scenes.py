@@ -22,7 +22,6 @@ from __future__ import annotations
 from collections.abc import Callable
 from pathlib import Path
 
-import cv2
 import numpy as np
 
 from jaxvo.errors import InputError
@@ -133,7 +132,9 @@ def composite_sequence(sequence: str | Path | TumSequence,
 
 def write_sequence(seq: SyntheticSequence, out_dir: str | Path, *,
                    progress: Callable[[int, int], None] | None = None) -> Path:
-    """Write a sequence in the TUM layout plus masks and object trajectories.
+    """Write a sequence in the TUM layout plus masks and object trajectories, the folder
+    whole or not at all (:class:`jaxvo.host.outputs.OutputFolder`: written beside it and
+    renamed into place when complete; an interrupted or failed write leaves no folder).
 
     Layout: ``rgb/`` (PNG), ``depth/`` (16-bit PNG, ``DEPTH_SCALE`` per metre, 0 = no
     reading), ``mask/`` (8-bit PNG object ids), ``rgb.txt``, ``depth.txt``, ``mask.txt``
@@ -143,50 +144,56 @@ def write_sequence(seq: SyntheticSequence, out_dir: str | Path, *,
 
     Args:
       seq: the sequence (frames are rendered one at a time).
-      out_dir: the folder (created; existing files of the same names are overwritten).
+      out_dir: the folder (missing, or empty; its parent exists or is created).
       progress: called as ``progress(done, total)`` after each frame.
 
     Returns:
       the folder.
+    Raises:
+      InputError: ``out_dir`` holds files, or the timestamps collide.
+      OSError: a file cannot be written, naming it (a full disk).
     """
+    from jaxvo.host.outputs import OutputFolder, write_image, write_text
     from jaxvo.host.transforms import rotation_to_quat
 
     out = Path(out_dir)
-    for sub in ("rgb", "depth", "mask"):
-        (out / sub).mkdir(parents=True, exist_ok=True)
     names = [f"{t:.6f}.png" for t in seq.timestamps]
     if len(set(names)) != len(names):
         raise InputError(f"{seq.name}: timestamps collide at microsecond resolution")
-    scale = seq.intrinsics.depth_scale
-    for i, frame in enumerate(seq):
-        raw = np.clip(np.round(frame.depth.astype(np.float64) * scale), 0, 65535)
-        for sub, img in (("rgb", frame.bgr), ("depth", raw.astype(np.uint16)),
-                         ("mask", frame.mask)):
-            if not cv2.imwrite(str(out / sub / names[i]), img):
-                raise OSError(f"could not write {out / sub / names[i]}")
-        if progress is not None:
-            progress(i + 1, len(seq))
-    header = f"# {seq.name}: jaxvo.synth.scenes, seed {seq.seed}\n"
-    for sub, what in (("rgb", "colour, 8-bit BGR PNG"),
-                      ("depth", f"depth, 16-bit PNG, {scale:g} per metre, 0 = no reading"),
-                      ("mask", "moving-object id, 8-bit PNG, 0 = static")):
-        lines = [f"{t:.6f} {sub}/{n}" for t, n in zip(seq.timestamps, names)]
-        (out / f"{sub}.txt").write_text(
-            header + f"# {what}\n# timestamp filename\n" + "\n".join(lines) + "\n")
-    lines = [f"{t:.6f} rgb/{n} {t:.6f} depth/{n}" for t, n in zip(seq.timestamps, names)]
-    (out / "associations.txt").write_text(
-        header + "# timestamp rgb timestamp depth\n" + "\n".join(lines) + "\n")
-    write_trajectory(out / "groundtruth.txt", seq.groundtruth,
-                     comment=f"{seq.name}: exact camera poses T_w_c (synthetic ground truth)")
-    lines = [header.rstrip(), "# moving-object poses T_w_o",
-             "# timestamp object_id tx ty tz qx qy qz qw"]
-    for k, traj in seq.object_trajectories.items():
-        q = rotation_to_quat(traj.poses[:, :3, :3])
-        for t, T, qi in zip(traj.timestamps, traj.poses, q):
-            lines.append(f"{t:.6f} {k} " + " ".join(f"{v:.9f}" for v in (*T[:3, 3], *qi)))
-    (out / "objects.txt").write_text("\n".join(lines) + "\n")
-    write_camera_file(out / "camera.txt", seq.intrinsics,
-                      comment=f"{seq.name}: pinhole intrinsics, pixels; depth units per metre")
+    out.parent.mkdir(parents=True, exist_ok=True)
+    with OutputFolder(out) as folder:
+        tmp = folder.temporary
+        for sub in ("rgb", "depth", "mask"):
+            (tmp / sub).mkdir()
+        scale = seq.intrinsics.depth_scale
+        for i, frame in enumerate(seq):
+            raw = np.clip(np.round(frame.depth.astype(np.float64) * scale), 0, 65535)
+            for sub, img in (("rgb", frame.bgr), ("depth", raw.astype(np.uint16)),
+                             ("mask", frame.mask)):
+                write_image(tmp / sub / names[i], img)
+            if progress is not None:
+                progress(i + 1, len(seq))
+        header = f"# {seq.name}: jaxvo.synth.scenes, seed {seq.seed}\n"
+        for sub, what in (("rgb", "colour, 8-bit BGR PNG"),
+                          ("depth", f"depth, 16-bit PNG, {scale:g} per metre, 0 = no reading"),
+                          ("mask", "moving-object id, 8-bit PNG, 0 = static")):
+            lines = [f"{t:.6f} {sub}/{n}" for t, n in zip(seq.timestamps, names)]
+            write_text(tmp / f"{sub}.txt",
+                       header + f"# {what}\n# timestamp filename\n" + "\n".join(lines) + "\n")
+        lines = [f"{t:.6f} rgb/{n} {t:.6f} depth/{n}" for t, n in zip(seq.timestamps, names)]
+        write_text(tmp / "associations.txt",
+                   header + "# timestamp rgb timestamp depth\n" + "\n".join(lines) + "\n")
+        write_trajectory(tmp / "groundtruth.txt", seq.groundtruth,
+                         comment=f"{seq.name}: exact camera poses T_w_c (synthetic ground truth)")
+        lines = [header.rstrip(), "# moving-object poses T_w_o",
+                 "# timestamp object_id tx ty tz qx qy qz qw"]
+        for k, traj in seq.object_trajectories.items():
+            q = rotation_to_quat(traj.poses[:, :3, :3])
+            for t, T, qi in zip(traj.timestamps, traj.poses, q):
+                lines.append(f"{t:.6f} {k} " + " ".join(f"{v:.9f}" for v in (*T[:3, 3], *qi)))
+        write_text(tmp / "objects.txt", "\n".join(lines) + "\n")
+        write_camera_file(tmp / "camera.txt", seq.intrinsics,
+                          comment=f"{seq.name}: pinhole intrinsics, pixels; depth units per metre")
     return out
 
 
