@@ -43,12 +43,12 @@ from jaxvo.core.pipeline import final_moving, init_pipeline, jit_step
 from jaxvo.evaluation.metrics import SegmentationScores
 from jaxvo.evaluation.scores import trajectory_scores
 from jaxvo.host.flow import GridFlow, sequence_flows
-from jaxvo.host.io import Trajectory
 from jaxvo.host.masks import moving_at_grid
 from jaxvo.host.peers import OPENCV_PEERS
 from jaxvo.host.plugin import iter_dynamic_masks
 from jaxvo.status import Status
 from jaxvo.study import runner as study
+from jaxvo.trajectory import Trajectory
 
 CFG = Config()
 

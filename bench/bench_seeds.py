@@ -44,9 +44,10 @@ from jaxvo.core.pipeline import frame_key, init_pipeline, step
 from jaxvo.evaluation.metrics import SegmentationScores
 from jaxvo.evaluation.scores import trajectory_scores
 from jaxvo.host.flow import GridFlow
-from jaxvo.host.io import Trajectory, data_root
+from jaxvo.host.io import data_root
 from jaxvo.host.keyframes import KeyframeFlow
 from jaxvo.host.peers import OPENCV_PEERS
+from jaxvo.trajectory import Trajectory
 
 
 @functools.partial(jax.jit, static_argnames=("cfg", "grid"))

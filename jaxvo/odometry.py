@@ -35,9 +35,10 @@ from jaxvo.host.flow import (
     min_valid_flow,
     sequence_flows,
 )
-from jaxvo.host.io import DepthScaleWarning, Trajectory, check_depth_scale, pose_at
+from jaxvo.host.io import DepthScaleWarning, check_depth_scale
 from jaxvo.host.memory import check_memory, run_bytes
 from jaxvo.status import Status
+from jaxvo.trajectory import Trajectory, pose_at
 
 
 class FrameResult(NamedTuple):

@@ -34,10 +34,11 @@ from jaxvo.config import Config, Params, check_config, check_params
 from jaxvo.errors import InputError, check_seed
 from jaxvo.evaluation.metrics import ate
 from jaxvo.host.camera import Intrinsics, read_camera_file
-from jaxvo.host.io import InMemorySequence, open_sequence, read_trajectory
+from jaxvo.host.io import InMemorySequence, open_sequence
 from jaxvo.odometry import Odometry
 from jaxvo.status import Status
 from jaxvo.synth.scenes import make_sequence, write_sequence
+from jaxvo.trajectory import read_trajectory
 
 FRAMES = 6
 

@@ -99,7 +99,8 @@ def test_a_run_of_another_sequence_is_refused_and_a_foreign_motion_warned(run_di
     """Both sequences timed index / 30 from 0: the timestamps matched, and a map came out
     with no word."""
     from jaxvo.cli.map import run_header
-    from jaxvo.host.io import Trajectory, open_sequence, write_trajectory
+    from jaxvo.host.io import open_sequence
+    from jaxvo.trajectory import Trajectory, write_trajectory
 
     d = run_dir
     other = open_sequence(d / "seq")

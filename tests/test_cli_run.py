@@ -7,8 +7,8 @@ import numpy as np
 import pytest
 
 from jaxvo.cli.main import main
-from jaxvo.host.io import read_trajectory
 from jaxvo.synth.scenes import make_sequence, write_sequence
+from jaxvo.trajectory import read_trajectory
 
 
 @pytest.fixture(scope="module")

@@ -22,9 +22,9 @@ from jaxvo.config import Config, Params
 from jaxvo.core.pipeline import batch_params, run_study
 from jaxvo.errors import InputError
 from jaxvo.evaluation.scores import trajectory_scores
-from jaxvo.host.io import Trajectory
 from jaxvo.study import runner as study
 from jaxvo.study.report import plot_points, summarise, write_report
+from jaxvo.trajectory import Trajectory
 
 # a tiny study: 8 frames of the fast hand-held scene, a coarse grid, few hypotheses, a
 # confidence of 0.9 and the online noise calibration on (at the defaults the runs of lam 10
@@ -634,8 +634,9 @@ def test_a_study_with_keyframes_scores_as_jaxvo_run_keyframes(tmp_path, capsys):
     keyframe (the window refines); frame to frame the study's ATE there is 0.50 mm, with
     keyframes 0.17 mm, so a study that ran frame to frame could not pass. The command's
     step is the one ``jaxvo run --keyframes`` compiles in test_cli_run.py."""
-    from jaxvo.host.io import open_sequence, read_trajectory
+    from jaxvo.host.io import open_sequence
     from jaxvo.synth.scenes import make_sequence, write_sequence
+    from jaxvo.trajectory import read_trajectory
 
     folder = tmp_path / "seq"
     write_sequence(make_sequence("handheld_fast", frames=24, seed=1), folder)

@@ -192,7 +192,8 @@ def open_mapped(args: argparse.Namespace):
     from jaxvo.errors import InputError
     from jaxvo.host.camera import intrinsics_option
     from jaxvo.host.frames import describe
-    from jaxvo.host.io import open_sequence, read_trajectory
+    from jaxvo.host.io import open_sequence
+    from jaxvo.trajectory import read_trajectory
 
     camera = intrinsics_option(args.intrinsics) if args.intrinsics else args.camera
     if args.depth_scale is not None:

@@ -30,8 +30,8 @@ import numpy as np
 
 from jaxvo.errors import InputError
 from jaxvo.host.camera import Intrinsics
-from jaxvo.host.io import Trajectory
 from jaxvo.host.outputs import OutputFile
+from jaxvo.trajectory import Trajectory
 
 # OpenCV is imported in the functions that use it: `jaxvo --help` reads the defaults below
 # (jaxvo map's options) and must not wait for it

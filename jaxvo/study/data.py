@@ -22,9 +22,10 @@ import numpy as np
 
 from jaxvo.config import Config, grid_shape
 from jaxvo.errors import InputError
-from jaxvo.host.io import Trajectory, groundtruth_of_frames
+from jaxvo.host.io import groundtruth_of_frames
 from jaxvo.host.outputs import OutputFile
 from jaxvo.study.spec import SequenceSpec, config_fields
+from jaxvo.trajectory import Trajectory
 
 
 class SequenceData(NamedTuple):
