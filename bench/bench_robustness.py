@@ -39,10 +39,11 @@ from splits import Case, cases, runnable
 
 import jaxvo.host.keyframes
 from jaxvo.config import Config, Params, grid_shape, params_as_arrays
+from jaxvo.core.inputs import GridFlow
 from jaxvo.core.pipeline import final_moving, init_pipeline, jit_step
 from jaxvo.evaluation.metrics import SegmentationScores
 from jaxvo.evaluation.scores import trajectory_scores
-from jaxvo.host.flow import GridFlow, sequence_flows
+from jaxvo.host.flow import sequence_flows
 from jaxvo.host.masks import moving_at_grid
 from jaxvo.host.peers import OPENCV_PEERS
 from jaxvo.host.plugin import iter_dynamic_masks

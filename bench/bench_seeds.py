@@ -40,12 +40,11 @@ from people_masks import people_masks
 from splits import Case, cases, runnable
 
 from jaxvo.config import Config, Params, grid_shape, params_as_arrays
+from jaxvo.core.inputs import GridFlow, KeyframeFlow
 from jaxvo.core.pipeline import frame_key, init_pipeline, step
 from jaxvo.evaluation.metrics import SegmentationScores
 from jaxvo.evaluation.scores import trajectory_scores
-from jaxvo.host.flow import GridFlow
 from jaxvo.host.io import data_root
-from jaxvo.host.keyframes import KeyframeFlow
 from jaxvo.host.peers import OPENCV_PEERS
 from jaxvo.trajectory import Trajectory
 

@@ -40,6 +40,7 @@ from _common import (
 )
 
 from jaxvo.config import Config, Params, grid_shape, params_as_arrays
+from jaxvo.core.inputs import stack_flows
 from jaxvo.core.pipeline import (
     StepOutput,
     final_moving,
@@ -51,7 +52,7 @@ from jaxvo.core.pipeline import (
 from jaxvo.core.spatial import segment
 from jaxvo.evaluation.metrics import SegmentationScores, ate
 from jaxvo.evaluation.scores import segmentation_scores, trajectory_scores
-from jaxvo.host.flow import GridFlowTracker, stack_flows
+from jaxvo.host.flow import GridFlowTracker
 from jaxvo.host.io import data_root, first_pose, open_sequence
 from jaxvo.host.masks import overlay_panel
 from jaxvo.host.peers import OPEN3D_PEERS

@@ -252,7 +252,7 @@ BOX = (_C < 10) & (_R >= 1) & (_R < 11)
 
 
 def hand_flow(rng, box_moves, status=Status.OK, valid=True):
-    from jaxvo.host.flow import GridFlow
+    from jaxvo.core.inputs import GridFlow
 
     uv = np.stack([(_C + 0.5) * CFG.cell, (_R + 0.5) * CFG.cell], 1)
     cx, cy = GRID_S[1] * CFG.cell / 2, GRID_S[0] * CFG.cell / 2

@@ -34,6 +34,7 @@ from jaxvo.core.egomotion import EgoState, init_ego, predicted_motion, update_eg
 from jaxvo.core.evidence import moving_evidence, moving_logodds, neighbourhood, reported_ids
 from jaxvo.core.geometry import full_precision
 from jaxvo.core.identifiers import identify, measured_labels
+from jaxvo.core.inputs import GridFlow, KeyframeFlow
 from jaxvo.core.keyframe import KeyframeState, init_keyframe, keyframe_support, update_keyframe
 from jaxvo.core.noise import NoiseScale, frame_points, init_noise, transfer, update_noise
 from jaxvo.core.occlusion import OcclusionState, init_occlusion, update_occlusion
@@ -94,13 +95,13 @@ def init_pipeline(*, cfg: Config, grid: tuple[int, int], T_w_c0=None,
 
 
 @full_precision
-def step(state: PipelineState, flow, key, params: Params, *, cfg: Config, grid,
-         batch_axis=None, keyframe=None):
+def step(state: PipelineState, flow: GridFlow, key, params: Params, *, cfg: Config, grid,
+         batch_axis=None, keyframe: KeyframeFlow | None = None):
     """One frame pair: ``(state, GridFlow, key) -> (state, StepOutput)``.
 
     Args:
       state: carried :class:`PipelineState`.
-      flow: a ``GridFlow`` of device or host arrays, see :mod:`jaxvo.host.flow`: the
+      flow: a :class:`~jaxvo.core.inputs.GridFlow` of device or host arrays: the
         points ``pts_prev``, ``pts_cur``, ``valid`` and the pair's ``status`` (the frame's
         points); ``focal``, ``fb_error``, ``depth_slope`` (their noise); ``uv_prev``,
         ``uv_cur`` (the displacement that carries the grid model forward); ``depth_prev``
@@ -110,8 +111,8 @@ def step(state: PipelineState, flow, key, params: Params, *, cfg: Config, grid,
       cfg: static settings; grid: static ``(rows, cols)``.
       batch_axis: the name(s) of vmapped axes the call runs under (a study), see
         :func:`jaxvo.core.spatial.segment`.
-      keyframe: with ``cfg.keyframes``, the pair's ``KeyframeFlow``
-        (:class:`jaxvo.host.flow.KeyframeTracker`); None: frame to frame only.
+      keyframe: with ``cfg.keyframes``, the pair's :class:`~jaxvo.core.inputs.KeyframeFlow`
+        (tracked by :class:`jaxvo.host.keyframes.KeyframeTracker`); None: frame to frame only.
     """
     pts = frame_points(flow.pts_prev, flow.pts_cur, flow.valid & (flow.status == Status.OK),
                        params, focal=flow.focal, scale=state.noise, fb_error=flow.fb_error,

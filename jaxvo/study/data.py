@@ -158,8 +158,8 @@ def sequence_data(s: SequenceSpec, cfg: Config, cache_dir: str | Path | None, *,
     Returns:
       ``(data, cached)``: ``cached`` says whether it came from ``cache_dir``.
     """
-    from jaxvo.host.flow import GridFlow, sequence_flows
-    from jaxvo.host.keyframes import KeyframeFlow
+    from jaxvo.core.inputs import GridFlow, KeyframeFlow
+    from jaxvo.host.flow import sequence_flows
     from jaxvo.odometry import choose_start_pose
 
     path = None

@@ -453,8 +453,7 @@ def receiving_data(pairs: int, n: int, height: int, width: int, cfg: Config) -> 
     """What a process other than the first holds before the first's flow arrives
     (:func:`share_data`): arrays of the shapes and types of the first's, ``pairs`` frame
     pairs of ``n`` grid points (the keyframe flow with ``cfg.keyframes``), all invalid."""
-    from jaxvo.host.flow import invalid_flow, stack_flows
-    from jaxvo.host.keyframes import invalid_keyframe_flow
+    from jaxvo.core.inputs import invalid_flow, invalid_keyframe_flow, stack_flows
 
     flows = stack_flows([invalid_flow(np.zeros((n, 2)))] * pairs)
     kf = (stack_flows([invalid_keyframe_flow(n, cfg.keyframe_window)] * pairs)
