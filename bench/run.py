@@ -108,7 +108,7 @@ def stage_functions(cfg: Config, grid: tuple[int, int]):
     """The spatial stage jitted alone, and the whole per-frame step (spatial, temporal,
     ego-motion), so that the temporal and ego-motion stages' time is their difference."""
     spatial = jax.jit(functools.partial(segment, cfg=cfg, grid=grid))
-    step = functools.partial(jit_step, cfg=cfg, grid=grid)
+    step = functools.partial(jit_step, cfg=cfg.step, grid=grid)
     return spatial, step
 
 
@@ -162,7 +162,7 @@ def time_stages(flows, key, params, cfg: Config, grid):
                                  focal=pairs[k].focal))
         t_sp.append(time.perf_counter() - t0)
 
-    state = init_pipeline(cfg=cfg, grid=grid, params=params)
+    state = init_pipeline(cfg=cfg.step, grid=grid, params=params)
     t0 = time.perf_counter()
     state, _ = jax.block_until_ready(step(state, pairs[0], key, params))
     compile_s["step"] = time.perf_counter() - t0
@@ -187,7 +187,7 @@ def run_jaxvo(seq: CachedSequence, cfg: Config, seed: int, repeats: int):
     params = params_as_arrays(Params())
     T0j = jnp.asarray(T0, jnp.float32)
     scan, scan_compile = compiled("scan", (T, grid), run_scan, flows_dev, key, params, T0j,
-                                  cfg=cfg, grid=grid)
+                                  cfg=cfg.step, grid=grid)
     times = []
     for _ in range(repeats):
         t0 = time.perf_counter()

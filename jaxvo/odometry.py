@@ -25,6 +25,7 @@ import jax.numpy as jnp
 import numpy as np
 
 from jaxvo.config import Config, Params, check_config, check_params, grid_shape, params_as_arrays
+from jaxvo.core.inputs import GridFlow, KeyframeFlow
 from jaxvo.core.pipeline import StepOutput, init_pipeline, jit_step, run_scan
 from jaxvo.errors import InputError
 from jaxvo.host.camera import Intrinsics, as_intrinsics, check_intrinsics, depth_metres
@@ -83,7 +84,7 @@ class Odometry:
         preset name, ``(fx, fy, cx, cy[, depth_scale])``, a dict of those keys or a 3x3
         camera matrix (depth_scale 5000); its ``depth_scale`` converts ``uint16`` depth to
         metres.
-      cfg: static settings.
+      cfg: settings (the host's flow reads ``cfg.flow``, the compiled step ``cfg.step``).
       params: numeric settings (default :class:`Params`).
       seed: PRNG seed of the hypothesis sampling.
       T_w_c0: (4, 4) camera-to-world pose of the first frame; None: the identity (the
@@ -115,6 +116,7 @@ class Odometry:
         self.intrinsics = intrinsics
         self.warnings: list[str] = []  # one-line notes on the input (the depth scale)
         self.cfg = cfg
+        self._step_options = cfg.step  # the step's static argument: no flow setting in it
         # One frame's step is a long chain of small dependent operations, bound by launch
         # latency on an accelerator: on an H100 it took 19-25 ms a frame against 9 ms on 2
         # CPU cores (docs/report/pipeline_h100.md). So the step runs on the CPU unless told
@@ -237,7 +239,7 @@ class Odometry:
                                      max_dropped=self._max_dropped, keyframes=self.cfg.keyframes)
             self._grid = tracker.grid
             self._state = jax.device_put(
-                init_pipeline(cfg=self.cfg, grid=self._grid, T_w_c0=self._T_w_c0,
+                init_pipeline(cfg=self._step_options, grid=self._grid, T_w_c0=self._T_w_c0,
                               params=self.params), self.device
             )
         self._last_t = t
@@ -248,7 +250,7 @@ class Odometry:
         if flow is None:  # the chain's first frame, or a dropped one: the pose stays
             return index, t, self._state.T_w_c, None, dropped, images
         self._state, out = jit_step(
-            self._state, flow, self.key, self.params, cfg=self.cfg, grid=self._grid,
+            self._state, flow, self.key, self.params, cfg=self._step_options, grid=self._grid,
             keyframe=self._chain.keyframe_flow,
         )
         return index, t, out.T_w_c, out, None, images
@@ -412,7 +414,7 @@ class SequenceResult(NamedTuple):
 
     trajectory: Trajectory  # one pose per kept frame, camera-to-world
     outputs: StepOutput  # every field stacked over the T frame pairs stepped
-    flows: object  # the stacked GridFlow the scan consumed
+    flows: GridFlow  # stacked over the T pairs the scan consumed
     flow_seconds: float  # host time computing the grid flow
     scan_seconds: float  # device time of the scan, compile included
     grid: tuple[int, int]
@@ -422,7 +424,7 @@ class SequenceResult(NamedTuple):
     dropped: dict[int, str]  # index of each dropped frame -> why
     start_pose: str  # where the first pose came from, in words
     # the KeyframeFlow of every pair the scan consumed beside ``flows`` (cfg.keyframes)
-    keyframes: object = None
+    keyframes: KeyframeFlow | None = None
 
 
 def scan_flows(flows, keyframes, T_w_c0, *, cfg: Config, grid: tuple[int, int], seed: int = 0,
@@ -437,7 +439,7 @@ def scan_flows(flows, keyframes, T_w_c0, *, cfg: Config, grid: tuple[int, int], 
     """
     p = params_as_arrays(params if params is not None else Params())
     return run_scan(flows, jax.random.key(seed), p, jnp.asarray(T_w_c0, jnp.float32),
-                    cfg=cfg, grid=grid, keyframes=keyframes)
+                    cfg=cfg.step, grid=grid, keyframes=keyframes)
 
 
 def run_sequence(

@@ -28,7 +28,7 @@ from typing import NamedTuple
 import jax
 import jax.numpy as jnp
 
-from jaxvo.config import Config, Params
+from jaxvo.config import Params, StepOptions
 from jaxvo.core.background import BackgroundOut, update_background
 from jaxvo.core.egomotion import EgoState, init_ego, predicted_motion, update_egomotion
 from jaxvo.core.evidence import moving_evidence, moving_logodds, neighbourhood, reported_ids
@@ -82,7 +82,7 @@ class StepOutput(NamedTuple):
     keyframes: jax.Array | None = None  # () int32 keyframes taken so far (cfg.keyframes)
 
 
-def init_pipeline(*, cfg: Config, grid: tuple[int, int], T_w_c0=None,
+def init_pipeline(*, cfg: StepOptions, grid: tuple[int, int], T_w_c0=None,
                   params: Params | None = None) -> PipelineState:
     """Start state: empty grid model, the first camera pose (identity by default) and the
     starting sensor noise of ``params`` (default :class:`Params`)."""
@@ -95,7 +95,7 @@ def init_pipeline(*, cfg: Config, grid: tuple[int, int], T_w_c0=None,
 
 
 @full_precision
-def step(state: PipelineState, flow: GridFlow, key, params: Params, *, cfg: Config, grid,
+def step(state: PipelineState, flow: GridFlow, key, params: Params, *, cfg: StepOptions, grid,
          batch_axis=None, keyframe: KeyframeFlow | None = None):
     """One frame pair: ``(state, GridFlow, key) -> (state, StepOutput)``.
 
@@ -108,7 +108,7 @@ def step(state: PipelineState, flow: GridFlow, key, params: Params, *, cfg: Conf
         (cells without depth keep their evidence). Every field is read.
       key: PRNG key of this frame (hypothesis sampling).
       params: numeric settings, possibly traced (vmappable).
-      cfg: static settings; grid: static ``(rows, cols)``.
+      cfg: the step's options (``Config.step``), static; grid: static ``(rows, cols)``.
       batch_axis: the name(s) of vmapped axes the call runs under (a study), see
         :func:`jaxvo.core.spatial.segment`.
       keyframe: with ``cfg.keyframes``, the pair's :class:`~jaxvo.core.inputs.KeyframeFlow`
@@ -180,7 +180,7 @@ def step(state: PipelineState, flow: GridFlow, key, params: Params, *, cfg: Conf
 
 
 def _output(ego: EgoState, eo, seg: Segmentation, bg: BackgroundOut, tout: TemporalOut,
-            noise, valid, params: Params, *, cfg: Config, grid) -> StepOutput:
+            noise, valid, params: Params, *, cfg: StepOptions, grid) -> StepOutput:
     """The step's :class:`StepOutput` from its stages' outputs: one notion of moving, the
     evidence (``moving``), which the identifiers and the mask cells follow."""
     moving = tout.evidence > moving_logodds(params)
@@ -230,8 +230,12 @@ def frame_key(key, index):
 
 
 @functools.partial(jax.jit, static_argnames=("cfg", "grid"))
-def jit_step(state, flow, key, params, *, cfg: Config, grid, keyframe=None):
-    """:func:`step` compiled once per (cfg, grid); the key is folded with the frame count."""
+def jit_step(state, flow, key, params, *, cfg: StepOptions, grid, keyframe=None):
+    """:func:`step` compiled once per (cfg, grid); the key is folded with the frame count.
+
+    ``cfg`` is ``Config.step``: the step's own options, so that a setting of the host's
+    flow (an LK window) compiles nothing (a whole ``Config`` also runs, compiled per
+    ``Config``)."""
     return step(state, flow, frame_key(key, state.frame), params, cfg=cfg, grid=grid,
                 keyframe=keyframe)
 
@@ -250,7 +254,7 @@ def _scan(flows, key, params, T_w_c0, cfg, grid, outer_axes=(), keyframes=None):
 
 
 @functools.partial(jax.jit, static_argnames=("cfg", "grid"))
-def run_scan(flows, key, params, T_w_c0, *, cfg: Config, grid, keyframes=None):
+def run_scan(flows, key, params, T_w_c0, *, cfg: StepOptions, grid, keyframes=None):
     """The whole sequence in one ``lax.scan`` from precomputed flow.
 
     Args:
@@ -260,6 +264,7 @@ def run_scan(flows, key, params, T_w_c0, *, cfg: Config, grid, keyframes=None):
       T_w_c0: (4, 4) pose of the first camera.
       keyframes: with ``cfg.keyframes``, the ``KeyframeFlow`` of every pair stacked as
         ``flows`` (:func:`jaxvo.host.flow.sequence_flows`); None: frame to frame only.
+      cfg: the step's options (``Config.step``); grid: ``(rows, cols)``.
 
     Returns:
       ``(final_state, outputs)`` with every :class:`StepOutput` field stacked over T.
@@ -268,7 +273,7 @@ def run_scan(flows, key, params, T_w_c0, *, cfg: Config, grid, keyframes=None):
 
 
 @functools.partial(jax.jit, static_argnames=("cfg", "grid"))
-def run_study(flows, keys, params, T_w_c0, *, cfg: Config, grid, keyframes=None):
+def run_study(flows, keys, params, T_w_c0, *, cfg: StepOptions, grid, keyframes=None):
     """Many configurations of one sequence in one call: ``vmap`` over keys and parameters.
 
     Args:
@@ -279,6 +284,7 @@ def run_study(flows, keys, params, T_w_c0, *, cfg: Config, grid, keyframes=None)
       keyframes: with ``cfg.keyframes``, the ``KeyframeFlow`` of every pair stacked as
         ``flows`` and shared as they are (as :func:`run_scan` takes them); None: frame to
         frame only.
+      cfg: the step's options (``Config.step``); grid: ``(rows, cols)``.
 
     Returns:
       ``StepOutput`` stacked as (B, T, ...) (the final states are dropped).

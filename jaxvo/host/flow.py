@@ -52,7 +52,7 @@ from typing import NamedTuple
 import cv2
 import numpy as np
 
-from jaxvo.config import Config, Params, grid_shape
+from jaxvo.config import Config, FlowOptions, Params, grid_shape
 from jaxvo.core.inputs import (
     GridFlow,
     KeyframeFlow,
@@ -101,6 +101,11 @@ def _beside(fn, *args) -> Future:
     if _helper is None:
         _helper = ThreadPoolExecutor(max_workers=1, thread_name_prefix="jaxvo-flow")
     return _helper.submit(fn, *args)
+
+
+def flow_options(cfg: Config | FlowOptions) -> FlowOptions:
+    """The flow's options: ``cfg`` itself, or a :class:`~jaxvo.config.Config`'s ``flow``."""
+    return cfg if isinstance(cfg, FlowOptions) else cfg.flow
 
 
 def camera_row(K: Intrinsics) -> np.ndarray:
@@ -190,13 +195,15 @@ class GridFlowTracker:
 
     Args:
         K: intrinsics of the (depth-registered) camera, pixels.
-        cfg: settings (flow section).
+        cfg: settings: a :class:`~jaxvo.config.Config`, of which the tracker keeps and reads
+            only its :class:`~jaxvo.config.FlowOptions` (``cfg.flow``), or those themselves.
         height, width: image size, pixels; sets the grid and so ``n``.
     """
 
-    def __init__(self, K: Intrinsics, cfg: Config = DEFAULT_CONFIG, *, height: int, width: int):
+    def __init__(self, K: Intrinsics, cfg: Config | FlowOptions = DEFAULT_CONFIG, *,
+                 height: int, width: int):
         self.K = K
-        self.cfg = cfg
+        self.cfg = cfg = flow_options(cfg)
         self.height, self.width = int(height), int(width)
         self.grid = grid_shape(self.height, self.width, cfg.cell)
         self.uv_grid = grid_pixels(self.height, self.width, cfg.cell)  # (n, 2) float32
@@ -566,6 +573,7 @@ def sequence_flows(
     if height is None or width is None:
         first = seq[0]
         height, width = first.bgr.shape[:2]
+    cfg = flow_options(cfg)
     tracker = GridFlowTracker(seq.intrinsics, cfg, height=height, width=width)
     chain = FrameChain(tracker, min_valid=min_valid_flow(cfg, params=params),
                        max_dropped=max_dropped, keyframes=cfg.keyframes)
