@@ -93,6 +93,9 @@ class Odometry:
       max_dropped: most frames dropped in a row (:class:`jaxvo.host.flow.FrameChain`).
       logger: gets every frame's result with its images (:meth:`attach`), e.g. a
         :class:`jaxvo.host.recording.RerunLogger`; None: nothing is logged.
+      checked: the caller has checked the intrinsics and ``cfg`` against the image size,
+        the memory the run needs and the first frame's depth, as ``jaxvo run`` does before
+        JAX loads (:func:`jaxvo.host.run.prepare_run`): they are not checked again.
     Raises:
       ValueError: intrinsics of another type or that no camera has, settings no run can
         use, or a ``T_w_c0`` that is not a finite rigid transform.
@@ -109,10 +112,13 @@ class Odometry:
         device: jax.Device | str | None = None,
         max_dropped: int = MAX_DROPPED,
         logger=None,
+        checked: bool = False,
     ):
         intrinsics = as_intrinsics(intrinsics)
-        check_intrinsics(intrinsics, where="intrinsics")
-        check_config(cfg)
+        if not checked:
+            check_intrinsics(intrinsics, where="intrinsics")
+            check_config(cfg)
+        self._checked = checked
         self.intrinsics = intrinsics
         self.warnings: list[str] = []  # one-line notes on the input (the depth scale)
         self.cfg = cfg
@@ -224,16 +230,9 @@ class Odometry:
         raw_units = getattr(depth, "dtype", None) == np.uint16
         bgr, depth = _frame_arrays(bgr, depth, self.intrinsics)
         if self._chain is None:  # the first frame sets the image size and the grid
-            note = check_depth_scale(depth, self.intrinsics, where="the first frame",
-                                     raw_units=raw_units)
-            if note:
-                self.warnings.append(note)
-                warnings.warn(note, DepthScaleWarning, stacklevel=3)
             h, w = depth.shape
-            check_intrinsics(self.intrinsics, where="intrinsics", width=w, height=h)
-            check_config(self.cfg, height=h, width=w)
-            check_memory(run_bytes(self.cfg, height=h, width=w),
-                         what=f"Odometry with {_shape_settings(self.cfg)}")
+            if not self._checked:
+                self._check_first(depth, raw_units)
             tracker = GridFlowTracker(self.intrinsics, self.cfg, height=h, width=w)
             self._chain = FrameChain(tracker, min_valid=self._min_valid,
                                      max_dropped=self._max_dropped, keyframes=self.cfg.keyframes)
@@ -254,6 +253,20 @@ class Odometry:
             keyframe=self._chain.keyframe_flow,
         )
         return index, t, out.T_w_c, out, None, images
+
+    def _check_first(self, depth: np.ndarray, raw_units: bool) -> None:
+        """The first frame's checks: its depth (a warning kept in :attr:`warnings`), the
+        intrinsics and the settings against its size, the memory the run needs."""
+        note = check_depth_scale(depth, self.intrinsics, where="the first frame",
+                                 raw_units=raw_units)
+        if note:
+            self.warnings.append(note)
+            warnings.warn(note, DepthScaleWarning, stacklevel=4)
+        h, w = depth.shape
+        check_intrinsics(self.intrinsics, where="intrinsics", width=w, height=h)
+        check_config(self.cfg, height=h, width=w)
+        check_memory(run_bytes(self.cfg, height=h, width=w),
+                     what=f"Odometry with {_shape_settings(self.cfg)}")
 
     def _finish(self, pending) -> FrameResult:
         """Wait for a dispatched frame, record its pose, log it (:meth:`attach`) and return
