@@ -180,7 +180,7 @@ def table(rows: list[dict]) -> str:
 
 def main(argv=None) -> int:
     ap = argparse.ArgumentParser(description=__doc__.split("\n\n")[0])
-    ap.add_argument("--split", choices=("dev", "val", "all"), default="val")
+    ap.add_argument("--split", choices=("dev", "val", "fresh", "all"), default="val")
     ap.add_argument("--only", nargs="*", help="case names")
     ap.add_argument("--seeds", type=int, default=5)
     ap.add_argument("--set", nargs="*", default=[], metavar="NAME=VALUE",

@@ -101,18 +101,16 @@ def step(state: PipelineState, flow: GridFlow, key, params: Params, *, cfg: Step
 
     Args:
       state: carried :class:`PipelineState`.
-      flow: a :class:`~jaxvo.core.inputs.GridFlow` of device or host arrays: the
-        points ``pts_prev``, ``pts_cur``, ``valid`` and the pair's ``status`` (the frame's
-        points); ``focal``, ``fb_error``, ``depth_slope`` (their noise); ``uv_prev``,
-        ``uv_cur`` (the displacement that carries the grid model forward); ``depth_prev``
-        (cells without depth keep their evidence). Every field is read.
+      flow: a :class:`~jaxvo.core.inputs.GridFlow`, every field read: the points
+        ``pts_prev``, ``pts_cur``, ``valid``, the pair's ``status``; their noise ``focal``,
+        ``fb_error``, ``depth_slope``; ``uv_prev``, ``uv_cur`` (carry the grid model);
+        ``depth_prev``, ``camera`` (the occlusion memory; cells without depth keep evidence).
       key: PRNG key of this frame (hypothesis sampling).
       params: numeric settings, possibly traced (vmappable).
       cfg: the step's options (``Config.step``), static; grid: static ``(rows, cols)``.
-      batch_axis: the name(s) of vmapped axes the call runs under (a study), see
-        :func:`jaxvo.core.spatial.segment`.
+      batch_axis: the vmapped axes' name(s) in a study, :func:`jaxvo.core.spatial.segment`.
       keyframe: with ``cfg.keyframes``, the pair's :class:`~jaxvo.core.inputs.KeyframeFlow`
-        (tracked by :class:`jaxvo.host.keyframes.KeyframeTracker`); None: frame to frame only.
+        (:class:`jaxvo.host.keyframes.KeyframeTracker`); None: frame to frame only.
     """
     pts = frame_points(flow.pts_prev, flow.pts_cur, flow.valid & (flow.status == Status.OK),
                        params, focal=flow.focal, scale=state.noise, fb_error=flow.fb_error,

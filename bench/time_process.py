@@ -1,0 +1,57 @@
+"""How long ``Odometry.process`` takes a frame, steady, on real frames: one line of figures.
+
+For before/after comparisons of the per-frame step (issue 47's "at most 15 % slower"): run
+this script alternately under two checkouts (``PYTHONPATH=OTHER_CHECKOUT python
+bench/time_process.py``, A B A B ...) on the same frames and compare the medians. It reads
+``--frames`` of the 7-Scenes frames of the data root (every ``--step``-th) into memory, then
+times each ``Odometry.process`` call with the clock around it (the step's outputs are host
+arrays, so the call returns when the frame is done); the first calls, which compile or load
+the compiled step, are reported apart.
+
+Usage: ``python bench/time_process.py [--frames 120] [--step 1] [--skip 10]``; prints one
+JSON line: ``{"code": ..., "first_s": ..., "median_ms": ..., "p90_ms": ..., "frames": ...}``.
+"""
+
+from __future__ import annotations
+
+import argparse
+import json
+import sys
+import time
+from pathlib import Path
+
+import numpy as np
+
+sys.path.insert(0, str(Path(__file__).resolve().parent))
+from _common import SEVEN_SCENES, load_average
+
+import jaxvo
+from jaxvo.host.io import InMemorySequence, data_root, open_sequence
+from jaxvo.odometry import Odometry
+
+
+def main(argv=None) -> int:
+    ap = argparse.ArgumentParser(description=__doc__.split("\n\n")[0])
+    ap.add_argument("--frames", type=int, default=120)
+    ap.add_argument("--step", type=int, default=1)
+    ap.add_argument("--skip", type=int, default=10, help="first calls left out of the steady figures")
+    args = ap.parse_args(argv)
+    seq = InMemorySequence(open_sequence(data_root() / SEVEN_SCENES), frames=args.frames,
+                           step=args.step)
+    odo = Odometry(seq.intrinsics, seed=0)
+    times = []
+    for frame in seq:
+        t0 = time.perf_counter()
+        odo.process(frame.bgr, frame.depth, frame.timestamp)
+        times.append(time.perf_counter() - t0)
+    steady = 1e3 * np.asarray(times[args.skip:])
+    print(json.dumps({"code": str(Path(jaxvo.__file__).resolve().parent.parent),
+                      "first_s": round(times[0] + times[1], 3),
+                      "median_ms": round(float(np.median(steady)), 3),
+                      "p90_ms": round(float(np.percentile(steady, 90)), 3),
+                      "frames": len(steady), "load": load_average()}))
+    return 0
+
+
+if __name__ == "__main__":
+    raise SystemExit(main())
