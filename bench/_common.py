@@ -24,7 +24,7 @@ def with_groundtruth(seq: InMemorySequence, truth: Path, max_diff: float = 0.02)
     one are left out of it, as evo's association leaves them out), when the file is
     there: TUM's motion capture, kept apart from the clip's folder (the data root's
     ``ground_truth/``), which starts 0.12 s after the clip's first frame."""
-    from jaxvo.host.io import Trajectory, pose_at, read_trajectory
+    from jaxvo.trajectory import Trajectory, pose_at, read_trajectory
 
     if not truth.is_file():
         return seq
@@ -40,7 +40,7 @@ def with_groundtruth(seq: InMemorySequence, truth: Path, max_diff: float = 0.02)
 def groundtruth(data: dict):
     """A cached case's ground truth (``gt_poses`` at ``gt_times``, or at every frame's
     timestamp), or None."""
-    from jaxvo.host.io import Trajectory
+    from jaxvo.trajectory import Trajectory
 
     if "gt_poses" not in data:
         return None

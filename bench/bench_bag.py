@@ -47,7 +47,8 @@ import numpy as np
 sys.path.insert(0, str(Path(__file__).resolve().parent))
 from _common import TUM_WALKING, load_average, log, machine, machine_line, markdown_table
 
-from jaxvo.host.io import InMemorySequence, data_root, open_sequence, read_trajectory
+from jaxvo.host.io import InMemorySequence, data_root, open_sequence
+from jaxvo.trajectory import read_trajectory
 
 TARGET = 0.10  # the bag may add this share of the steady ms/frame
 

@@ -183,13 +183,13 @@ def bench_scan(seq, cfg: Config, *, repeats: int = 5) -> dict:
     p = params_as_arrays(Params())
     T0 = jnp.eye(4, dtype=jnp.float32)
     t0 = time.perf_counter()
-    jax.block_until_ready(run_scan(flows, jax.random.key(0), p, T0, cfg=cfg, grid=grid,
+    jax.block_until_ready(run_scan(flows, jax.random.key(0), p, T0, cfg=cfg.step, grid=grid,
                                    keyframes=kfs))
     compile_s = time.perf_counter() - t0
     runs = []
     for r in range(repeats):
         t0 = time.perf_counter()
-        jax.block_until_ready(run_scan(flows, jax.random.key(r), p, T0, cfg=cfg, grid=grid,
+        jax.block_until_ready(run_scan(flows, jax.random.key(r), p, T0, cfg=cfg.step, grid=grid,
                                        keyframes=kfs))
         runs.append(time.perf_counter() - t0)
     n = int(flows.valid.shape[0])

@@ -39,16 +39,17 @@ from splits import Case, cases, runnable
 
 import jaxvo.host.keyframes
 from jaxvo.config import Config, Params, grid_shape, params_as_arrays
+from jaxvo.core.inputs import GridFlow
 from jaxvo.core.pipeline import final_moving, init_pipeline, jit_step
 from jaxvo.evaluation.metrics import SegmentationScores
 from jaxvo.evaluation.scores import trajectory_scores
-from jaxvo.host.flow import GridFlow, sequence_flows
-from jaxvo.host.io import Trajectory
+from jaxvo.host.flow import sequence_flows
 from jaxvo.host.masks import moving_at_grid
 from jaxvo.host.peers import OPENCV_PEERS
 from jaxvo.host.plugin import iter_dynamic_masks
 from jaxvo.status import Status
 from jaxvo.study import runner as study
+from jaxvo.trajectory import Trajectory
 
 CFG = Config()
 
@@ -199,7 +200,7 @@ def run_jaxvo(data: dict, params: Params, cfg: Config, seed: int):
     h, w = (int(x) for x in data["size"])
     grid = grid_shape(h, w, cfg.cell)
     T0 = first_pose(data)
-    state = init_pipeline(cfg=cfg, grid=grid, T_w_c0=T0, params=params)
+    state = init_pipeline(cfg=cfg.step, grid=grid, T_w_c0=T0, params=params)
     key = jax.random.key(seed)
     p = params_as_arrays(params)
     flows = GridFlow(*(data[f"flow_{k}"] for k in GridFlow._fields))
@@ -207,7 +208,7 @@ def run_jaxvo(data: dict, params: Params, cfg: Config, seed: int):
     t0 = time.perf_counter()
     for k in range(len(flows.valid)):
         flow = GridFlow(*(jnp.asarray(a[k]) for a in flows))
-        state, out = jit_step(state, flow, key, p, cfg=cfg, grid=grid)
+        state, out = jit_step(state, flow, key, p, cfg=cfg.step, grid=grid)
         outs.append(out)
     outs = jax.tree.map(lambda *xs: np.stack([np.asarray(x) for x in xs]), *outs)
     seconds = time.perf_counter() - t0

@@ -39,18 +39,18 @@ from bench_robustness import CFG, peers_alone, prepare
 from people_masks import people_masks
 from splits import Case, cases, runnable
 
-from jaxvo.config import Config, Params, grid_shape, params_as_arrays
+from jaxvo.config import Config, Params, StepOptions, grid_shape, params_as_arrays
+from jaxvo.core.inputs import GridFlow, KeyframeFlow
 from jaxvo.core.pipeline import frame_key, init_pipeline, step
 from jaxvo.evaluation.metrics import SegmentationScores
 from jaxvo.evaluation.scores import trajectory_scores
-from jaxvo.host.flow import GridFlow
-from jaxvo.host.io import Trajectory, data_root
-from jaxvo.host.keyframes import KeyframeFlow
+from jaxvo.host.io import data_root
 from jaxvo.host.peers import OPENCV_PEERS
+from jaxvo.trajectory import Trajectory
 
 
 @functools.partial(jax.jit, static_argnames=("cfg", "grid"))
-def _seeds_step(states, flow, keys, params, kf=None, *, cfg: Config, grid):
+def _seeds_step(states, flow, keys, params, kf=None, *, cfg: StepOptions, grid):
     """One frame pair for every seed: the step vmapped over the seeds' states and keys."""
 
     def one(state, key):
@@ -66,7 +66,7 @@ def run_seeds(flows: dict, T0, params: Params, cfg: Config, seeds: int, first_se
     (``flow_<field>`` arrays)."""
     h, w = (int(x) for x in flows["size"])
     grid = grid_shape(h, w, cfg.cell)
-    state = init_pipeline(cfg=cfg, grid=grid, T_w_c0=T0, params=params)
+    state = init_pipeline(cfg=cfg.step, grid=grid, T_w_c0=T0, params=params)
     states = jax.tree.map(lambda x: jnp.broadcast_to(x, (seeds,) + jnp.shape(x)), state)
     keys = jnp.stack([jax.random.key(first_seed + s) for s in range(seeds)])
     p = params_as_arrays(params)
@@ -77,7 +77,7 @@ def run_seeds(flows: dict, T0, params: Params, cfg: Config, seeds: int, first_se
     for k in range(len(flow_all.valid)):
         flow = GridFlow(*(jnp.asarray(a[k]) for a in flow_all))
         kf = None if kf_all is None else KeyframeFlow(*(jnp.asarray(a[k]) for a in kf_all))
-        states, out = _seeds_step(states, flow, keys, p, kf, cfg=cfg, grid=grid)
+        states, out = _seeds_step(states, flow, keys, p, kf, cfg=cfg.step, grid=grid)
         outs.append(out)
     outs = jax.tree.map(lambda *xs: np.stack([np.asarray(x) for x in xs], axis=1), *outs)
     t = np.asarray(flows["timestamps"], np.float64)

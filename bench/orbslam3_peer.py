@@ -229,7 +229,7 @@ def _serve(vocab: str, settings: str, log: str) -> None:
 class OrbRun(NamedTuple):
     """What an ORB-SLAM3 run gives back."""
 
-    trajectory: object  # jaxvo.host.io.Trajectory of the frames tracked (camera-to-world)
+    trajectory: object  # jaxvo.trajectory.Trajectory of the frames tracked (camera-to-world)
     ms: np.ndarray  # (frames,) milliseconds of each track_rgbd call
     states: list[str]  # (frames,) ORB-SLAM3's tracking state after each frame
     load_s: float  # seconds to load the vocabulary and start the system
@@ -293,8 +293,8 @@ class OrbSlam3:
         Raises:
           RuntimeError: the child failed; the message carries its last log lines.
         """
-        from jaxvo.host.io import Trajectory
         from jaxvo.host.transforms import pose_from_tq
+        from jaxvo.trajectory import Trajectory
 
         try:
             pickle.dump(None, self._proc.stdin)
@@ -317,7 +317,7 @@ class OrbSlam3:
 def anchored(traj, gt):
     """``traj`` moved so that its first pose is the ground-truth pose at that time (the
     peers' convention: estimate and truth share a frame), or left as it is without one."""
-    from jaxvo.host.io import Trajectory, pose_at
+    from jaxvo.trajectory import Trajectory, pose_at
 
     if gt is None or not len(traj):
         return traj
@@ -438,7 +438,8 @@ def main(argv=None) -> int:
     if why:
         print(f"orbslam3_peer: {why}", file=sys.stderr)
         return 2
-    from jaxvo.host.io import open_sequence, write_trajectory
+    from jaxvo.host.io import open_sequence
+    from jaxvo.trajectory import write_trajectory
 
     seq = open_sequence(args.sequence)
     keep = None

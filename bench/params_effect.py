@@ -91,7 +91,7 @@ def main() -> None:
         grid = grid_shape(seq.height, seq.width, cfg.cell)
         keys = jnp.stack([jax.random.key(0)] * len(configs))
         T0 = jnp.asarray(seq.groundtruth.poses[0], jnp.float32)
-        outs = jax.tree.map(np.asarray, run_study(flows, keys, params, T0, cfg=cfg,
+        outs = jax.tree.map(np.asarray, run_study(flows, keys, params, T0, cfg=cfg.step,
                                                         grid=grid))
 
         base_scores.append(scores(seq, outs, 0, cfg))

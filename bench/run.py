@@ -40,6 +40,7 @@ from _common import (
 )
 
 from jaxvo.config import Config, Params, grid_shape, params_as_arrays
+from jaxvo.core.inputs import stack_flows
 from jaxvo.core.pipeline import (
     StepOutput,
     final_moving,
@@ -51,13 +52,14 @@ from jaxvo.core.pipeline import (
 from jaxvo.core.spatial import segment
 from jaxvo.evaluation.metrics import SegmentationScores, ate
 from jaxvo.evaluation.scores import segmentation_scores, trajectory_scores
-from jaxvo.host.flow import GridFlowTracker, stack_flows
-from jaxvo.host.io import Trajectory, data_root, first_pose, open_sequence, write_trajectory
+from jaxvo.host.flow import GridFlowTracker
+from jaxvo.host.io import data_root, first_pose, open_sequence
 from jaxvo.host.masks import overlay_panel
 from jaxvo.host.peers import OPEN3D_PEERS
 from jaxvo.host.plugin import dynamic_masks
 from jaxvo.status import Status
 from jaxvo.synth.scenes import SCENARIOS, composite_sequence, make_sequence
+from jaxvo.trajectory import Trajectory, write_trajectory
 
 JAXVO = "jaxvo"
 
@@ -106,7 +108,7 @@ def stage_functions(cfg: Config, grid: tuple[int, int]):
     """The spatial stage jitted alone, and the whole per-frame step (spatial, temporal,
     ego-motion), so that the temporal and ego-motion stages' time is their difference."""
     spatial = jax.jit(functools.partial(segment, cfg=cfg, grid=grid))
-    step = functools.partial(jit_step, cfg=cfg, grid=grid)
+    step = functools.partial(jit_step, cfg=cfg.step, grid=grid)
     return spatial, step
 
 
@@ -160,7 +162,7 @@ def time_stages(flows, key, params, cfg: Config, grid):
                                  focal=pairs[k].focal))
         t_sp.append(time.perf_counter() - t0)
 
-    state = init_pipeline(cfg=cfg, grid=grid, params=params)
+    state = init_pipeline(cfg=cfg.step, grid=grid, params=params)
     t0 = time.perf_counter()
     state, _ = jax.block_until_ready(step(state, pairs[0], key, params))
     compile_s["step"] = time.perf_counter() - t0
@@ -185,7 +187,7 @@ def run_jaxvo(seq: CachedSequence, cfg: Config, seed: int, repeats: int):
     params = params_as_arrays(Params())
     T0j = jnp.asarray(T0, jnp.float32)
     scan, scan_compile = compiled("scan", (T, grid), run_scan, flows_dev, key, params, T0j,
-                                  cfg=cfg, grid=grid)
+                                  cfg=cfg.step, grid=grid)
     times = []
     for _ in range(repeats):
         t0 = time.perf_counter()

@@ -27,7 +27,7 @@ params = batch_params(jaxvo.Params(), max_age=[a for a, _ in combos],
                             confidence=[c for _, c in combos])
 keys = jnp.stack([jax.random.key(0)] * len(combos))
 T0 = jnp.asarray(seq.groundtruth.poses[0], jnp.float32)
-outs = run_study(flows, keys, params, T0, cfg=cfg, grid=grid)
+outs = run_study(flows, keys, params, T0, cfg=cfg.step, grid=grid)
 
 print(f"{'max_age':>8} {'confidence':>11} {'ATE [mm]':>9} {'F-measure':>10}")
 for b, (age, conf) in enumerate(combos):

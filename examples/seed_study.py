@@ -25,7 +25,7 @@ seeds = np.arange(9)  # as many as parameter_study.py's configurations: one comp
 keys = jnp.stack([jax.random.key(int(s)) for s in seeds])
 params = batch_params(jaxvo.Params(), size=len(seeds))
 T0 = jnp.asarray(seq.groundtruth.poses[0], jnp.float32)
-outs = run_study(flows, keys, params, T0, cfg=cfg, grid=grid)
+outs = run_study(flows, keys, params, T0, cfg=cfg.step, grid=grid)
 
 for s, poses in zip(seeds, np.asarray(outs.T_w_c)):
     traj = jaxvo.Trajectory(seq.timestamps, np.concatenate([seq.groundtruth.poses[:1], poses]))

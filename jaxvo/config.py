@@ -2,9 +2,12 @@
 
 Two objects, following the house style:
 
-* :class:`Config` is a frozen dataclass of plain Python values. Everything that sets an
-  array shape or a loop trip count lives here, and it is passed to jitted functions as a
-  static argument (changing it recompiles).
+* :class:`Config` is a frozen dataclass of plain Python values: what a user sets, every
+  field with its default. Each side reads its own part of it: the host's grid flow
+  :attr:`Config.flow` (a :class:`FlowOptions`: the LK, depth and keyframe-tracking settings,
+  which also key a study's flow cache), the jitted step :attr:`Config.step` (a
+  :class:`StepOptions`, a static argument: everything that sets an array shape or a loop
+  trip count; changing it recompiles the step, changing a flow setting does not).
 * :class:`Params` is a ``NamedTuple`` of numeric values that a parameter study sweeps. Its
   fields may be Python floats or JAX arrays; ``jax.vmap`` can batch any of them without a
   recompile. :func:`default_params` gives the thesis's values.
@@ -21,7 +24,8 @@ from typing import NamedTuple
 
 @dataclasses.dataclass(frozen=True)
 class Config:
-    """Shape-setting settings (static under ``jax.jit``)."""
+    """Every setting of the odometry that is no number a study sweeps: the host flow's
+    (:attr:`flow`) and the step's (:attr:`step`, static under ``jax.jit``)."""
 
     # --- grid-based optical flow (thesis section 2.2) ---
     cell: int = 16  # grid cell size in pixels (thesis: 16 x 16)
@@ -105,6 +109,81 @@ class Config:
     # Levenberg-Marquardt iterations of the window's refinement; not tuned (10 gave the
     # same ATE in the one check made, docs/report/keyframes.md has the window's figures)
     keyframe_iters: int = 5
+
+    @property
+    def flow(self) -> FlowOptions:
+        """The settings the host's grid flow and keyframe tracker read."""
+        return _view(FlowOptions, self)
+
+    @property
+    def step(self) -> StepOptions:
+        """The settings the jitted step reads: its static argument."""
+        return _view(StepOptions, self)
+
+
+# Each side's options: the fields of Config that one side reads, without defaults of their
+# own (Config holds each default once; build them with Config(...).flow / .step). A field
+# both sides read (the grid cell, the keyframe window) is in both. Reading a field the
+# options lack is an AttributeError, so the lists cannot fall behind the code.
+
+
+@dataclasses.dataclass(frozen=True)
+class FlowOptions:
+    """What the host's grid flow (:mod:`jaxvo.host.flow`, :mod:`jaxvo.host.depth`) and
+    keyframe tracker (:mod:`jaxvo.host.keyframes`) read of a :class:`Config`: a study's flow
+    cache is keyed by them. See :class:`Config` for each field."""
+
+    cell: int
+    lk_window: int
+    lk_levels: int
+    lk_fast_px: float
+    patch: int
+    lk_iters: int
+    lk_eps: float
+    fb_max: float
+    min_similarity: float
+    depth_min: float
+    depth_max: float
+    depth_jump: float
+    fill_radius: int
+    fill_min_valid: int
+    depth_smooth: bool
+    textured_points: bool
+    sample_size: int  # a pair with fewer valid vectors than a sample needs is dropped
+    keyframes: bool
+    keyframe_overlap: float
+    keyframe_stride: int
+    keyframe_window: int
+
+
+@dataclasses.dataclass(frozen=True)
+class StepOptions:
+    """What the jitted per-frame step (:mod:`jaxvo.core`) reads of a :class:`Config`: its
+    static argument (shapes, trip counts, switches), so that a flow setting never
+    recompiles it. See :class:`Config` for each field."""
+
+    cell: int
+    num_hypotheses: int
+    sample_size: int
+    sample_radius: int
+    num_candidates: int
+    refine_iters: int
+    cluster_refine_iters: int
+    max_segments: int
+    max_ids: int
+    match_window: int
+    ego_iters: int
+    ego_reprojection_iters: int
+    noise_calibration: bool
+    keyframes: bool
+    keyframe_stride: int
+    keyframe_window: int
+    keyframe_iters: int
+
+
+def _view(options: type, cfg: Config):
+    """``options`` (:class:`FlowOptions` or :class:`StepOptions`) with ``cfg``'s values."""
+    return options(**{f.name: getattr(cfg, f.name) for f in dataclasses.fields(options)})
 
 
 # Config fields that are gone, and what replaced them: Config(window=5) and a study's

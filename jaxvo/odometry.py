@@ -25,6 +25,7 @@ import jax.numpy as jnp
 import numpy as np
 
 from jaxvo.config import Config, Params, check_config, check_params, grid_shape, params_as_arrays
+from jaxvo.core.inputs import GridFlow, KeyframeFlow
 from jaxvo.core.pipeline import StepOutput, init_pipeline, jit_step, run_scan
 from jaxvo.errors import InputError
 from jaxvo.host.camera import Intrinsics, as_intrinsics, check_intrinsics, depth_metres
@@ -35,9 +36,10 @@ from jaxvo.host.flow import (
     min_valid_flow,
     sequence_flows,
 )
-from jaxvo.host.io import DepthScaleWarning, Trajectory, check_depth_scale, pose_at
+from jaxvo.host.io import DepthScaleWarning, check_depth_scale
 from jaxvo.host.memory import check_memory, run_bytes
 from jaxvo.status import Status
+from jaxvo.trajectory import Trajectory, pose_at
 
 
 class FrameResult(NamedTuple):
@@ -82,7 +84,7 @@ class Odometry:
         preset name, ``(fx, fy, cx, cy[, depth_scale])``, a dict of those keys or a 3x3
         camera matrix (depth_scale 5000); its ``depth_scale`` converts ``uint16`` depth to
         metres.
-      cfg: static settings.
+      cfg: settings (the host's flow reads ``cfg.flow``, the compiled step ``cfg.step``).
       params: numeric settings (default :class:`Params`).
       seed: PRNG seed of the hypothesis sampling.
       T_w_c0: (4, 4) camera-to-world pose of the first frame; None: the identity (the
@@ -91,6 +93,9 @@ class Odometry:
       max_dropped: most frames dropped in a row (:class:`jaxvo.host.flow.FrameChain`).
       logger: gets every frame's result with its images (:meth:`attach`), e.g. a
         :class:`jaxvo.host.recording.RerunLogger`; None: nothing is logged.
+      checked: the caller has checked the intrinsics and ``cfg`` against the image size,
+        the memory the run needs and the first frame's depth, as ``jaxvo run`` does before
+        JAX loads (:func:`jaxvo.host.run.prepare_run`): they are not checked again.
     Raises:
       ValueError: intrinsics of another type or that no camera has, settings no run can
         use, or a ``T_w_c0`` that is not a finite rigid transform.
@@ -107,13 +112,17 @@ class Odometry:
         device: jax.Device | str | None = None,
         max_dropped: int = MAX_DROPPED,
         logger=None,
+        checked: bool = False,
     ):
         intrinsics = as_intrinsics(intrinsics)
-        check_intrinsics(intrinsics, where="intrinsics")
-        check_config(cfg)
+        if not checked:
+            check_intrinsics(intrinsics, where="intrinsics")
+            check_config(cfg)
+        self._checked = checked
         self.intrinsics = intrinsics
         self.warnings: list[str] = []  # one-line notes on the input (the depth scale)
         self.cfg = cfg
+        self._step_options = cfg.step  # the step's static argument: no flow setting in it
         # One frame's step is a long chain of small dependent operations, bound by launch
         # latency on an accelerator: on an H100 it took 19-25 ms a frame against 9 ms on 2
         # CPU cores (docs/report/pipeline_h100.md). So the step runs on the CPU unless told
@@ -221,22 +230,15 @@ class Odometry:
         raw_units = getattr(depth, "dtype", None) == np.uint16
         bgr, depth = _frame_arrays(bgr, depth, self.intrinsics)
         if self._chain is None:  # the first frame sets the image size and the grid
-            note = check_depth_scale(depth, self.intrinsics, where="the first frame",
-                                     raw_units=raw_units)
-            if note:
-                self.warnings.append(note)
-                warnings.warn(note, DepthScaleWarning, stacklevel=3)
             h, w = depth.shape
-            check_intrinsics(self.intrinsics, where="intrinsics", width=w, height=h)
-            check_config(self.cfg, height=h, width=w)
-            check_memory(run_bytes(self.cfg, height=h, width=w),
-                         what=f"Odometry with {_shape_settings(self.cfg)}")
+            if not self._checked:
+                self._check_first(depth, raw_units)
             tracker = GridFlowTracker(self.intrinsics, self.cfg, height=h, width=w)
             self._chain = FrameChain(tracker, min_valid=self._min_valid,
                                      max_dropped=self._max_dropped, keyframes=self.cfg.keyframes)
             self._grid = tracker.grid
             self._state = jax.device_put(
-                init_pipeline(cfg=self.cfg, grid=self._grid, T_w_c0=self._T_w_c0,
+                init_pipeline(cfg=self._step_options, grid=self._grid, T_w_c0=self._T_w_c0,
                               params=self.params), self.device
             )
         self._last_t = t
@@ -247,10 +249,24 @@ class Odometry:
         if flow is None:  # the chain's first frame, or a dropped one: the pose stays
             return index, t, self._state.T_w_c, None, dropped, images
         self._state, out = jit_step(
-            self._state, flow, self.key, self.params, cfg=self.cfg, grid=self._grid,
+            self._state, flow, self.key, self.params, cfg=self._step_options, grid=self._grid,
             keyframe=self._chain.keyframe_flow,
         )
         return index, t, out.T_w_c, out, None, images
+
+    def _check_first(self, depth: np.ndarray, raw_units: bool) -> None:
+        """The first frame's checks: its depth (a warning kept in :attr:`warnings`), the
+        intrinsics and the settings against its size, the memory the run needs."""
+        note = check_depth_scale(depth, self.intrinsics, where="the first frame",
+                                 raw_units=raw_units)
+        if note:
+            self.warnings.append(note)
+            warnings.warn(note, DepthScaleWarning, stacklevel=4)
+        h, w = depth.shape
+        check_intrinsics(self.intrinsics, where="intrinsics", width=w, height=h)
+        check_config(self.cfg, height=h, width=w)
+        check_memory(run_bytes(self.cfg, height=h, width=w),
+                     what=f"Odometry with {_shape_settings(self.cfg)}")
 
     def _finish(self, pending) -> FrameResult:
         """Wait for a dispatched frame, record its pose, log it (:meth:`attach`) and return
@@ -411,7 +427,7 @@ class SequenceResult(NamedTuple):
 
     trajectory: Trajectory  # one pose per kept frame, camera-to-world
     outputs: StepOutput  # every field stacked over the T frame pairs stepped
-    flows: object  # the stacked GridFlow the scan consumed
+    flows: GridFlow  # stacked over the T pairs the scan consumed
     flow_seconds: float  # host time computing the grid flow
     scan_seconds: float  # device time of the scan, compile included
     grid: tuple[int, int]
@@ -421,7 +437,7 @@ class SequenceResult(NamedTuple):
     dropped: dict[int, str]  # index of each dropped frame -> why
     start_pose: str  # where the first pose came from, in words
     # the KeyframeFlow of every pair the scan consumed beside ``flows`` (cfg.keyframes)
-    keyframes: object = None
+    keyframes: KeyframeFlow | None = None
 
 
 def scan_flows(flows, keyframes, T_w_c0, *, cfg: Config, grid: tuple[int, int], seed: int = 0,
@@ -436,7 +452,7 @@ def scan_flows(flows, keyframes, T_w_c0, *, cfg: Config, grid: tuple[int, int], 
     """
     p = params_as_arrays(params if params is not None else Params())
     return run_scan(flows, jax.random.key(seed), p, jnp.asarray(T_w_c0, jnp.float32),
-                    cfg=cfg, grid=grid, keyframes=keyframes)
+                    cfg=cfg.step, grid=grid, keyframes=keyframes)
 
 
 def run_sequence(

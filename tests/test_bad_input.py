@@ -34,10 +34,11 @@ from jaxvo.config import Config, Params, check_config, check_params
 from jaxvo.errors import InputError, check_seed
 from jaxvo.evaluation.metrics import ate
 from jaxvo.host.camera import Intrinsics, read_camera_file
-from jaxvo.host.io import InMemorySequence, open_sequence, read_trajectory
+from jaxvo.host.io import InMemorySequence, open_sequence
 from jaxvo.odometry import Odometry
 from jaxvo.status import Status
 from jaxvo.synth.scenes import make_sequence, write_sequence
+from jaxvo.trajectory import read_trajectory
 
 FRAMES = 6
 
@@ -1024,6 +1025,29 @@ def test_check_memory_gives_both_numbers():
     assert need < kf < need + 10e6  # the default window of 4 keyframes costs little
     assert run_bytes(Config(keyframes=True, keyframe_window=10000), height=480,
                      width=640) > 1e13
+
+
+def test_a_run_over_a_whole_sequence_counts_the_flow_it_holds_keyframes_included():
+    """run_sequence and a study hold every pair's flow at once, with keyframes also its
+    keyframe flow (80 bytes a grid point at the default window against the grid flow's
+    53): run_bytes grows per frame by what sequence_flows really holds."""
+    from jaxvo.host.flow import sequence_flows
+    from jaxvo.host.memory import run_bytes
+
+    seq = make_sequence("handheld_fast", frames=4, seed=0)
+    per_frame = {}
+    for keyframes in (False, True):
+        cfg = Config(keyframes=keyframes)
+        held = sequence_flows(seq, cfg)
+        pairs = len(held.flows.valid)
+        fields = [*held.flows, *(held.keyframes or ())]
+        nbytes = sum(np.asarray(a).nbytes for a in fields)
+        grow = (run_bytes(cfg, height=480, width=640, frames=1000)
+                - run_bytes(cfg, height=480, width=640)) / 1000
+        per_frame[keyframes] = grow
+        outputs = 23.0 * 1200  # the stacked step outputs a frame, counted beside the flow
+        assert grow - outputs == pytest.approx(nbytes / pairs, rel=1e-6)
+    assert per_frame[True] - per_frame[False] > 60 * 1200  # the keyframe flow, counted
 
 
 # --- issue 29: a study's folder whose depth cannot be read ---------------------------------

@@ -7,8 +7,8 @@ import numpy as np
 import pytest
 
 from jaxvo.cli.main import main
-from jaxvo.host.io import read_trajectory
 from jaxvo.synth.scenes import make_sequence, write_sequence
+from jaxvo.trajectory import read_trajectory
 
 
 @pytest.fixture(scope="module")
@@ -89,6 +89,38 @@ def test_wrong_depth_scale_is_reported(seq_dir, tmp_path, capsys):
     assert "depth scale looks wrong" in capsys.readouterr().err
 
 
+def test_each_check_runs_once_a_run(seq_dir, tmp_path, capsys, monkeypatch):
+    """The settings, the memory they need and the first frame's depth are checked once a
+    run, before JAX loads (jaxvo.host.run.prepare_run, record_run); the odometry is told so
+    and checks none of them again (each ran twice or three times)."""
+    import jaxvo.config
+    import jaxvo.host.io
+    import jaxvo.host.memory
+    import jaxvo.host.run
+    import jaxvo.odometry
+
+    calls = {"check_config": 0, "check_memory": 0, "check_depth_scale": 0}
+
+    def counted(name, real):
+        def call(*args, **kwargs):
+            calls[name] += 1
+            return real(*args, **kwargs)
+        return call
+
+    # each check wherever it is imported from (the functions themselves, taken first)
+    for name, home, users in (
+            ("check_config", jaxvo.config, (jaxvo.config, jaxvo.host.run, jaxvo.odometry)),
+            ("check_memory", jaxvo.host.memory, (jaxvo.host.memory, jaxvo.odometry)),
+            ("check_depth_scale", jaxvo.host.io, (jaxvo.host.io, jaxvo.odometry))):
+        check = counted(name, getattr(home, name))
+        for module in users:
+            monkeypatch.setattr(module, name, check)
+    rc = main(["run", str(seq_dir), "--out", str(tmp_path / "t.txt"), "-q", "--json",
+               "--frames", "3"])
+    assert rc == 0 and json.loads(capsys.readouterr().out)["poses_written"] == 3
+    assert calls == {"check_config": 1, "check_memory": 1, "check_depth_scale": 1}
+
+
 def test_demo_unknown_scenario_lists_the_valid_ones(capsys):
     assert main(["demo", "--scenario", "nope"]) == 2
     assert "fixed_camera_1" in capsys.readouterr().err
@@ -153,9 +185,9 @@ def test_an_image_that_cannot_be_written_mid_run_is_one_line_and_exit_2(
     still ends the run with one line naming the file. A failed run replaces no file: the
     earlier trajectory stays as it was (an interrupted one keeps its poses: the test above),
     and the folder keeps the masks written whole before the failure."""
-    import jaxvo.host.io
+    import jaxvo.host.outputs
 
-    real_write = jaxvo.host.io.write_image
+    real_write = jaxvo.host.outputs.write_image
     calls = {"n": 0}
 
     def write_image(path, image):
@@ -164,7 +196,7 @@ def test_an_image_that_cannot_be_written_mid_run_is_one_line_and_exit_2(
             raise OSError(28, "No space left on device", str(path))
         real_write(path, image)
 
-    monkeypatch.setattr(jaxvo.host.io, "write_image", write_image)
+    monkeypatch.setattr(jaxvo.host.outputs, "write_image", write_image)
     traj = tmp_path / "traj.txt"
     traj.write_text("# an earlier run\n")
     rc = main(["run", str(seq_dir), "--out", str(traj), "--masks", str(tmp_path / "m"), "-q"])

@@ -17,7 +17,7 @@ from jaxvo import __version__
 from jaxvo.cli.main import build_parser, main
 from jaxvo.errors import InputError
 from jaxvo.host.compile_cache import ENV, choose_compile_cache, setup_compile_cache
-from jaxvo.host.io import read_trajectory
+from jaxvo.trajectory import read_trajectory
 
 VERSIONED = f"jaxvo-{__version__}_jax-{jax.__version__}"
 

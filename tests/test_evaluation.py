@@ -5,7 +5,7 @@ from typing import NamedTuple
 import numpy as np
 
 from jaxvo.evaluation.scores import segmentation_scores, trajectory_scores
-from jaxvo.host.io import Trajectory
+from jaxvo.trajectory import Trajectory
 
 
 def _traj(positions):

@@ -10,17 +10,7 @@ import pytest
 
 from jaxvo.errors import InputError
 from jaxvo.host.camera import PRESETS, Intrinsics, write_camera_file
-from jaxvo.host.io import (
-    Frame,
-    InMemorySequence,
-    Trajectory,
-    TumSequence,
-    associate,
-    open_sequence,
-    preset_from_name,
-    read_trajectory,
-    write_trajectory,
-)
+from jaxvo.host.io import Frame, InMemorySequence, TumSequence, open_sequence, preset_from_name
 from jaxvo.host.transforms import (
     invert_pose,
     pose_from_tq,
@@ -28,6 +18,7 @@ from jaxvo.host.transforms import (
     rotation_angle,
     rotation_to_quat,
 )
+from jaxvo.trajectory import Trajectory, associate, read_trajectory, write_trajectory
 
 
 def random_quats(rng, n):

@@ -14,6 +14,7 @@ from scipy.spatial.transform import Rotation
 from test_flow import CFG, H, K, W, bgr, plane, texture, warp
 
 from jaxvo.config import Config, Params
+from jaxvo.core.inputs import KeyframeFlow, invalid_keyframe_flow
 from jaxvo.core.keyframe import (
     KeyframeState,
     _problem,
@@ -25,7 +26,6 @@ from jaxvo.core.keyframe import (
 )
 from jaxvo.core.noise import frame_points, init_noise
 from jaxvo.host.flow import FrameChain, GridFlowTracker
-from jaxvo.host.keyframes import KeyframeFlow, invalid_keyframe_flow
 from jaxvo.odometry import Odometry, run_sequence
 from jaxvo.synth.scenes import make_sequence
 

@@ -11,7 +11,6 @@ import pytest
 
 from jaxvo.errors import InputError
 from jaxvo.host.camera import Intrinsics
-from jaxvo.host.io import Trajectory
 from jaxvo.host.mapping import (
     frame_points,
     fuse_maps,
@@ -21,6 +20,7 @@ from jaxvo.host.mapping import (
     write_ply,
 )
 from jaxvo.synth.scenes import make_sequence
+from jaxvo.trajectory import Trajectory
 
 K = Intrinsics(500.0, 500.0, 31.5, 23.5, 5000.0)
 

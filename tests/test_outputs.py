@@ -66,7 +66,7 @@ def cut(request, monkeypatch):
 def _evo_result():
     from jaxvo.evaluation.evo_results import ape_result
     from jaxvo.evaluation.metrics import ate
-    from jaxvo.host.io import Trajectory
+    from jaxvo.trajectory import Trajectory
 
     t = np.arange(5) / 30.0
     poses = np.tile(np.eye(4), (5, 1, 1))
@@ -81,9 +81,10 @@ def _writers():
     its poses: tests/test_cli_run.py)."""
     from jaxvo.evaluation.evo_results import plot_result, save_results
     from jaxvo.host.camera import Intrinsics, write_camera_file
-    from jaxvo.host.io import Trajectory, write_image, write_trajectory
+    from jaxvo.host.io import write_image
     from jaxvo.host.mapping import PointMap, write_ply
     from jaxvo.study.report import write_csv
+    from jaxvo.trajectory import Trajectory, write_trajectory
 
     traj = Trajectory(np.arange(3.0), np.tile(np.eye(4), (3, 1, 1)))
     cloud = PointMap(np.zeros((4, 3), np.float32), np.zeros((4, 3), np.uint8),

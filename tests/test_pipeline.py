@@ -128,6 +128,27 @@ def test_pipelined_submit_gives_the_results_of_process_one_frame_late(seq):
     assert list(piped.trajectory.timestamps[-2:]) == [9.0, 10.0] and r.timestamp == 10.0
 
 
+def test_a_setting_of_the_host_flow_compiles_the_step_no_more(seq):
+    """Each side has its own options: the step's static argument is ``Config.step``, which
+    an LK setting (the flow's, ``Config.flow``) leaves as it is, so an odometry with other
+    LK settings runs the program the first one compiled (jax.jit's cache counts them)."""
+    frames = list(seq)[:3]
+
+    def run(cfg: Config) -> None:
+        odo = Odometry(seq.intrinsics, cfg=cfg)
+        for f in frames:
+            odo.process(f.bgr, f.depth, f.timestamp)
+
+    lk = Config(lk_window=13, lk_levels=3, lk_iters=20, fb_max=2.0, min_similarity=0.6)
+    assert lk.flow != CFG.flow and lk.step == CFG.step  # what the count below relies on
+    assert Config(num_hypotheses=10).step != CFG.step  # a step setting is the step's own
+    run(CFG)
+    compiled = jit_step._cache_size()
+    assert compiled >= 1
+    run(lk)
+    assert jit_step._cache_size() == compiled
+
+
 @pytest.mark.slow
 def test_study_vmaps_seeds_and_params_and_matches_single_runs(flows, seq, scan_result):
     grid = grid_shape(seq.height, seq.width, CFG.cell)
@@ -252,7 +273,7 @@ BOX = (_C < 10) & (_R >= 1) & (_R < 11)
 
 
 def hand_flow(rng, box_moves, status=Status.OK, valid=True):
-    from jaxvo.host.flow import GridFlow
+    from jaxvo.core.inputs import GridFlow
 
     uv = np.stack([(_C + 0.5) * CFG.cell, (_R + 0.5) * CFG.cell], 1)
     cx, cy = GRID_S[1] * CFG.cell / 2, GRID_S[0] * CFG.cell / 2

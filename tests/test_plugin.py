@@ -122,3 +122,15 @@ def test_png_values_and_public_export():
     np.testing.assert_array_equal(png, [[255, 0]])
     assert jaxvo.dynamic_masks is dynamic_masks
     assert "dynamic_masks" in jaxvo.__all__
+
+
+def test_a_streams_labels_lie_on_the_image_each_pair_starts_at():
+    """LabelAnchor (jaxvo run's masks, overlays, bag and map): pair k's labels on image k,
+    the last image, which starts no pair, with the last pair's."""
+    from jaxvo.host.plugin import LabelAnchor
+
+    anchor = LabelAnchor()
+    assert anchor.push("image 0", None) is None and anchor.last_image() is None
+    assert anchor.push("image 1", "pair 0-1") == "image 0"
+    assert anchor.push("image 2", "pair 1-2") == "image 1"
+    assert anchor.last_image() == ("image 2", "pair 1-2")

@@ -22,8 +22,8 @@ import pytest
 
 from jaxvo.cli.main import main
 from jaxvo.errors import InputError
-from jaxvo.host.io import read_trajectory
 from jaxvo.synth.scenes import make_sequence, write_sequence
+from jaxvo.trajectory import read_trajectory
 
 FRAMES = 5
 

@@ -19,9 +19,10 @@ from rosbags.typesys import Stores, get_typestore
 from jaxvo.cli.main import main
 from jaxvo.errors import InputError
 from jaxvo.host.camera import Intrinsics
-from jaxvo.host.io import open_sequence, read_trajectory
+from jaxvo.host.io import open_sequence
 from jaxvo.host.rosbag import TUM_TOPICS, BagSequence, colour_bgr, depth_m
 from jaxvo.synth.scenes import make_sequence
+from jaxvo.trajectory import read_trajectory
 
 K_INFO = Intrinsics(535.4, 539.2, 320.1, 247.6, 1000.0)
 

@@ -22,9 +22,9 @@ from jaxvo.config import Config, Params
 from jaxvo.core.pipeline import batch_params, run_study
 from jaxvo.errors import InputError
 from jaxvo.evaluation.scores import trajectory_scores
-from jaxvo.host.io import Trajectory
 from jaxvo.study import runner as study
 from jaxvo.study.report import plot_points, summarise, write_report
+from jaxvo.trajectory import Trajectory
 
 # a tiny study: 8 frames of the fast hand-held scene, a coarse grid, few hypotheses, a
 # confidence of 0.9 and the online noise calibration on (at the defaults the runs of lam 10
@@ -236,29 +236,28 @@ def test_cli_bad_spec_is_one_line_and_exit_2(tmp_path, capsys):
 # ---------------------------------------------------------------------- the flow cache
 
 
-class _Recorder:
-    """A Config that notes every field read from it."""
+def test_the_flow_reads_only_its_options_and_they_key_the_cache():
+    """The flow's tracker holds ``Config.flow`` (a FlowOptions) and nothing else of the
+    Config, so the flow runs on those options alone (a read of any other setting would
+    raise) and no setting outside them can change it without keying the cache. Every
+    Config field is the flow's, the step's or both (the grid cell, the keyframe window)."""
+    import dataclasses
 
-    def __init__(self, cfg, seen):
-        self._cfg, self._seen = cfg, seen
-
-    def __getattr__(self, name):
-        self._seen.add(name)
-        return getattr(self._cfg, name)
-
-
-def test_flow_cache_key_covers_every_config_field_the_flow_reads():
-    from jaxvo.host.flow import flows_for_sequence
+    from jaxvo.config import StepOptions
+    from jaxvo.host.flow import GridFlowTracker, sequence_flows
     from jaxvo.synth.scenes import make_sequence
 
-    seen: set[str] = set()
+    seq = make_sequence("handheld_fast", frames=3, seed=0)
     for keyframes in (False, True):  # the keyframe tracker reads settings of its own
-        flows_for_sequence(make_sequence("handheld_fast", frames=3, seed=0),
-                           _Recorder(Config(cell=32, keyframes=keyframes), seen))
-    read = seen & set(study.config_fields())
-    assert read and read <= set(study.flow_fields())
-    assert {"keyframes", "keyframe_stride", "keyframe_overlap"} <= read
-    assert "num_hypotheses" not in study.flow_fields()
+        cfg = Config(cell=32, keyframes=keyframes)
+        flows = sequence_flows(seq, cfg.flow)
+        assert len(flows.flows.valid) == 2 and (flows.keyframes is None) == (not keyframes)
+        tracker = GridFlowTracker(seq.intrinsics, cfg, height=seq.height, width=seq.width)
+        assert tracker.cfg == cfg.flow
+    step_fields = {f.name for f in dataclasses.fields(StepOptions)}
+    assert set(study.flow_fields()) | step_fields == set(study.config_fields())
+    assert {"keyframes", "keyframe_stride", "keyframe_overlap"} <= set(study.flow_fields())
+    assert "num_hypotheses" not in study.flow_fields() and "lk_window" not in step_fields
 
     s = study.SequenceSpec("x", "static", None, 5, 0, 1, None)
     key = study.sequence_key(s, Config())
@@ -634,8 +633,9 @@ def test_a_study_with_keyframes_scores_as_jaxvo_run_keyframes(tmp_path, capsys):
     keyframe (the window refines); frame to frame the study's ATE there is 0.50 mm, with
     keyframes 0.17 mm, so a study that ran frame to frame could not pass. The command's
     step is the one ``jaxvo run --keyframes`` compiles in test_cli_run.py."""
-    from jaxvo.host.io import open_sequence, read_trajectory
+    from jaxvo.host.io import open_sequence
     from jaxvo.synth.scenes import make_sequence, write_sequence
+    from jaxvo.trajectory import read_trajectory
 
     folder = tmp_path / "seq"
     write_sequence(make_sequence("handheld_fast", frames=24, seed=1), folder)

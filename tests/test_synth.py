@@ -7,8 +7,9 @@ import pytest
 
 from jaxvo.errors import InputError
 from jaxvo.host.camera import backproject, project
-from jaxvo.host.io import TumSequence, data_root, read_trajectory
+from jaxvo.host.io import TumSequence, data_root
 from jaxvo.synth import scenes as synth
+from jaxvo.trajectory import read_trajectory
 
 IDEAL = synth.SensorOptions.ideal()
 

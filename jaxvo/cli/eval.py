@@ -172,7 +172,7 @@ def run(args: argparse.Namespace) -> int:
 
     from jaxvo.errors import InputError
     from jaxvo.evaluation import evo_results, metrics
-    from jaxvo.host.io import read_trajectory
+    from jaxvo.trajectory import read_trajectory
 
     if not (math.isfinite(args.max_diff) and args.max_diff >= 0):
         raise InputError(f"--max-diff must be a number of seconds >= 0, got {args.max_diff}")

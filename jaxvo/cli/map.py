@@ -43,7 +43,6 @@ camera and depth: as jaxvo run read them. A trajectory jaxvo run wrote names in 
 
 def add_arguments(p: argparse.ArgumentParser) -> None:
     from jaxvo.cli.main import EXIT_STATUSES
-    from jaxvo.host.mapping import GROW, VOTE_SHARE, VOTE_VOXEL
 
     p.epilog = EPILOG + "\n" + EXIT_STATUSES
     p.formatter_class = argparse.RawDescriptionHelpFormatter
@@ -56,7 +55,7 @@ def add_arguments(p: argparse.ArgumentParser) -> None:
                    "with nothing left out")
     p.add_argument("--out", "-o", required=True, metavar="FILE.ply",
                    help="the static map (FILE_all.ply and FILE.png are written beside it)")
-    add_map_options(p, GROW, VOTE_VOXEL, VOTE_SHARE)
+    add_map_options(p)
     camera = p.add_mutually_exclusive_group()
     camera.add_argument("--camera", metavar="PRESET",
                         help="intrinsics preset, as jaxvo run's (default: the camera the run "
@@ -74,125 +73,51 @@ def add_arguments(p: argparse.ArgumentParser) -> None:
     p.add_argument("--json", action="store_true", help="print the summary as JSON")
 
 
-def add_map_options(p: argparse.ArgumentParser, grow: int, vote_voxel: float,
-                    vote_share: float) -> None:
-    """The fusion's options, shared with ``jaxvo run --map``."""
-    p.add_argument("--voxel", type=float, default=0.02, metavar="M",
-                   help="the map's voxel side, metres (default 0.02)")
-    p.add_argument("--max-depth", type=float, default=4.0, metavar="M",
-                   help="depth readings farther than this are left out, metres (default 4)")
-    p.add_argument("--grow", type=int, default=grow, metavar="PX",
-                   help=f"pixels around a dynamic pixel also left out (default {grow})")
-    p.add_argument("--vote-voxel", type=float, default=vote_voxel, metavar="M",
-                   help=f"side of the cubes voted on, metres (default {vote_voxel})")
-    p.add_argument("--vote-share", type=float, default=vote_share, metavar="F",
+def add_map_options(p: argparse.ArgumentParser) -> None:
+    """The fusion's options, at :class:`~jaxvo.host.mapping.MapOptions`' defaults (which
+    ``jaxvo run --map`` takes)."""
+    from jaxvo.host.mapping import MapOptions
+
+    d = MapOptions()
+    p.add_argument("--voxel", type=float, default=d.voxel, metavar="M",
+                   help=f"the map's voxel side, metres (default {d.voxel:g})")
+    p.add_argument("--max-depth", type=float, default=d.max_depth, metavar="M",
+                   help=f"depth readings farther than this are left out, metres (default "
+                   f"{d.max_depth:g})")
+    p.add_argument("--grow", type=int, default=d.grow, metavar="PX",
+                   help=f"pixels around a dynamic pixel also left out (default {d.grow})")
+    p.add_argument("--vote-voxel", type=float, default=d.vote_voxel, metavar="M",
+                   help=f"side of the cubes voted on, metres (default {d.vote_voxel})")
+    p.add_argument("--vote-share", type=float, default=d.vote_share, metavar="F",
                    help="a cube with more than this share of its readings in the dynamic "
-                   f"masks is left out whole (default {vote_share}; 1: no vote)")
+                   f"masks is left out whole (default {d.vote_share}; 1: no vote)")
 
 
-def check_map_options(args: argparse.Namespace, *, height: int | None = None,
-                      width: int | None = None) -> None:
-    """The fusion's options checked (InputError naming the option); ``--grow`` against the
-    frames' size where it is given."""
-    from jaxvo.host.mapping import check_map_settings
+def map_options(args: argparse.Namespace):
+    """The :class:`~jaxvo.host.mapping.MapOptions` the command line gives."""
+    from jaxvo.host.mapping import MapOptions
 
-    check_map_settings(voxel=args.voxel, max_depth=args.max_depth, grow=args.grow,
-                       vote_voxel=args.vote_voxel, vote_share=args.vote_share,
-                       height=height, width=width, names={
-                           "voxel": "--voxel", "max_depth": "--max-depth", "grow": "--grow",
-                           "vote_voxel": "--vote-voxel", "vote_share": "--vote-share"})
+    return MapOptions(voxel=args.voxel, max_depth=args.max_depth, grow=args.grow,
+                      vote_voxel=args.vote_voxel, vote_share=args.vote_share,
+                      max_diff=args.max_diff)
 
 
-# A run's trajectory names what it ran on in a comment line (RUN_TAG, then JSON): jaxvo map
-# reads the depth as the run read it, and refuses a trajectory of another sequence
-RUN_TAG = "jaxvo-run "
-
-
-def run_header(where: str | Path, seq) -> str:
-    """The comment lines a run's trajectory starts with (without ``#``): the command, and
-    the sequence's name, frames, first frame's time and camera as the run read them."""
-    K = seq.intrinsics
-    info = {"sequence": seq.name, "frames_listed": int(getattr(seq, "frames_listed", len(seq))),
-            "first_time": round(float(seq.timestamps[0]), 6),
-            "intrinsics": [float(K.fx), float(K.fy), float(K.cx), float(K.cy)],
-            "depth_scale": float(K.depth_scale)}
-    return f"jaxvo run {where}\n{RUN_TAG}{json.dumps(info)}"
-
-
-def read_run_header(path: str | Path) -> dict | None:
-    """What :func:`run_header` wrote at the top of a trajectory file, or None (another
-    tool's trajectory, or a header that does not parse)."""
-    from jaxvo.host.camera import Intrinsics
-
-    try:
-        with open(path, encoding="utf-8", errors="replace") as fh:
-            lines = [line for _, line in zip(range(8), fh) if line.startswith("# " + RUN_TAG)]
-        info = json.loads(lines[0][2 + len(RUN_TAG):])
-        K = Intrinsics(*(float(v) for v in info["intrinsics"]), float(info["depth_scale"]))
-    except (OSError, ValueError, KeyError, TypeError, IndexError):
-        return None
-    return {**info, "intrinsics": K}
-
-
-def map_outputs(path: str | Path) -> dict[str, Path]:
-    """The files a map writes: ``{option: path}`` for the static map (``path``), the map
-    with nothing left out (``<stem>_all.ply``) and the picture (``<stem>.png``)."""
-    p = Path(path)
-    return {"map": p, "map (nothing left out)": p.with_name(p.stem + "_all.ply"),
-            "map picture": p.with_suffix(".png")}
-
-
-def make_maps(seq, traj, dynamic, args, outputs: dict[str, Path], *, where: str,
-              frames: int | None = None, logger=None, on_static=None) -> dict:
-    """Fuse, write the maps and their picture (and into ``logger``, and the static map to
-    ``on_static``: ``jaxvo run --out-bag``); the summary's part. Each file is written whole
-    or not at all; a failure leaves the earlier maps as they were, all three."""
-    from jaxvo.errors import InputError
-    from jaxvo.host.io import write_image
-    from jaxvo.host.mapping import fuse_maps, map_picture, matched_poses, trajectory_fit, write_ply
-
-    poses = matched_poses(seq, traj, where=where, max_diff=args.max_diff, frames=frames)
-    fit = trajectory_fit(seq, poses)
-    if fit is not None:
-        print(f"jaxvo: warning: {where}: {fit}", file=sys.stderr)
-    maps = fuse_maps(seq, poses, dynamic, voxel=args.voxel, max_depth=args.max_depth,
-                     grow=args.grow, vote_voxel=args.vote_voxel, vote_share=args.vote_share)
-    if not len(maps.full.points):  # an empty map is no map: the earlier files stay
-        raise InputError(f"none of the {len(poses)} frames with a pose has a depth reading "
-                         f"within --max-depth {args.max_depth:g} m: no map written")
-    if dynamic is not None and not len(maps.static.points):
-        print("jaxvo: warning: the static map is empty: every reading lies in a dynamic mask "
-              f"(grown by --grow {args.grow}) or a frame without one", file=sys.stderr)
-    picture = map_picture(maps, seq.intrinsics, poses[0][1], seq.height, seq.width)
-    write_ply(outputs["map"], maps.static)
-    summary = {"map": str(outputs["map"]), "map_points": len(maps.static.points),
-               "masks": dynamic is not None, "frames_fused": maps.frames,
-               "frames_in_sequence": len(seq), "frames_without_mask": maps.no_mask,
-               "trajectory_fit": fit}
-    if dynamic is not None:
-        full = outputs["map (nothing left out)"]
-        write_ply(full, maps.full)
-        summary.update(map_all=str(full), map_all_points=len(maps.full.points))
-    write_image(outputs["map picture"], picture)
-    summary["map_picture"] = str(outputs["map picture"])
-    if logger is not None:
-        logger.log_map("static", maps.static)
-        if dynamic is not None:
-            logger.log_map("full", maps.full)
-    if on_static is not None:
-        on_static(maps.static)
-    return summary
+# what map_options' checks call each field
+_NAMES = {"voxel": "--voxel", "max_depth": "--max-depth", "grow": "--grow",
+          "vote_voxel": "--vote-voxel", "vote_share": "--vote-share"}
 
 
 def open_mapped(args: argparse.Namespace):
     """The sequence to map and the trajectory, the depth read as the run read it: ``(seq,
     traj, warnings)``. A trajectory jaxvo run wrote names its sequence and camera in its
-    first lines (:func:`jaxvo.host.io.run_header`): one of another sequence is refused, and
+    first lines (:func:`jaxvo.host.run.run_header`): one of another sequence is refused, and
     its camera and depth scale are used unless an option gives them."""
     from jaxvo.errors import InputError
     from jaxvo.host.camera import intrinsics_option
     from jaxvo.host.frames import describe
-    from jaxvo.host.io import open_sequence, read_trajectory
+    from jaxvo.host.io import open_sequence
+    from jaxvo.host.run import read_run_header
+    from jaxvo.trajectory import read_trajectory
 
     camera = intrinsics_option(args.intrinsics) if args.intrinsics else args.camera
     if args.depth_scale is not None:
@@ -230,12 +155,13 @@ def open_mapped(args: argparse.Namespace):
 def run(args: argparse.Namespace) -> int:
     from jaxvo.errors import InputError
     from jaxvo.host.io import check_outputs, output_file
-    from jaxvo.host.mapping import mask_reader
+    from jaxvo.host.mapping import make_maps, map_outputs, mask_reader
     from jaxvo.host.outputs import file_id, stream_target
 
-    check_map_options(args)
+    options = map_options(args)
+    options.check(names=_NAMES)
     seq, traj, notes = open_mapped(args)
-    check_map_options(args, height=seq.height, width=seq.width)
+    options.check(height=seq.height, width=seq.width, names=_NAMES)
     outputs = map_outputs(args.out)
     if args.dynamic_masks is None:
         del outputs["map (nothing left out)"]
@@ -261,7 +187,7 @@ def run(args: argparse.Namespace) -> int:
     dynamic = (mask_reader(args.dynamic_masks, shape=(seq.height, seq.width))
                if args.dynamic_masks else None)
     with _logger(args) as logger:
-        summary = make_maps(seq, traj, dynamic, args, outputs, where=f"--traj {args.traj}",
+        summary = make_maps(seq, traj, dynamic, options, outputs, where=f"--traj {args.traj}",
                             logger=logger)
     summary.update(camera=getattr(seq, "camera_source", "given"), warnings=notes)
     if args.json:

@@ -28,12 +28,13 @@ from typing import NamedTuple
 import jax
 import jax.numpy as jnp
 
-from jaxvo.config import Config, Params
+from jaxvo.config import Params, StepOptions
 from jaxvo.core.background import BackgroundOut, update_background
 from jaxvo.core.egomotion import EgoState, init_ego, predicted_motion, update_egomotion
 from jaxvo.core.evidence import moving_evidence, moving_logodds, neighbourhood, reported_ids
 from jaxvo.core.geometry import full_precision
 from jaxvo.core.identifiers import identify, measured_labels
+from jaxvo.core.inputs import GridFlow, KeyframeFlow
 from jaxvo.core.keyframe import KeyframeState, init_keyframe, keyframe_support, update_keyframe
 from jaxvo.core.noise import NoiseScale, frame_points, init_noise, transfer, update_noise
 from jaxvo.core.occlusion import OcclusionState, init_occlusion, update_occlusion
@@ -81,7 +82,7 @@ class StepOutput(NamedTuple):
     keyframes: jax.Array | None = None  # () int32 keyframes taken so far (cfg.keyframes)
 
 
-def init_pipeline(*, cfg: Config, grid: tuple[int, int], T_w_c0=None,
+def init_pipeline(*, cfg: StepOptions, grid: tuple[int, int], T_w_c0=None,
                   params: Params | None = None) -> PipelineState:
     """Start state: empty grid model, the first camera pose (identity by default) and the
     starting sensor noise of ``params`` (default :class:`Params`)."""
@@ -94,22 +95,22 @@ def init_pipeline(*, cfg: Config, grid: tuple[int, int], T_w_c0=None,
 
 
 @full_precision
-def step(state: PipelineState, flow, key, params: Params, *, cfg: Config, grid,
-         batch_axis=None, keyframe=None):
+def step(state: PipelineState, flow: GridFlow, key, params: Params, *, cfg: StepOptions, grid,
+         batch_axis=None, keyframe: KeyframeFlow | None = None):
     """One frame pair: ``(state, GridFlow, key) -> (state, StepOutput)``.
 
     Args:
       state: carried :class:`PipelineState`.
-      flow: a ``GridFlow`` (:mod:`jaxvo.host.flow`), every field read: the points
+      flow: a :class:`~jaxvo.core.inputs.GridFlow`, every field read: the points
         ``pts_prev``, ``pts_cur``, ``valid``, the pair's ``status``; their noise ``focal``,
         ``fb_error``, ``depth_slope``; ``uv_prev``, ``uv_cur`` (carry the grid model);
         ``depth_prev``, ``camera`` (the occlusion memory; cells without depth keep evidence).
       key: PRNG key of this frame (hypothesis sampling).
       params: numeric settings, possibly traced (vmappable).
-      cfg: static settings; grid: static ``(rows, cols)``.
+      cfg: the step's options (``Config.step``), static; grid: static ``(rows, cols)``.
       batch_axis: the vmapped axes' name(s) in a study, :func:`jaxvo.core.spatial.segment`.
-      keyframe: with ``cfg.keyframes``, the pair's ``KeyframeFlow``
-        (:class:`jaxvo.host.flow.KeyframeTracker`); None: frame to frame only.
+      keyframe: with ``cfg.keyframes``, the pair's :class:`~jaxvo.core.inputs.KeyframeFlow`
+        (:class:`jaxvo.host.keyframes.KeyframeTracker`); None: frame to frame only.
     """
     pts = frame_points(flow.pts_prev, flow.pts_cur, flow.valid & (flow.status == Status.OK),
                        params, focal=flow.focal, scale=state.noise, fb_error=flow.fb_error,
@@ -177,7 +178,7 @@ def step(state: PipelineState, flow, key, params: Params, *, cfg: Config, grid,
 
 
 def _output(ego: EgoState, eo, seg: Segmentation, bg: BackgroundOut, tout: TemporalOut,
-            noise, valid, params: Params, *, cfg: Config, grid) -> StepOutput:
+            noise, valid, params: Params, *, cfg: StepOptions, grid) -> StepOutput:
     """The step's :class:`StepOutput` from its stages' outputs: one notion of moving, the
     evidence (``moving``), which the identifiers and the mask cells follow."""
     moving = tout.evidence > moving_logodds(params)
@@ -227,8 +228,12 @@ def frame_key(key, index):
 
 
 @functools.partial(jax.jit, static_argnames=("cfg", "grid"))
-def jit_step(state, flow, key, params, *, cfg: Config, grid, keyframe=None):
-    """:func:`step` compiled once per (cfg, grid); the key is folded with the frame count."""
+def jit_step(state, flow, key, params, *, cfg: StepOptions, grid, keyframe=None):
+    """:func:`step` compiled once per (cfg, grid); the key is folded with the frame count.
+
+    ``cfg`` is ``Config.step``: the step's own options, so that a setting of the host's
+    flow (an LK window) compiles nothing (a whole ``Config`` also runs, compiled per
+    ``Config``)."""
     return step(state, flow, frame_key(key, state.frame), params, cfg=cfg, grid=grid,
                 keyframe=keyframe)
 
@@ -247,7 +252,7 @@ def _scan(flows, key, params, T_w_c0, cfg, grid, outer_axes=(), keyframes=None):
 
 
 @functools.partial(jax.jit, static_argnames=("cfg", "grid"))
-def run_scan(flows, key, params, T_w_c0, *, cfg: Config, grid, keyframes=None):
+def run_scan(flows, key, params, T_w_c0, *, cfg: StepOptions, grid, keyframes=None):
     """The whole sequence in one ``lax.scan`` from precomputed flow.
 
     Args:
@@ -257,6 +262,7 @@ def run_scan(flows, key, params, T_w_c0, *, cfg: Config, grid, keyframes=None):
       T_w_c0: (4, 4) pose of the first camera.
       keyframes: with ``cfg.keyframes``, the ``KeyframeFlow`` of every pair stacked as
         ``flows`` (:func:`jaxvo.host.flow.sequence_flows`); None: frame to frame only.
+      cfg: the step's options (``Config.step``); grid: ``(rows, cols)``.
 
     Returns:
       ``(final_state, outputs)`` with every :class:`StepOutput` field stacked over T.
@@ -265,7 +271,7 @@ def run_scan(flows, key, params, T_w_c0, *, cfg: Config, grid, keyframes=None):
 
 
 @functools.partial(jax.jit, static_argnames=("cfg", "grid"))
-def run_study(flows, keys, params, T_w_c0, *, cfg: Config, grid, keyframes=None):
+def run_study(flows, keys, params, T_w_c0, *, cfg: StepOptions, grid, keyframes=None):
     """Many configurations of one sequence in one call: ``vmap`` over keys and parameters.
 
     Args:
@@ -276,6 +282,7 @@ def run_study(flows, keys, params, T_w_c0, *, cfg: Config, grid, keyframes=None)
       keyframes: with ``cfg.keyframes``, the ``KeyframeFlow`` of every pair stacked as
         ``flows`` and shared as they are (as :func:`run_scan` takes them); None: frame to
         frame only.
+      cfg: the step's options (``Config.step``); grid: ``(rows, cols)``.
 
     Returns:
       ``StepOutput`` stacked as (B, T, ...) (the final states are dropped).

@@ -24,8 +24,8 @@ from typing import NamedTuple
 import numpy as np
 
 from jaxvo.errors import InputError
-from jaxvo.host.io import Trajectory, associate
 from jaxvo.host.transforms import relative_pose, rotation_angle
+from jaxvo.trajectory import Trajectory, associate
 
 # Positions that spread less than this (metres, RMS about their centroid) carry no
 # orientation: a rotation fitted to them would be arbitrary.
@@ -199,7 +199,7 @@ def match_poses(
     gt: Trajectory, est: Trajectory, max_diff: float, names: tuple[str, str]
 ) -> Matched:
     """Associate ``est`` with ``gt`` by nearest timestamp within ``max_diff`` seconds
-    (:func:`jaxvo.host.io.associate`), after checking that neither is empty or implausibly far out.
+    (:func:`jaxvo.trajectory.associate`), after checking that neither is empty or implausibly far out.
 
     Args:
       gt: ground-truth trajectory.

@@ -13,8 +13,8 @@ from __future__ import annotations
 import numpy as np
 
 from jaxvo.evaluation.metrics import SegmentationScores, ate, rpe
-from jaxvo.host.io import Trajectory
 from jaxvo.host.masks import moving_at_grid
+from jaxvo.trajectory import Trajectory
 
 
 def trajectory_scores(gt: Trajectory, est: Trajectory) -> dict:

@@ -47,6 +47,7 @@ Ctrl-C too), removes the temporary folder and leaves nothing at the target.
 from __future__ import annotations
 
 import contextlib
+import dataclasses
 from pathlib import Path
 from typing import NamedTuple, Self
 
@@ -90,36 +91,48 @@ def check_frame_id(name: str, *, what: str) -> str:
     return name
 
 
-# jaxvo run's bag options, besides --out-bag (argparse's attribute names)
-_BAG_OPTIONS = {"bag_storage": "--bag-storage", "world_frame": "--world-frame",
-                "camera_frame": "--camera-frame", "bag_overlay": "--bag-overlay",
+@dataclasses.dataclass(frozen=True)
+class BagOptions:
+    """``jaxvo run``'s ROS 2 bag output: ``--out-bag`` and the options that go with it."""
+
+    folder: str | Path | None = None  # the new bag folder (--out-bag); None: no bag
+    storage: str | None = None  # --bag-storage (None: mcap)
+    world_frame: str | None = None  # --world-frame (None: WORLD_FRAME)
+    camera_frame: str | None = None  # --camera-frame (None: CAMERA_FRAME)
+    overlay: bool = False  # --bag-overlay: also the image tinted by identifier
+    with_input: bool = False  # --with-input: also the input's messages or frames
+
+
+# the command-line option of each BagOptions field but the folder, for messages
+_BAG_OPTIONS = {"storage": "--bag-storage", "world_frame": "--world-frame",
+                "camera_frame": "--camera-frame", "overlay": "--bag-overlay",
                 "with_input": "--with-input"}
 
 
-def check_bag_options(args) -> None:
-    """``jaxvo run``'s bag options (``out_bag``, ``bag_storage``, ``world_frame``,
-    ``camera_frame``, ``bag_overlay``, ``with_input``) checked before any work."""
-    if not args.out_bag:
-        given = [option for name, option in _BAG_OPTIONS.items() if getattr(args, name)]
+def check_bag_options(options: BagOptions) -> None:
+    """``jaxvo run``'s bag options checked before any work: none without ``--out-bag``,
+    frame ids ROS takes, and two different frames."""
+    if not options.folder:
+        given = [flag for name, flag in _BAG_OPTIONS.items() if getattr(options, name)]
         if given:
             raise InputError(f"{', '.join(given)}: for a bag; pass --out-bag DIR")
         return
-    world = check_frame_id(args.world_frame or WORLD_FRAME, what="--world-frame")
-    camera = check_frame_id(args.camera_frame or CAMERA_FRAME, what="--camera-frame")
+    world = check_frame_id(options.world_frame or WORLD_FRAME, what="--world-frame")
+    camera = check_frame_id(options.camera_frame or CAMERA_FRAME, what="--camera-frame")
     if world == camera:
         raise InputError(f"--world-frame and --camera-frame are both {world!r}; the tf edge "
                          "joins two frames")
 
 
-def open_bag(args, seq):
-    """The :class:`BagWriter` of ``jaxvo run --out-bag`` (options checked by
-    :func:`check_bag_options`), or a context of None without ``--out-bag``."""
-    if not args.out_bag:
+def open_bag(options: BagOptions, seq, *, cell: int):
+    """The :class:`BagWriter` of ``options`` (checked by :func:`check_bag_options`) for a run
+    over ``seq`` with ``cell``-pixel grid cells, or a context of None without a folder."""
+    if not options.folder:
         return contextlib.nullcontext()
-    frames = Frames(args.world_frame or WORLD_FRAME, args.camera_frame or CAMERA_FRAME)
-    return BagWriter(args.out_bag, seq, storage=args.bag_storage or "mcap", frames=frames,
-                     with_input=args.with_input,
-                     overlay_cell=args.cell if args.bag_overlay else None, what="--out-bag")
+    frames = Frames(options.world_frame or WORLD_FRAME, options.camera_frame or CAMERA_FRAME)
+    return BagWriter(options.folder, seq, storage=options.storage or "mcap", frames=frames,
+                     with_input=options.with_input,
+                     overlay_cell=cell if options.overlay else None, what="--out-bag")
 
 
 def check_bag_target(path: str | Path, *, what: str = "--out-bag") -> Path:

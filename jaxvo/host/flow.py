@@ -52,7 +52,14 @@ from typing import NamedTuple
 import cv2
 import numpy as np
 
-from jaxvo.config import Config, Params, grid_shape
+from jaxvo.config import Config, FlowOptions, Params, grid_shape
+from jaxvo.core.inputs import (
+    GridFlow,
+    KeyframeFlow,
+    invalid_flow,
+    invalid_keyframe_flow,
+    stack_flows,
+)
 from jaxvo.errors import InputError
 from jaxvo.host.camera import Intrinsics, backproject, grid_pixels
 from jaxvo.host.depth import (  # noqa: F401  (bilinear_depth, refine_depth: the flow's API)
@@ -65,7 +72,7 @@ from jaxvo.host.depth import (  # noqa: F401  (bilinear_depth, refine_depth: the
     refine_depth,
     smooth_depth,
 )
-from jaxvo.host.keyframes import KeyframeFlow, KeyframeTracker, invalid_keyframe_flow
+from jaxvo.host.keyframes import KeyframeTracker
 from jaxvo.host.patches import lk_converged, similar
 from jaxvo.host.prefetch import READ_AHEAD, read_ahead
 from jaxvo.status import Status
@@ -96,64 +103,14 @@ def _beside(fn, *args) -> Future:
     return _helper.submit(fn, *args)
 
 
-class GridFlow(NamedTuple):
-    """Grid flow of one image pair (host -> device); see docs/architecture.md."""
-
-    pts_prev: np.ndarray  # (n, 3) float32 metres, previous camera frame (0 where invalid)
-    pts_cur: np.ndarray  # (n, 3) float32 metres, current camera frame (0 where invalid)
-    uv_prev: np.ndarray  # (n, 2) float32 pixels, grid cell centres in the previous image
-    uv_cur: np.ndarray  # (n, 2) float32 pixels, tracked positions (= uv_prev where invalid)
-    valid: np.ndarray  # (n,) bool, passed LK, forward-backward, similarity and depth checks
-    status: np.ndarray  # () int32 Status code: OK, or BAD_INPUT
-    focal: np.ndarray  # () float32 pixels, the camera's mean focal length (jaxvo.core.noise)
-    # (n,) float32 metres, the previous image's refined depth at each grid point (0: no
-    # reading, the cell is hidden from the sensor: nearer or farther than its range, or a
-    # hole), tracked or not: what the occlusion memory compares (jaxvo.core.occlusion)
-    depth_prev: np.ndarray
-    camera: np.ndarray  # (4,) float32 pixels, fx, fy, cx, cy of the (depth-registered) camera
-    # The tracker's own quality of each valid point (0 where invalid), which the noise
-    # model adds to its sequence-wide scales (jaxvo.core.noise.point_noise):
-    fb_error: np.ndarray  # (n,) float32 pixels, forward-backward error of the track
-    # (n,) float32 metres per pixel, the slope of the depth surface at the tracked point in
-    # the current image (gradient of the bilinear lookup): a pixel of tracking error moves
-    # the depth reading by this much along the ray
-    depth_slope: np.ndarray
+def flow_options(cfg: Config | FlowOptions) -> FlowOptions:
+    """The flow's options: ``cfg`` itself, or a :class:`~jaxvo.config.Config`'s ``flow``."""
+    return cfg if isinstance(cfg, FlowOptions) else cfg.flow
 
 
 def camera_row(K: Intrinsics) -> np.ndarray:
     """(4,) float32 ``fx, fy, cx, cy`` of ``K``, as :class:`GridFlow` carries them."""
     return np.array([K.fx, K.fy, K.cx, K.cy], np.float32)
-
-
-def invalid_flow(uv_grid: np.ndarray, status: int = Status.BAD_INPUT, *,
-                 focal: float = 1.0, camera: np.ndarray | None = None) -> GridFlow:
-    """An all-invalid :class:`GridFlow` on the grid ``uv_grid`` (n, 2) with ``status``
-    (``camera`` (4,), default a camera of focal length ``focal`` centred on the grid)."""
-    n = uv_grid.shape[0]
-    uv = np.asarray(uv_grid, np.float32)
-    return GridFlow(
-        pts_prev=np.zeros((n, 3), np.float32),
-        pts_cur=np.zeros((n, 3), np.float32),
-        uv_prev=uv.copy(),
-        uv_cur=uv.copy(),
-        valid=np.zeros(n, bool),
-        status=np.int32(status),
-        focal=np.float32(focal),
-        depth_prev=np.zeros(n, np.float32),
-        camera=(np.asarray(camera, np.float32) if camera is not None else np.array(
-            [focal, focal, *(uv.max(axis=0) + uv.min(axis=0)) / 2], np.float32)),
-        fb_error=np.zeros(n, np.float32),
-        depth_slope=np.zeros(n, np.float32),
-    )
-
-
-def stack_flows(flows: list, empty=None):
-    """Stack per-pair flows (a :class:`GridFlow` or :class:`KeyframeFlow` each) along a new
-    leading frame axis; with none, ``empty`` (one pair's flow) gives the fields' shapes and
-    types for a stack of length 0."""
-    if not flows:
-        return type(empty)(*(np.zeros((0, *np.shape(f)), np.asarray(f).dtype) for f in empty))
-    return type(flows[0])(*(np.stack(field) for field in zip(*flows)))
 
 
 # ----------------------------------------------------------------------------- front end
@@ -238,13 +195,15 @@ class GridFlowTracker:
 
     Args:
         K: intrinsics of the (depth-registered) camera, pixels.
-        cfg: settings (flow section).
+        cfg: settings: a :class:`~jaxvo.config.Config`, of which the tracker keeps and reads
+            only its :class:`~jaxvo.config.FlowOptions` (``cfg.flow``), or those themselves.
         height, width: image size, pixels; sets the grid and so ``n``.
     """
 
-    def __init__(self, K: Intrinsics, cfg: Config = DEFAULT_CONFIG, *, height: int, width: int):
+    def __init__(self, K: Intrinsics, cfg: Config | FlowOptions = DEFAULT_CONFIG, *,
+                 height: int, width: int):
         self.K = K
-        self.cfg = cfg
+        self.cfg = cfg = flow_options(cfg)
         self.height, self.width = int(height), int(width)
         self.grid = grid_shape(self.height, self.width, cfg.cell)
         self.uv_grid = grid_pixels(self.height, self.width, cfg.cell)  # (n, 2) float32
@@ -614,6 +573,7 @@ def sequence_flows(
     if height is None or width is None:
         first = seq[0]
         height, width = first.bgr.shape[:2]
+    cfg = flow_options(cfg)
     tracker = GridFlowTracker(seq.intrinsics, cfg, height=height, width=width)
     chain = FrameChain(tracker, min_valid=min_valid_flow(cfg, params=params),
                        max_dropped=max_dropped, keyframes=cfg.keyframes)

@@ -1,10 +1,10 @@
-"""Reading and writing RGB-D sequences and trajectories in the TUM RGB-D formats (host side)."""
+"""Reading RGB-D sequences in the TUM RGB-D layout, and writing a run's trajectory pose by
+pose (host side); trajectories themselves and their files: :mod:`jaxvo.trajectory`."""
 
 from __future__ import annotations
 
 import os
 from pathlib import Path
-from typing import NamedTuple
 
 import numpy as np
 
@@ -23,7 +23,6 @@ from jaxvo.host.camera import (
 # what every sequence reader shares; its names stay importable from here too
 from jaxvo.host.frames import (
     Frame,
-    associate,
     check_frame_size,
     describe,
     frame_index,
@@ -42,6 +41,15 @@ from jaxvo.host.outputs import (  # noqa: F401 (re-exported)
     write_text,
 )
 from jaxvo.host.rosbag import BagSequence, is_bag
+from jaxvo.trajectory import (
+    HEADER,
+    POSE_LINE,
+    Trajectory,
+    associate,
+    data_lines,
+    is_number,
+    read_trajectory,
+)
 
 
 def data_root() -> Path:
@@ -53,167 +61,6 @@ def data_root() -> Path:
 
     checkout = Path(jaxvo.__file__).resolve().parent.parent  # the folder holding jaxvo/
     return checkout.parent / "shared" / "data"
-
-
-class Trajectory(NamedTuple):
-    """Timestamped camera poses, camera-to-world (``T_w_c``), float64."""
-
-    timestamps: np.ndarray  # (N,) seconds
-    poses: np.ndarray  # (N, 4, 4)
-
-    def __len__(self) -> int:
-        return len(self.timestamps)
-
-
-# --- trajectories: TUM format "timestamp tx ty tz qx qy qz qw", camera-to-world ---------
-
-# Printed precision of write_trajectory: timestamps to the microsecond (as TUM files), metres
-# and quaternion components to 1e-9 (well below any sensor's accuracy).
-_TIME_FMT = "%.6f"
-_VALUE_FMT = "%.9f"
-# A quaternion whose norm is further than this from 1 is not a rotation that was merely
-# rounded when printed: the file is wrong, and guessing would hide it.
-QUAT_NORM_TOL = 1e-3
-
-
-def _read_text(path: Path) -> str:
-    """A text file's contents; ``-`` reads standard input, and a pipe (``/dev/stdin``, a
-    FIFO) is read as a file is."""
-    import sys
-
-    if str(path) == "-":  # standard input, as for other tools that read a file
-        if sys.stdin is None or sys.stdin.isatty():
-            raise InputError("-: standard input is a terminal or closed, not a trajectory "
-                             "piped in (jaxvo run --out - | jaxvo eval ate gt.txt -)")
-        return sys.stdin.read()
-    if not path.exists():
-        raise InputError(f"file not found: {path}")
-    if path.is_dir():
-        raise InputError(f"not a file: {path}")
-    try:
-        return path.read_text()
-    except UnicodeDecodeError:
-        raise InputError(f"{path}: not a text file") from None
-    except OSError as exc:
-        raise InputError(f"{path}: cannot read ({exc.strerror})") from None
-
-
-def _data_lines(path: Path, text: str | None = None) -> list[tuple[int, list[str]]]:
-    """Non-empty, non-comment lines of a text file (or of ``text``, named ``path``), split
-    on whitespace or commas."""
-    out = []
-    for lineno, raw in enumerate((_read_text(path) if text is None else text).splitlines(),
-                                 start=1):
-        line = raw.split("#", 1)[0].replace(",", " ").strip()
-        if line:
-            out.append((lineno, line.split()))
-    return out
-
-
-def read_trajectory(path: str | Path, *, text: str | None = None) -> Trajectory:
-    """Read a TUM trajectory file ``timestamp tx ty tz qx qy qz qw`` (``#`` comments);
-    ``-`` reads it from standard input, ``text`` is the file's text (named ``path``).
-
-    Poses are sorted by time. Raises :class:`InputError` (``file:line: ...``) for a line
-    that is not eight numbers, a non-finite value, a quaternion whose norm is not 1 within
-    :data:`QUAT_NORM_TOL`, a repeated timestamp, or a file with no poses.
-
-    Args:
-      path: the file.
-    Returns:
-      a :class:`Trajectory`, timestamps (N,) seconds, poses (N, 4, 4) ``T_w_c`` metres.
-    """
-    from jaxvo.host.transforms import pose_from_tq
-
-    path = Path(path)
-    rows, linenos = [], []
-    for lineno, parts in _data_lines(path, text):
-        if len(parts) != 8:
-            raise InputError(
-                f"{path}:{lineno}: expected 8 values 'timestamp tx ty tz qx qy qz qw', "
-                f"got {len(parts)}"
-            )
-        try:
-            values = [float(p) for p in parts]
-        except ValueError:
-            bad = next(p for p in parts if not _is_float(p))
-            raise InputError(f"{path}:{lineno}: {bad!r} is not a number") from None
-        if not all(np.isfinite(values)):
-            raise InputError(f"{path}:{lineno}: non-finite value")
-        norm = float(np.linalg.norm(values[4:]))
-        if abs(norm - 1.0) > QUAT_NORM_TOL:
-            raise InputError(
-                f"{path}:{lineno}: quaternion qx qy qz qw has norm {norm:.6g}, not 1 "
-                f"(tolerance {QUAT_NORM_TOL:g})"
-            )
-        rows.append(values)
-        linenos.append(lineno)
-    if not rows:
-        raise InputError(f"{path}: empty trajectory (no pose lines)")
-    data = np.asarray(rows, np.float64)
-    order = np.argsort(data[:, 0], kind="stable")
-    data = data[order]
-    dup = np.flatnonzero(np.diff(data[:, 0]) == 0)
-    if dup.size:
-        lineno = linenos[order[dup[0] + 1]]
-        raise InputError(f"{path}:{lineno}: repeated timestamp {data[dup[0], 0]:.6f}")
-    return Trajectory(data[:, 0].copy(), pose_from_tq(data[:, 1:4], data[:, 4:8]))
-
-
-def _is_float(text: str) -> bool:
-    try:
-        float(text)
-    except ValueError:
-        return False
-    return True
-
-
-def write_trajectory(path: str | Path, traj: Trajectory, *, comment: str = "") -> None:
-    """Write a TUM trajectory file: timestamps ``%.6f`` s, translation and quaternion ``%.9f``.
-
-    Reading the file back gives timestamps within 5e-7 s, translations within 5e-10 m and
-    rotations within about 1e-9 of the written ones (the printed precision).
-
-    Args:
-      path: the file to write (replaced whole, :class:`jaxvo.host.outputs.OutputFile`).
-      traj: timestamps (N,) seconds, poses (N, 4, 4) ``T_w_c``.
-      comment: an optional first line (written after ``# ``).
-    """
-    from jaxvo.host.transforms import rotation_to_quat
-
-    poses = np.asarray(traj.poses, np.float64)
-    stamps = np.asarray(traj.timestamps, np.float64)
-    if poses.ndim != 3 or poses.shape[1:] != (4, 4) or len(stamps) != len(poses):
-        raise ValueError(
-            f"trajectory needs (N,) timestamps and (N, 4, 4) poses, got {stamps.shape} "
-            f"and {poses.shape}"
-        )
-    q = rotation_to_quat(poses[:, :3, :3])
-    lines = [f"# {line}" for line in comment.splitlines()] if comment else []
-    lines.append("# timestamp tx ty tz qx qy qz qw")
-    fmt = " ".join([_TIME_FMT] + [_VALUE_FMT] * 7)
-    for t, T, qi in zip(stamps, poses, q):
-        lines.append(fmt % (t, *T[:3, 3], *qi))
-    write_text(path, "\n".join(lines) + "\n")  # whole or not at all, errors name the file
-
-
-def pose_at(traj: Trajectory, t: float, *, max_diff: float = 0.02) -> np.ndarray | None:
-    """The pose of ``traj`` nearest in time to ``t``, or None when none lies within ``max_diff``.
-
-    Args:
-      traj: timestamps (N,) seconds, poses (N, 4, 4).
-      t: seconds.
-      max_diff: largest time difference, seconds.
-    Returns:
-      (4, 4) float64, or None.
-    """
-    stamps = np.asarray(traj.timestamps, np.float64)
-    if len(stamps) == 0:
-        return None
-    k = int(np.argmin(np.abs(stamps - t)))
-    if abs(stamps[k] - t) > max_diff:
-        return None
-    return np.asarray(traj.poses[k], np.float64)
 
 
 # --- RGB-D sequences in the TUM layout -------------------------------------------------
@@ -238,8 +85,8 @@ def _read_list(path: Path, columns: int, warnings: list[str]) -> tuple[np.ndarra
     """
     want = "timestamp filename" if columns == 2 else "timestamp rgb timestamp depth"
     stamps, rows, linenos = [], [], []
-    for lineno, parts in _data_lines(path):
-        if len(parts) < columns or not all(_is_float(parts[c]) for c in range(0, columns, 2)):
+    for lineno, parts in data_lines(path):
+        if len(parts) < columns or not all(is_number(parts[c]) for c in range(0, columns, 2)):
             raise InputError(f"{path}:{lineno}: expected '{want}', got {' '.join(parts)!r}")
         if not all(np.isfinite(float(parts[c])) for c in range(0, columns, 2)):
             raise InputError(f"{path}:{lineno}: timestamp is not a finite number")
@@ -542,9 +389,10 @@ def open_sequence(path: str | Path, *, rgb_topic: str | None = None,
 
 
 class TrajectoryWriter:
-    """Writes a TUM trajectory one pose at a time (as :func:`write_trajectory`; ``"-"``:
-    standard output), whole at every moment a reader can see: the poses go to a temporary
-    file beside it, flushed pose by pose, which replaces the file on :meth:`close` (also
+    """Writes a TUM trajectory one pose at a time (as
+    :func:`jaxvo.trajectory.write_trajectory`; ``"-"``: standard output), whole at every
+    moment a reader can see: the poses go to a temporary file beside it, flushed pose by
+    pose, which replaces the file on :meth:`close` (also
     after Ctrl-C, with the poses computed so far; after a second Ctrl-C as flushed,
     :func:`jaxvo.host.outputs.abort_pending`). A failed run leaves the earlier file as it
     was (:class:`jaxvo.host.outputs.OutputFile`); a failed write (a full disk) raises
@@ -573,9 +421,7 @@ class TrajectoryWriter:
             self._out = OutputFile(self.path, text=True, keep_on_abort=True)
         self._fh = sys.stdout if self._stdout else self._out.handle
         self._text: list[str] = []  # what the file holds
-        self._fmt = " ".join([_TIME_FMT] + [_VALUE_FMT] * 7) + "\n"
-        self._put("".join(f"# {line}\n" for line in comment.splitlines())
-                  + "# timestamp tx ty tz qx qy qz qw\n")
+        self._put("".join(f"# {line}\n" for line in comment.splitlines()) + HEADER + "\n")
 
     def _put(self, text: str) -> None:
         try:
@@ -590,7 +436,7 @@ class TrajectoryWriter:
 
         T = np.asarray(T_w_c, np.float64)
         q = rotation_to_quat(T[:3, :3])
-        self._put(self._fmt % (timestamp, *T[:3, 3], *q))
+        self._put(POSE_LINE % (timestamp, *T[:3, 3], *q) + "\n")
         self.timestamps.append(float(timestamp))
         self.poses.append(T)
 

@@ -24,31 +24,12 @@ Host only: numpy and OpenCV, never traced.
 
 from __future__ import annotations
 
-from typing import NamedTuple
-
 import numpy as np
 
+from jaxvo.core.inputs import KeyframeFlow
 from jaxvo.host.camera import backproject
 from jaxvo.host.depth import depth_at
 from jaxvo.host.patches import lk_converged, similar
-
-
-class KeyframeFlow(NamedTuple):
-    """The keyframes' grid points tracked into the current image (host -> device)."""
-
-    pts_kf: np.ndarray  # (n, 3) float32 metres, the latest keyframe's points (0 where invalid)
-    pts_cur: np.ndarray  # (n, 3) float32 metres, the same in the current camera frame
-    valid: np.ndarray  # (n,) bool, passed LK, similarity and depth checks
-    renew: np.ndarray  # () bool, the current frame becomes the keyframe after this pair
-    # where renew: each window keyframe's points (slot 0 the oldest, W - 1 the latest) in
-    # the current camera (the device holds them in their own), and which passed the checks;
-    # W is cfg.keyframe_window - 1; all False where the keyframe is kept
-    win_cur: np.ndarray  # (W, n, 3) float32 metres
-    win_valid: np.ndarray  # (W, n) bool
-    new_kf: np.ndarray  # (n, 3) float32 metres, where renew: the new keyframe's points
-    # (n,) int32 the grid cell of the pair's previous image each latest keyframe point lay
-    # in (its segment and evidence are that cell's), -1 where unknown
-    cell_prev: np.ndarray
 
 
 class _Keyframe:
@@ -185,14 +166,3 @@ class KeyframeTracker:
         r = np.floor(uv[:, 1] / cell).astype(np.int64)
         on = (c >= 0) & (c < cols) & (r >= 0) & (r < rows)
         return np.where(on, r * cols + c, -1).astype(np.int32)
-
-
-def invalid_keyframe_flow(n: int, window: int) -> KeyframeFlow:
-    """An all-invalid :class:`KeyframeFlow` of ``n`` points that renews the keyframe (the
-    shapes of an empty stack, :func:`jaxvo.host.flow.stack_flows`), for a window of
-    ``window`` keyframes."""
-    W = max(int(window) - 1, 0)
-    z = np.zeros((n, 3), np.float32)
-    return KeyframeFlow(z, z.copy(), np.zeros(n, bool), np.bool_(True),
-                        np.zeros((W, n, 3), np.float32), np.zeros((W, n), bool), z.copy(),
-                        np.full(n, -1, np.int32))

@@ -21,7 +21,9 @@ optional install.
 
 from __future__ import annotations
 
+import dataclasses
 import itertools
+import sys
 from collections.abc import Callable
 from pathlib import Path
 from typing import NamedTuple
@@ -30,8 +32,8 @@ import numpy as np
 
 from jaxvo.errors import InputError
 from jaxvo.host.camera import Intrinsics
-from jaxvo.host.io import Trajectory
 from jaxvo.host.outputs import OutputFile
+from jaxvo.trajectory import Trajectory
 
 # OpenCV is imported in the functions that use it: `jaxvo --help` reads the defaults below
 # (jaxvo map's options) and must not wait for it
@@ -64,6 +66,26 @@ class FusedMaps(NamedTuple):
     full: PointMap  # nothing left out
     frames: int  # frames fused (a pose and, for the static map, a mask)
     no_mask: int  # frames with a pose but no dynamic mask: left out of the static map
+
+
+@dataclasses.dataclass(frozen=True)
+class MapOptions:
+    """A static map's settings: ``jaxvo map``'s options, which ``jaxvo run --map`` takes at
+    these defaults (the one place they are written)."""
+
+    voxel: float = 0.02  # the map's voxel side, metres
+    max_depth: float = 4.0  # depth readings farther than this are left out, metres
+    grow: int = GROW  # pixels around a dynamic pixel also left out
+    vote_voxel: float = VOTE_VOXEL  # side of the cubes voted on, metres
+    vote_share: float = VOTE_SHARE  # a cube with more of its readings dynamic: left out
+    max_diff: float = 0.02  # largest time difference between a pose and its frame, seconds
+
+    def check(self, *, height: int | None = None, width: int | None = None,
+              names: dict[str, str] | None = None) -> None:
+        """:func:`check_map_settings` of these settings."""
+        check_map_settings(voxel=self.voxel, max_depth=self.max_depth, grow=self.grow,
+                           vote_voxel=self.vote_voxel, vote_share=self.vote_share,
+                           height=height, width=width, names=names)
 
 
 def check_map_settings(*, voxel: float, max_depth: float, grow: int, vote_voxel: float,
@@ -469,3 +491,66 @@ def map_picture(maps: FusedMaps, K: Intrinsics, T_w_c0: np.ndarray, height: int,
                                _titled(top, f"{name}: from above")]))
     gap = np.full((cols[0].shape[0], 6, 3), 255, np.uint8)
     return np.hstack([cols[0], gap, cols[1]])
+
+
+def map_outputs(path: str | Path) -> dict[str, Path]:
+    """The files a map writes: ``{option: path}`` for the static map (``path``), the map
+    with nothing left out (``<stem>_all.ply``) and the picture (``<stem>.png``)."""
+    p = Path(path)
+    return {"map": p, "map (nothing left out)": p.with_name(p.stem + "_all.ply"),
+            "map picture": p.with_suffix(".png")}
+
+
+def _warn(message: str) -> None:
+    print(f"jaxvo: warning: {message}", file=sys.stderr)
+
+
+def make_maps(seq, traj: Trajectory, dynamic, options: MapOptions, outputs: dict[str, Path],
+              *, where: str, frames: int | None = None, logger=None, on_static=None,
+              warn: Callable[[str], None] = _warn) -> dict:
+    """Fuse, write the maps and their picture (and into ``logger``, and the static map to
+    ``on_static``: ``jaxvo run --out-bag``); the summary's part. Each file is written whole
+    or not at all; a failure leaves the earlier maps as they were, all three.
+
+    Args:
+      seq: the sequence; traj: its trajectory; dynamic: ``(index, timestamp) -> (H, W)``
+        bool dynamic pixels or None (:func:`mask_reader`), or None for no static map.
+      options: the fusion's settings.
+      outputs: :func:`map_outputs` (without the map with nothing left out: no masks).
+      where: the trajectory, for messages; frames: the first frames only (a run's).
+      warn: what is done with a warning line (default: printed to standard error).
+    """
+    from jaxvo.host.outputs import write_image
+
+    poses = matched_poses(seq, traj, where=where, max_diff=options.max_diff, frames=frames)
+    fit = trajectory_fit(seq, poses)
+    if fit is not None:
+        warn(f"{where}: {fit}")
+    maps = fuse_maps(seq, poses, dynamic, voxel=options.voxel, max_depth=options.max_depth,
+                     grow=options.grow, vote_voxel=options.vote_voxel,
+                     vote_share=options.vote_share)
+    if not len(maps.full.points):  # an empty map is no map: the earlier files stay
+        raise InputError(f"none of the {len(poses)} frames with a pose has a depth reading "
+                         f"within --max-depth {options.max_depth:g} m: no map written")
+    if dynamic is not None and not len(maps.static.points):
+        warn("the static map is empty: every reading lies in a dynamic mask (grown by --grow "
+             f"{options.grow}) or a frame without one")
+    picture = map_picture(maps, seq.intrinsics, poses[0][1], seq.height, seq.width)
+    write_ply(outputs["map"], maps.static)
+    summary = {"map": str(outputs["map"]), "map_points": len(maps.static.points),
+               "masks": dynamic is not None, "frames_fused": maps.frames,
+               "frames_in_sequence": len(seq), "frames_without_mask": maps.no_mask,
+               "trajectory_fit": fit}
+    if dynamic is not None:
+        full = outputs["map (nothing left out)"]
+        write_ply(full, maps.full)
+        summary.update(map_all=str(full), map_all_points=len(maps.full.points))
+    write_image(outputs["map picture"], picture)
+    summary["map_picture"] = str(outputs["map picture"])
+    if logger is not None:
+        logger.log_map("static", maps.static)
+        if dynamic is not None:
+            logger.log_map("full", maps.full)
+    if on_static is not None:
+        on_static(maps.static)
+    return summary

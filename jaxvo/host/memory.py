@@ -33,10 +33,10 @@ _STEP_PER_HYP2 = 16.0  # bytes per hypothesis squared (overlaps, distances)
 # 2.09, 2.39, 8.13, 30.79 MB, 375 bytes per K^2 m at K 16; times 1.5 for the process's
 # peak, as above.
 _STEP_PER_KF2_POINT = 560.0
-# Per frame pair kept for a whole-sequence scan or a study: the grid flow (41 bytes a
-# point: two (n, 3) and two (n, 2) float32, a bool) and the stacked step outputs (about
-# 23 bytes a point: identifiers, labels, moving and static flags, evidence).
-_FLOW_PER_POINT = 41.0
+# Per frame pair kept for a whole-sequence scan or a study: its flow (flow_bytes: the grid
+# flow, and with keyframes the keyframe flow, as their types hold them) and the stacked
+# step outputs (about 23 bytes a point: identifiers, labels, moving and static flags,
+# evidence).
 _OUTPUT_PER_POINT = 23.0
 # Host memory per frame of a synthetic sequence (its camera and object trajectories and
 # the file names written): measured 855 bytes a frame (static, no object) and 990 (one
@@ -59,8 +59,9 @@ def run_bytes(cfg, *, height: int, width: int, frames: int = 0, configs: int = 1
     Args:
       cfg: the :class:`~jaxvo.config.Config` (cell, ``num_hypotheses``, the keyframe window).
       height, width: the image size, pixels.
-      frames: frames whose flow and step outputs are held at once (a whole-sequence scan,
-        a study); 0 for the streaming ``jaxvo run``, which holds none.
+      frames: frames whose flow (with keyframes, the keyframe flow too: :func:`flow_bytes`)
+        and step outputs are held at once (a whole-sequence scan, a study); 0 for the
+        streaming ``jaxvo run``, which holds none.
       configs: configurations run side by side (a study's batch per device).
       host_bytes: more bytes held on the host (a synthetic scene's trajectories,
         :data:`SYNTH_BYTES_PER_FRAME` a frame; frames kept in memory).
@@ -75,8 +76,23 @@ def run_bytes(cfg, *, height: int, width: int, frames: int = 0, configs: int = 1
         s = cfg.keyframe_stride
         m = -(-rows // s) * -(-cols // s)
         step += _STEP_PER_KF2_POINT * float(cfg.keyframe_window) ** 2 * m
-    per_frame = (_FLOW_PER_POINT + configs * _OUTPUT_PER_POINT) * n
+    per_frame = flow_bytes(cfg, n) + configs * _OUTPUT_PER_POINT * n
     return PROCESS_BYTES + configs * step + float(frames) * per_frame + float(host_bytes)
+
+
+def flow_bytes(cfg, n: int) -> float:
+    """Bytes of one frame pair's flow as a whole-sequence scan or a study holds it: its
+    :class:`~jaxvo.core.inputs.GridFlow` and, with ``cfg.keyframes``, its
+    :class:`~jaxvo.core.inputs.KeyframeFlow` (whose window's points grow it with
+    ``cfg.keyframe_window``), of ``n`` grid points: the sizes of their fields."""
+    import numpy as np
+
+    from jaxvo.core.inputs import invalid_flow, invalid_keyframe_flow
+
+    held = [invalid_flow(np.zeros((n, 2), np.float32))]
+    if cfg.keyframes:
+        held.append(invalid_keyframe_flow(n, cfg.keyframe_window))
+    return float(sum(np.asarray(field).nbytes for flow in held for field in flow))
 
 
 def available_bytes() -> float:

@@ -2,7 +2,7 @@
 Open3D's RGB-D odometry when it is installed (host side).
 
 Each peer runs frame to frame like jaxvo (no keyframes, no loop closure) and returns a
-camera-to-world :class:`~jaxvo.host.io.Trajectory` starting at the sequence's first pose, so
+camera-to-world :class:`~jaxvo.trajectory.Trajectory` starting at the sequence's first pose, so
 ATE and RPE compare like with like. An optional per-frame ``keep`` mask (``True`` = may be
 used) lets any peer ignore pixels, which is how jaxvo's segmentation plugs into them
 (thesis Fig. 5.8, "Proposed x DVO").
@@ -18,7 +18,7 @@ import cv2
 import numpy as np
 
 from jaxvo.host.camera import Intrinsics
-from jaxvo.host.io import Trajectory
+from jaxvo.trajectory import Trajectory
 
 OPENCV_PEERS = {
     "opencv_rgb": cv2.OdometryType_RGB,

@@ -14,6 +14,10 @@ temporal stage has already compensated forward onto image ``T``'s grid
 takes the last available map (step ``T-1``, anchored one frame earlier), which the ``grow`` margin
 covers for small motions.
 
+A stream's results come one pair at a time, each with the image it ends at:
+:class:`LabelAnchor` holds the same rule for them (``jaxvo run``'s masks, overlays, bag and
+map).
+
 Dropped frames. A :class:`~jaxvo.odometry.SequenceResult` steps only the frames it kept:
 pair ``k`` is ``frames[k] -> frames[k+1]``, so mask ``k`` belongs to image
 ``result.frames[k]`` (the same as image ``k`` when no frame was dropped), and a dropped
@@ -41,6 +45,35 @@ def _ids_of(result) -> np.ndarray:
     if ids.ndim != 2:
         raise ValueError(f"expected identifiers of shape (T, n), got {ids.shape}")
     return ids
+
+
+class LabelAnchor:
+    """Which image a stream's labels lie on (module docstring): a pair's on the image it
+    starts at, where its flow was measured; the last image, which starts no pair, takes the
+    last pair's.
+
+    Push each kept image with the output of the pair that ends at it (None for the first
+    image of the stream); :meth:`push` answers the image those labels lie on.
+    """
+
+    def __init__(self) -> None:
+        self.image = None  # the last image pushed: the next pair's labels lie on it
+        self.output = None  # the last pair's output, which the last image takes
+
+    def push(self, image, output):
+        """The image that ``output``, the labels of the pair that ends at ``image``, lie
+        on: the image pushed before it; None where there is no pair (``output`` None, or
+        no image before)."""
+        on, self.image = self.image, image
+        if output is None or on is None:
+            return None
+        self.output = output
+        return on
+
+    def last_image(self):
+        """``(the last image, the last pair's output)``, the labels the last image takes;
+        None before any pair."""
+        return None if self.output is None else (self.image, self.output)
 
 
 def iter_dynamic_masks(

@@ -295,7 +295,7 @@ class RerunLogger:
                                   cv2.BORDER_REPLICATE)
 
     def log_groundtruth(self, gt) -> None:
-        """The sequence's ground truth (a :class:`jaxvo.host.io.Trajectory`), static."""
+        """The sequence's ground truth (a :class:`jaxvo.trajectory.Trajectory`), static."""
         if gt is not None and len(gt) and not self._closed:
             self._rerun(self.rec.log, "world/groundtruth", self.rr.LineStrips3D(
                 [gt.poses[:, :3, 3]], colors=[(80, 220, 80)]), static=True)

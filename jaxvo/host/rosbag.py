@@ -12,7 +12,7 @@ Encodings (``sensor_msgs/Image``): colour ``rgb8``, ``bgr8``, ``rgba8``, ``bgra8
 depth ``32FC1`` metres (TUM's bags; NaN = no reading) or ``16UC1`` / ``mono16``
 millimetres (ROS REP 118; ``depth_scale`` gives other units, e.g. TUM's 5000 per metre).
 Frames are the colour images, each paired with the depth image
-nearest in time within ``max_diff`` (:func:`jaxvo.host.frames.associate`, as for folders), both
+nearest in time within ``max_diff`` (:func:`jaxvo.trajectory.associate`, as for folders), both
 timed by their header stamps (sensor time, as TUM's ``rgb.txt``), not by when they were
 recorded. Opening reads the two image topics once to learn the stamps; frames are decoded
 only when asked for, each found again by its bag time and its place among the topic's
@@ -38,15 +38,9 @@ from jaxvo.host.camera import (
     depth_metres,
     preset,
 )
-from jaxvo.host.frames import (
-    Frame,
-    associate,
-    check_frame_size,
-    frame_index,
-    given_camera,
-    preset_from_name,
-)
+from jaxvo.host.frames import Frame, check_frame_size, frame_index, given_camera, preset_from_name
 from jaxvo.host.realsense import find_streams, image_message, is_realsense, register_depth
+from jaxvo.trajectory import associate
 
 # colour, depth and camera-info topics of the TUM RGB-D benchmark's bags
 TUM_TOPICS = ("/camera/rgb/image_color", "/camera/depth/image", "/camera/rgb/camera_info")

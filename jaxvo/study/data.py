@@ -2,13 +2,14 @@
 
 Every sequence's grid flow (with ``Config.keyframes``, also its keyframe flow) is computed
 once (:func:`sequence_data`) and cached on disk as a ``.npz`` keyed by the sequence's
-identity, the ``Config`` fields the flow reads and the code that renders and tracks
+identity, the flow's options (``Config.flow``) and the code that renders and tracks
 (:func:`sequence_key`), beside what its runs are scored against: the kept frames'
 timestamps, the start pose, the ground truth and the moving masks at the grid.
 """
 
 from __future__ import annotations
 
+import dataclasses
 import functools
 import hashlib
 import inspect
@@ -20,11 +21,12 @@ from typing import Any, NamedTuple
 
 import numpy as np
 
-from jaxvo.config import Config, grid_shape
+from jaxvo.config import Config, FlowOptions, grid_shape
 from jaxvo.errors import InputError
-from jaxvo.host.io import Trajectory, groundtruth_of_frames
+from jaxvo.host.io import groundtruth_of_frames
 from jaxvo.host.outputs import OutputFile
-from jaxvo.study.spec import SequenceSpec, config_fields
+from jaxvo.study.spec import SequenceSpec
+from jaxvo.trajectory import Trajectory
 
 
 class SequenceData(NamedTuple):
@@ -84,22 +86,10 @@ class _Subset:
         return frame
 
 
-@functools.cache
 def flow_fields() -> tuple[str, ...]:
-    """The ``Config`` fields the grid flow reads (those its cache is keyed by).
-
-    Read off the source of :mod:`jaxvo.host.flow`, :mod:`jaxvo.host.depth` and
-    :mod:`jaxvo.host.keyframes` (every ``cfg.<field>``), so a field that the flow starts to
-    read keys the cache without anyone listing it here; the tests check the list against
-    the fields a real flow computation reads, with and without keyframes.
-    """
-    import jaxvo.host.depth
-    import jaxvo.host.flow
-    import jaxvo.host.keyframes
-
-    used = {f for mod in (jaxvo.host.flow, jaxvo.host.depth, jaxvo.host.keyframes)
-            for f in re.findall(r"\bcfg\.(\w+)", inspect.getsource(mod))}
-    return tuple(f for f in config_fields() if f in used)
+    """The ``Config`` fields the grid flow reads (those its cache is keyed by): the fields
+    of :class:`~jaxvo.config.FlowOptions`, the only settings the flow's tracker holds."""
+    return tuple(f.name for f in dataclasses.fields(FlowOptions))
 
 
 @functools.cache
@@ -131,7 +121,7 @@ def sequence_key(s: SequenceSpec, cfg: Config) -> str:
     """The flow cache's key of a sequence under ``cfg``: the sequence's identity (its spec,
     the contents of a folder's frame lists, or a bag's file sizes and modification times),
     the flow's Config fields and the code."""
-    ident = {**s._asdict(), "flow": {f: getattr(cfg, f) for f in flow_fields()},
+    ident = {**s._asdict(), "flow": dataclasses.asdict(cfg.flow),
              "code": code_hash()}
     ident.pop("label")
     from jaxvo.host.rosbag import is_bag
@@ -157,8 +147,8 @@ def sequence_data(s: SequenceSpec, cfg: Config, cache_dir: str | Path | None, *,
     Returns:
       ``(data, cached)``: ``cached`` says whether it came from ``cache_dir``.
     """
-    from jaxvo.host.flow import GridFlow, sequence_flows
-    from jaxvo.host.keyframes import KeyframeFlow
+    from jaxvo.core.inputs import GridFlow, KeyframeFlow
+    from jaxvo.host.flow import sequence_flows
     from jaxvo.odometry import choose_start_pose
 
     path = None

@@ -19,7 +19,7 @@ from typing import Any
 
 import numpy as np
 
-from jaxvo.config import Config, Params, grid_shape
+from jaxvo.config import Config, Params, StepOptions, grid_shape
 from jaxvo.errors import InputError
 from jaxvo.study.data import SequenceData
 
@@ -255,7 +255,7 @@ DEVICES_AXIS = "devices"
 
 
 @functools.cache
-def _study_program(cfg: Config, grid: tuple[int, int], devices: tuple):
+def _study_program(cfg: StepOptions, grid: tuple[int, int], devices: tuple):
     """``run_study`` of a block of configurations on each of ``devices`` as one program
     (``shard_map``: each device vmaps its own block, with no communication between them, so
     each computes what it would alone); jitted, with its mesh. The program returns
@@ -317,10 +317,10 @@ def compiled_program(cfg: Config, grid: tuple[int, int], args, devices):
     import jax
 
     devices = tuple(devices)
-    fn, mesh = _study_program(cfg, grid, devices)
+    fn, mesh = _study_program(cfg.step, grid, devices)  # a flow setting compiles nothing
     shardings = _shardings(args, mesh)
     shapes = jax.tree.map(lambda a: (np.shape(a), np.asarray(a).dtype), args)
-    key = (cfg, grid, str(shapes), devices)
+    key = (cfg.step, grid, str(shapes), devices)
     if key not in _compiled:
         _compiled[key] = fn.lower(*jax.tree.map(
             lambda a, where: jax.ShapeDtypeStruct(np.shape(a), np.asarray(a).dtype,
@@ -453,8 +453,7 @@ def receiving_data(pairs: int, n: int, height: int, width: int, cfg: Config) -> 
     """What a process other than the first holds before the first's flow arrives
     (:func:`share_data`): arrays of the shapes and types of the first's, ``pairs`` frame
     pairs of ``n`` grid points (the keyframe flow with ``cfg.keyframes``), all invalid."""
-    from jaxvo.host.flow import invalid_flow, stack_flows
-    from jaxvo.host.keyframes import invalid_keyframe_flow
+    from jaxvo.core.inputs import invalid_flow, invalid_keyframe_flow, stack_flows
 
     flows = stack_flows([invalid_flow(np.zeros((n, 2)))] * pairs)
     kf = (stack_flows([invalid_keyframe_flow(n, cfg.keyframe_window)] * pairs)

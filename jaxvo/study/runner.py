@@ -35,7 +35,6 @@ import numpy as np
 
 from jaxvo.config import Config, check_config
 from jaxvo.errors import InputError
-from jaxvo.host.io import Trajectory
 from jaxvo.host.outputs import write_text
 from jaxvo.status import Status
 from jaxvo.study.data import (
@@ -74,6 +73,7 @@ from jaxvo.study.spec import (
     load_spec,
     parse_spec,
 )
+from jaxvo.trajectory import Trajectory
 
 __all__ = [
     "CPU_BATCH", "DEFAULT_METRICS", "MAX_ACCELERATOR_BATCH", "MEMORY_SHARE", "METRICS",

@@ -26,7 +26,7 @@ import numpy as np
 
 from jaxvo.errors import InputError
 from jaxvo.host.camera import write_camera_file
-from jaxvo.host.io import TumSequence, associate, write_trajectory
+from jaxvo.host.io import TumSequence
 from jaxvo.synth.scenario import SCENARIOS, ObjectSpec, Scenario, SensorOptions
 from jaxvo.synth.sequence import (
     DEPTH_SCALE,
@@ -35,6 +35,7 @@ from jaxvo.synth.sequence import (
     make_atlas,
     smooth_poses,
 )
+from jaxvo.trajectory import associate, write_trajectory
 
 DEFAULT_FRAMES = 90
 DEFAULT_FPS = 30.0

@@ -18,8 +18,9 @@ import numpy as np
 
 from jaxvo.errors import InputError, check_seed
 from jaxvo.host.camera import PRESETS
-from jaxvo.host.io import Frame, Trajectory, TumSequence
+from jaxvo.host.io import Frame, TumSequence
 from jaxvo.synth.scenario import ObjectSpec, Scenario, SensorOptions
+from jaxvo.trajectory import Trajectory
 
 DEPTH_SCALE = 5000.0  # raw 16-bit units per metre in written depth PNGs (as TUM)
 
