@@ -74,13 +74,13 @@ from splits import Case, cases, runnable
 
 from jaxvo.config import Config, Params, params_as_arrays
 from jaxvo.core.egomotion import fit_egomotion
+from jaxvo.core.inputs import GridFlow
 from jaxvo.core.noise import frame_points
 from jaxvo.evaluation.metrics import align_umeyama
 from jaxvo.evaluation.scores import trajectory_scores
-from jaxvo.host.flow import GridFlow
-from jaxvo.host.io import Trajectory, pose_at, read_trajectory, write_trajectory
 from jaxvo.host.transforms import invert_pose, relative_pose, rotation_angle
 from jaxvo.status import Status
+from jaxvo.trajectory import Trajectory, pose_at, read_trajectory, write_trajectory
 
 DELTAS = (1, 10, 30)
 KEYFRAMES = Config(keyframes=True)
