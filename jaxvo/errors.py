@@ -2,6 +2,7 @@
 checks of input that several modules share."""
 
 import operator
+import sys
 
 # The largest seed: JAX's default keys keep the low 32 bits of a seed (2**32 runs as 0) and
 # NumPy's generators take no negative seed, so seeds are 0 .. 2**32 - 1 everywhere.
@@ -14,6 +15,12 @@ class InputError(ValueError):
     The message must be one line that names the problem (file and line number where there
     is one); the CLI prints it as ``jaxvo: error: <message>`` and exits with status 2.
     """
+
+
+def warn(message: str) -> None:
+    """A warning the user should read: one line ``jaxvo: warning: <message>`` on standard
+    error, as the CLI prints its errors; the run goes on."""
+    print(f"jaxvo: warning: {message}", file=sys.stderr)
 
 
 def check_seed(seed: int, *, name: str = "seed") -> int:

@@ -10,7 +10,6 @@ from __future__ import annotations
 
 import argparse
 import json
-import sys
 from pathlib import Path
 
 EPILOG = """\
@@ -153,7 +152,7 @@ def open_mapped(args: argparse.Namespace):
 
 
 def run(args: argparse.Namespace) -> int:
-    from jaxvo.errors import InputError
+    from jaxvo.errors import InputError, warn
     from jaxvo.host.io import check_outputs, output_file
     from jaxvo.host.mapping import make_maps, map_outputs, mask_reader
     from jaxvo.host.outputs import file_id, stream_target
@@ -183,7 +182,7 @@ def run(args: argparse.Namespace) -> int:
     for what, path in files.items():
         output_file(path, what=what)
     for note in notes:
-        print(f"jaxvo: warning: {note}", file=sys.stderr)
+        warn(note)
     dynamic = (mask_reader(args.dynamic_masks, shape=(seq.height, seq.width))
                if args.dynamic_masks else None)
     with _logger(args) as logger:

@@ -23,7 +23,6 @@ from __future__ import annotations
 
 import dataclasses
 import itertools
-import sys
 from collections.abc import Callable
 from pathlib import Path
 from typing import NamedTuple
@@ -31,6 +30,7 @@ from typing import NamedTuple
 import numpy as np
 
 from jaxvo.errors import InputError
+from jaxvo.errors import warn as warn_user
 from jaxvo.host.camera import Intrinsics
 from jaxvo.host.outputs import OutputFile
 from jaxvo.trajectory import Trajectory
@@ -501,13 +501,9 @@ def map_outputs(path: str | Path) -> dict[str, Path]:
             "map picture": p.with_suffix(".png")}
 
 
-def _warn(message: str) -> None:
-    print(f"jaxvo: warning: {message}", file=sys.stderr)
-
-
 def make_maps(seq, traj: Trajectory, dynamic, options: MapOptions, outputs: dict[str, Path],
               *, where: str, frames: int | None = None, logger=None, on_static=None,
-              warn: Callable[[str], None] = _warn) -> dict:
+              warn: Callable[[str], None] = warn_user) -> dict:
     """Fuse, write the maps and their picture (and into ``logger``, and the static map to
     ``on_static``: ``jaxvo run --out-bag``); the summary's part. Each file is written whole
     or not at all; a failure leaves the earlier maps as they were, all three.

@@ -36,6 +36,7 @@ import numpy as np
 
 from jaxvo.config import Config, check_config
 from jaxvo.errors import InputError, check_seed
+from jaxvo.errors import warn as warn_user
 from jaxvo.host.bagout import BagOptions, check_bag_options, check_bag_target, open_bag
 from jaxvo.host.camera import Intrinsics, check_depth_scale_value
 from jaxvo.host.mapping import MapOptions, make_maps, map_outputs
@@ -74,10 +75,6 @@ class PreparedRun(NamedTuple):
     frames: int  # frames to process
     out: Path | str  # the trajectory file, or "-"
     folders: dict[str, Path]  # option -> its folder of per-frame images, made
-
-
-def _warn(message: str) -> None:
-    print(f"jaxvo: warning: {message}", file=sys.stderr)
 
 
 def _check_values(o: RunOptions) -> None:
@@ -168,7 +165,7 @@ class _NoStop:
 
 
 def record_run(run: PreparedRun, *, stop=None,
-               warn: Callable[[str], None] = _warn) -> dict:
+               warn: Callable[[str], None] = warn_user) -> dict:
     """The odometry over the prepared frames, every output recorded; the run's summary.
 
     Args:
