@@ -33,7 +33,7 @@ import numpy as np
 sys.path.insert(0, str(Path(__file__).resolve().parent))
 from _common import SEVEN_SCENES, first_pose, groundtruth, log, machine_line, markdown_table
 from bench_robustness import CFG, peers_alone, prepare
-from bench_seeds import config_from, run_seeds, spread
+from bench_seeds import add_run_options, config_from, params_from, run_seeds, spread
 from splits import Case
 
 from jaxvo.config import Params
@@ -190,15 +190,9 @@ def main(argv=None) -> int:
     ap = argparse.ArgumentParser(description=__doc__.split("\n\n")[0])
     ap.add_argument("--seeds", type=int, default=10)
     ap.add_argument("--only", nargs="*", help="group names (e.g. comp_heavy_cover_50_dev)")
-    ap.add_argument("--set", nargs="*", default=[], metavar="NAME=VALUE",
-                    help="Params values to run with")
-    ap.add_argument("--config", nargs="*", default=[], metavar="NAME=VALUE",
-                    help="Config values to run with")
-    ap.add_argument("--cache", type=Path, default=Path("results/cache"))
-    ap.add_argument("--out", type=Path, default=Path("results"))
-    ap.add_argument("--title", default="", help="a line saying what this run is")
+    add_run_options(ap)
     args = ap.parse_args(argv)
-    params = Params()._replace(**{k: float(v) for k, v in (a.split("=", 1) for a in args.set)})
+    params = params_from(args.set)
     cfg = config_from(args.config) if args.config else CFG
     groups = []
     for name, cases in cover_cases(args.seeds):

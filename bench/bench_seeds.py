@@ -97,6 +97,23 @@ def config_from(pairs: list[str]) -> Config:
     return cfg
 
 
+def add_run_options(ap: argparse.ArgumentParser) -> None:
+    """The options of a seeded accuracy run that this script and ``bench_cover.py`` share:
+    ``--set`` (Params), ``--config`` (Config), ``--cache``, ``--out`` and ``--title``."""
+    ap.add_argument("--set", nargs="*", default=[], metavar="NAME=VALUE",
+                    help="Params values to run with")
+    ap.add_argument("--config", nargs="*", default=[], metavar="NAME=VALUE",
+                    help="Config values to run with (e.g. keyframes=true)")
+    ap.add_argument("--cache", type=Path, default=Path("results/cache"))
+    ap.add_argument("--out", type=Path, default=Path("results"))
+    ap.add_argument("--title", default="", help="a line saying what this run is")
+
+
+def params_from(pairs: list[str]) -> Params:
+    """``Params`` with ``NAME=VALUE`` pairs set (floats)."""
+    return Params()._replace(**{k: float(v) for k, v in (a.split("=", 1) for a in pairs)})
+
+
 def reference_case(case: Case) -> Case:
     """The people case with the depth under the hand-drawn people masks set to 0 (the
     oracle: the same frames and ground truth, the people's depth removed)."""
@@ -183,15 +200,9 @@ def main(argv=None) -> int:
     ap.add_argument("--split", choices=("dev", "val", "fresh", "all"), default="val")
     ap.add_argument("--only", nargs="*", help="case names")
     ap.add_argument("--seeds", type=int, default=5)
-    ap.add_argument("--set", nargs="*", default=[], metavar="NAME=VALUE",
-                    help="Params values to run with")
-    ap.add_argument("--config", nargs="*", default=[], metavar="NAME=VALUE",
-                    help="Config values to run with (e.g. keyframes=true)")
-    ap.add_argument("--cache", type=Path, default=Path("results/cache"))
-    ap.add_argument("--out", type=Path, default=Path("results"))
-    ap.add_argument("--title", default="", help="a line saying what this run is")
+    add_run_options(ap)
     args = ap.parse_args(argv)
-    params = Params()._replace(**{k: float(v) for k, v in (a.split("=", 1) for a in args.set)})
+    params = params_from(args.set)
     cfg = config_from(args.config)
     todo = [c for c in cases() if c.split in (("dev", "val") if args.split == "all"
                                                  else (args.split,))
