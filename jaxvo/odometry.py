@@ -95,7 +95,7 @@ class Odometry:
         :class:`jaxvo.host.recording.RerunLogger`; None: nothing is logged.
       checked: the caller has checked the intrinsics and ``cfg`` against the image size,
         the memory the run needs and the first frame's depth, as ``jaxvo run`` does before
-        JAX loads (:func:`jaxvo.host.run.prepare_run`): they are not checked again.
+        JAX loads (:func:`jaxvo.run.prepare_run`): they are not checked again.
     Raises:
       ValueError: intrinsics of another type or that no camera has, settings no run can
         use, or a ``T_w_c0`` that is not a finite rigid transform.

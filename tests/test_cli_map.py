@@ -74,7 +74,7 @@ def _one_line(rc, err, *needles):
 def test_map_reads_the_depth_as_the_run_did(run_dir, capsys):
     """jaxvo run --depth-scale 1000, then jaxvo map: the map was 5x too small. The run's
     trajectory names its camera; the map reads the depth that way, as the option would."""
-    from jaxvo.host.run import RUN_TAG
+    from jaxvo.run import RUN_TAG
 
     d = run_dir
     text = (d / "traj.txt").read_text()
@@ -99,7 +99,7 @@ def test_a_run_of_another_sequence_is_refused_and_a_foreign_motion_warned(run_di
     """Both sequences timed index / 30 from 0: the timestamps matched, and a map came out
     with no word."""
     from jaxvo.host.io import open_sequence
-    from jaxvo.host.run import run_header
+    from jaxvo.run import run_header
     from jaxvo.trajectory import Trajectory, write_trajectory
 
     d = run_dir

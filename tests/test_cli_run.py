@@ -91,13 +91,13 @@ def test_wrong_depth_scale_is_reported(seq_dir, tmp_path, capsys):
 
 def test_each_check_runs_once_a_run(seq_dir, tmp_path, capsys, monkeypatch):
     """The settings, the memory they need and the first frame's depth are checked once a
-    run, before JAX loads (jaxvo.host.run.prepare_run, record_run); the odometry is told so
+    run, before JAX loads (jaxvo.run.prepare_run, record_run); the odometry is told so
     and checks none of them again (each ran twice or three times)."""
     import jaxvo.config
     import jaxvo.host.io
     import jaxvo.host.memory
-    import jaxvo.host.run
     import jaxvo.odometry
+    import jaxvo.run
 
     calls = {"check_config": 0, "check_memory": 0, "check_depth_scale": 0}
 
@@ -109,7 +109,7 @@ def test_each_check_runs_once_a_run(seq_dir, tmp_path, capsys, monkeypatch):
 
     # each check wherever it is imported from (the functions themselves, taken first)
     for name, home, users in (
-            ("check_config", jaxvo.config, (jaxvo.config, jaxvo.host.run, jaxvo.odometry)),
+            ("check_config", jaxvo.config, (jaxvo.config, jaxvo.run, jaxvo.odometry)),
             ("check_memory", jaxvo.host.memory, (jaxvo.host.memory, jaxvo.odometry)),
             ("check_depth_scale", jaxvo.host.io, (jaxvo.host.io, jaxvo.odometry))):
         check = counted(name, getattr(home, name))

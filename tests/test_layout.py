@@ -205,8 +205,8 @@ def test_no_module_over_800_lines_and_no_function_over_80():
 
 
 def test_the_run_command_is_its_options_and_its_printing():
-    """``jaxvo run``'s work lives in jaxvo/host/run.py, which a program calls as the command
-    does; the command reads its options into :class:`~jaxvo.host.run.RunOptions` and prints
+    """``jaxvo run``'s work lives in jaxvo/run.py, which a program calls as the command
+    does; the command reads its options into :class:`~jaxvo.run.RunOptions` and prints
     the summary (it held 625 lines, the recorder and the summary among them)."""
     source = (PACKAGE / "cli" / "run.py").read_text(encoding="utf-8")
     assert source.count("\n") < 250

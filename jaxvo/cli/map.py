@@ -109,13 +109,13 @@ _NAMES = {"voxel": "--voxel", "max_depth": "--max-depth", "grow": "--grow",
 def open_mapped(args: argparse.Namespace):
     """The sequence to map and the trajectory, the depth read as the run read it: ``(seq,
     traj, warnings)``. A trajectory jaxvo run wrote names its sequence and camera in its
-    first lines (:func:`jaxvo.host.run.run_header`): one of another sequence is refused, and
+    first lines (:func:`jaxvo.run.run_header`): one of another sequence is refused, and
     its camera and depth scale are used unless an option gives them."""
     from jaxvo.errors import InputError
     from jaxvo.host.camera import intrinsics_option
     from jaxvo.host.frames import describe
     from jaxvo.host.io import open_sequence
-    from jaxvo.host.run import read_run_header
+    from jaxvo.run import read_run_header
     from jaxvo.trajectory import read_trajectory
 
     camera = intrinsics_option(args.intrinsics) if args.intrinsics else args.camera

@@ -1,8 +1,8 @@
 """``jaxvo run SEQ_DIR --out traj.txt``: odometry over a recorded TUM-layout sequence.
 
-Argument handling and printing over the library's run (:mod:`jaxvo.host.run`:
-:func:`~jaxvo.host.run.prepare_run` checks everything before JAX loads,
-:func:`~jaxvo.host.run.record_run` runs the streaming odometry and records every output),
+Argument handling and printing over the library's run (:mod:`jaxvo.run`:
+:func:`~jaxvo.run.prepare_run` checks everything before JAX loads,
+:func:`~jaxvo.run.record_run` runs the streaming odometry and records every output),
 as evo's ``main_ape.py`` is over ``ape()``. The per-frame step is compiled on the first run
 on a machine and loaded from the persistent compile cache afterwards
 (:mod:`jaxvo.host.compile_cache`); the terminal says when it compiles.
@@ -15,7 +15,7 @@ import json
 import sys
 
 from jaxvo.host.bagout import BagOptions
-from jaxvo.host.run import PreparedRun, RunOptions, prepare_run, record_run, summary_lines
+from jaxvo.run import PreparedRun, RunOptions, prepare_run, record_run, summary_lines
 
 # command-line option -> the Config field it sets (named so in error messages)
 _CONFIG_OPTIONS = {"cell": "--cell", "num_hypotheses": "--hypotheses"}
@@ -158,7 +158,7 @@ def _add_bag_arguments(g) -> None:
 
 def options(args: argparse.Namespace) -> RunOptions:
     """The run the command line asks for (the options that need no file checked later, by
-    :func:`jaxvo.host.run.prepare_run`)."""
+    :func:`jaxvo.run.prepare_run`)."""
     from jaxvo.config import Config
     from jaxvo.errors import InputError
     from jaxvo.host.camera import intrinsics_option
