@@ -276,21 +276,35 @@ def predicted_motion(state: EgoState):
     return jnp.where(state.have_last, state.T_last, jnp.eye(4, dtype=jnp.float32))
 
 
-def update_egomotion(state: EgoState, pts: Points, weights, T_init, status, params: Params, *,
-                     cfg: Config, belief=None, candidates=None):
-    """One frame of the camera's motion: :func:`fit_egomotion` from the background's motion
-    ``T_init`` (4, 4) on the points of ``weights`` (n,), and the pose chain.
+class EgoInputs(NamedTuple):
+    """What one frame's ego-motion reads (:func:`update_egomotion`)."""
 
-    ``status`` () is the earlier stages' (flow, segmentation): a frame where one of them or
-    the fit failed carries the predicted motion (:func:`predicted_motion`), so a moving
-    camera is never frozen by a skipped pair. ``belief`` (n,) and ``candidates`` (k, 4, 4):
-    see :func:`fit_egomotion`.
+    pts: Points  # the points to fit: the frame's, with keyframes also the keyframe's
+    weights: jax.Array  # (n,) float32 each point's weight as background (BackgroundOut.use)
+    T_init: jax.Array  # (4, 4) float32 the background segment's motion, the first start
+    # () int32 Status of the earlier stages (flow, segmentation, background): not OK
+    # carries the predicted motion
+    status: jax.Array
+    belief: jax.Array | None = None  # (n,) float32 each point's belief as background
+    # (k, 4, 4) float32 further starts (the predicted motion, every segment's); None: none
+    candidates: jax.Array | None = None
+
+
+def update_egomotion(state: EgoState, inputs: EgoInputs, params: Params, *, cfg: Config):
+    """One frame of the camera's motion: :func:`fit_egomotion` from the background's motion
+    ``inputs.T_init`` (4, 4) on the points of ``inputs.weights`` (n,), and the pose chain.
+
+    ``inputs.status`` () is the earlier stages' (flow, segmentation): a frame where one of
+    them or the fit failed carries the predicted motion (:func:`predicted_motion`), so a
+    moving camera is never frozen by a skipped pair. ``belief`` (n,) and ``candidates``
+    (k, 4, 4): see :func:`fit_egomotion`.
 
     Returns ``(EgoState, EgoOut)``.
     """
-    T_ego, ego_status, inliers = fit_egomotion(pts, weights, params, cfg=cfg, T_init=T_init,
-                                               belief=belief, candidates=candidates)
-    status = first_failure(status, ego_status)
+    T_ego, ego_status, inliers = fit_egomotion(
+        inputs.pts, inputs.weights, params, cfg=cfg, T_init=inputs.T_init,
+        belief=inputs.belief, candidates=inputs.candidates)
+    status = first_failure(inputs.status, ego_status)
     ok = status == Status.OK
     T_cur_prev = jnp.where(ok, T_ego, predicted_motion(state))
     T_w_c = state.T_w_c @ invert_pose(T_cur_prev)
