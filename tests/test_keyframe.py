@@ -25,7 +25,8 @@ from jaxvo.core.keyframe import (
     refine,
     update_keyframe,
 )
-from jaxvo.core.noise import frame_points, init_noise
+from jaxvo.core.noise import init_noise
+from jaxvo.core.points import frame_points
 from jaxvo.host.flow import FrameChain, GridFlowTracker
 from jaxvo.odometry import Odometry, run_sequence
 from jaxvo.synth.scenes import make_sequence

@@ -10,7 +10,8 @@ from scipy.linalg import polar
 from scipy.spatial.transform import Rotation
 
 from jaxvo.core.lm import ArrowCurvature, levenberg_marquardt, orthonormal, pair_factor, perturb
-from jaxvo.core.noise import PointNoise, Points
+from jaxvo.core.noise import PointNoise
+from jaxvo.core.points import Points
 
 
 def test_levenberg_marquardt_reaches_the_least_squares_solution_of_an_arrow_problem():

@@ -17,13 +17,13 @@ import pytest
 from jaxvo.config import Params
 from jaxvo.core.noise import (
     NoiseScale,
-    frame_points,
     mahalanobis,
     point_noise,
     residuals,
     residuals_many,
     update_noise,
 )
+from jaxvo.core.points import frame_points
 from jaxvo.core.robust import chi2_quantile
 
 FOCAL = 525.0

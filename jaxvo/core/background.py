@@ -32,7 +32,8 @@ from jaxvo.config import Config, Params
 from jaxvo.core.evidence import explained_segments, moving_logodds, neighbourhood
 from jaxvo.core.geometry import tiny
 from jaxvo.core.identifiers import STATIC_ID, relabel, swap_perm
-from jaxvo.core.noise import NoiseScale, Points, residuals_many
+from jaxvo.core.noise import NoiseScale, residuals_many
+from jaxvo.core.points import Points
 from jaxvo.core.robust import MOST, enough_points, explains
 from jaxvo.core.spatial import Segmentation
 from jaxvo.status import Status

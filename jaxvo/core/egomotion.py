@@ -23,7 +23,8 @@ import jax.numpy as jnp
 
 from jaxvo.config import Config, Params
 from jaxvo.core.geometry import invert_pose, make_pose, so3_exp, tiny
-from jaxvo.core.noise import Points, frame_points, residuals, residuals_many
+from jaxvo.core.noise import residuals, residuals_many
+from jaxvo.core.points import Points, frame_points
 from jaxvo.core.procrustes import fit_rigid_cols
 from jaxvo.core.robust import (
     CHI_3_Q25,
@@ -149,7 +150,7 @@ def estimate_egomotion(pts_prev, pts_cur, weights, params: Params, *, cfg: Confi
 def fit_egomotion(pts: Points, weights, params: Params, *, cfg: Config, T_init=None,
                   belief=None, candidates=None):
     """:func:`estimate_egomotion` on a frame's points as the pipeline builds them once
-    (:func:`jaxvo.core.noise.frame_points`); ``weights`` (n,) > 0 where a point may be used.
+    (:func:`jaxvo.core.points.frame_points`); ``weights`` (n,) > 0 where a point may be used.
 
     The fit starts from the candidate motion of least robust cost over ``weights``
     (``T_init``, the background segment's; ``candidates`` (k, 4, 4), the predicted motion

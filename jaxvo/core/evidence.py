@@ -18,7 +18,8 @@ import jax.numpy as jnp
 
 from jaxvo.config import Config, Params
 from jaxvo.core.identifiers import STATIC_ID
-from jaxvo.core.noise import Points, residuals
+from jaxvo.core.noise import residuals
+from jaxvo.core.points import Points
 from jaxvo.core.robust import MOST, explains
 
 

@@ -54,7 +54,8 @@ from jaxvo.core.lm import (
     perturb,
     skew,
 )
-from jaxvo.core.noise import NoiseScale, Points, frame_points
+from jaxvo.core.noise import NoiseScale
+from jaxvo.core.points import Points, frame_points
 from jaxvo.core.robust import cauchy, chi2_quantile
 
 
@@ -122,7 +123,7 @@ def keyframe_points(state: KeyframeState, kf, T_w_prev, params: Params, *, focal
     Args:
       state: the window; kf: the pair's ``KeyframeFlow`` (``pts_kf``, ``pts_cur`` (n, 3)
         metres, ``valid`` (n,)); T_w_prev: (4, 4) pose of the pair's previous camera.
-      params, focal, scale: as :func:`jaxvo.core.noise.frame_points`.
+      params, focal, scale: as :func:`jaxvo.core.points.frame_points`.
       index: (m,) the grid points a keyframe offers (:func:`keyframe_index`).
     Returns:
       :class:`Points` (m of them) with ``src`` in the previous camera's frame: the

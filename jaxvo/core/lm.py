@@ -18,7 +18,8 @@ import jax.numpy as jnp
 import optax
 
 from jaxvo.core.geometry import make_pose, so3_exp, tiny
-from jaxvo.core.noise import Points, mahalanobis
+from jaxvo.core.noise import mahalanobis
+from jaxvo.core.points import Points
 from jaxvo.core.robust import cauchy
 
 # Levenberg-Marquardt damping (relative to the Gauss-Newton matrix's diagonal): start, the
@@ -172,7 +173,7 @@ def pair_factor(T, pts: Points, use, c2):
 
     Args:
       T: (4, 4) the pair's ego-motion; pts: the pair's points and their noise
-        (:func:`jaxvo.core.noise.frame_points`); use: (n,) bool; c2: () the robust loss's scale.
+        (:func:`jaxvo.core.points.frame_points`); use: (n,) bool; c2: () the robust loss's scale.
 
     Returns:
       ``(H (6, 6), g (6,))`` float32.

@@ -4,7 +4,7 @@ One step reads top to bottom as the thesis's pipeline (Fig. 1.2), a chain of sta
 ``update_x(state_x, XInputs(...), params, *, cfg, grid) -> (state_x, out_x)``, each stage's
 state its own and each stage's inputs one typed value built here:
 
-  the frame's points and their noise, built once (:func:`jaxvo.core.noise.frame_points`)
+  the frame's points and their noise, built once (:func:`jaxvo.core.points.frame_points`)
   -> spatial segmentation (Algorithms 1, 2; :mod:`jaxvo.core.spatial`)
   -> identifiers (Algorithm 3; :mod:`jaxvo.core.identifiers`) and the background
      (:func:`jaxvo.core.background.update_background`)
@@ -55,13 +55,14 @@ from jaxvo.core.keyframe import (
     keyframe_support,
     update_keyframe,
 )
-from jaxvo.core.noise import NoiseScale, frame_points, init_noise, transfer, update_noise
+from jaxvo.core.noise import NoiseScale, init_noise, transfer, update_noise
 from jaxvo.core.occlusion import (
     OcclusionInputs,
     OcclusionState,
     init_occlusion,
     update_occlusion,
 )
+from jaxvo.core.points import frame_points
 from jaxvo.core.spatial import Segmentation, segment_points
 from jaxvo.core.temporal import (
     TemporalInputs,
