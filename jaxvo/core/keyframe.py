@@ -43,17 +43,9 @@ import optax
 
 from jaxvo.config import Config, Params
 from jaxvo.core.background import belief_weights
-from jaxvo.core.geometry import invert_pose, tiny
+from jaxvo.core.geometry import adjoint, invert_pose, orthonormal, perturb, skew, tiny
 from jaxvo.core.inputs import KeyframeFlow
-from jaxvo.core.lm import (
-    ArrowCurvature,
-    adjoint,
-    levenberg_marquardt,
-    orthonormal,
-    pair_factor,
-    perturb,
-    skew,
-)
+from jaxvo.core.lm import ArrowCurvature, levenberg_marquardt, pair_factor
 from jaxvo.core.noise import NoiseScale
 from jaxvo.core.points import Points, frame_points
 from jaxvo.core.robust import cauchy, chi2_quantile
