@@ -42,7 +42,7 @@ import numpy as np
 import optax
 
 from jaxvo.config import Config, Params
-from jaxvo.core.background import belief_weights
+from jaxvo.core.background import BackgroundOut, belief_weights
 from jaxvo.core.geometry import adjoint, invert_pose, orthonormal, perturb, skew, tiny
 from jaxvo.core.inputs import KeyframeFlow
 from jaxvo.core.lm import ArrowCurvature, levenberg_marquardt, pair_factor
@@ -135,8 +135,21 @@ def join_points(a: Points, b: Points) -> Points:
                   cat(a.valid, b.valid), a.thr, a.tie)
 
 
-def keyframe_support(state: KeyframeState, kf, T_w_prev, pts: Points, bg, evidence,
-                     params: Params, *, cfg: Config, grid, focal, scale: NoiseScale):
+class SupportInputs(NamedTuple):
+    """What the keyframe's support of the ego-motion reads (:func:`keyframe_support`)."""
+
+    kf: KeyframeFlow  # the pair's keyframe flow (jaxvo.host.keyframes.KeyframeTracker)
+    T_w_prev: jax.Array  # (4, 4) float32 the previous camera's pose
+    pts: Points  # the pair's points
+    # the background's output (jaxvo.core.background.BackgroundOut): its use and belief
+    bg: BackgroundOut
+    evidence: jax.Array  # (n,) float32 each cell's moving log-odds entering the frame
+    focal: jax.Array  # () float32 focal length, pixels
+    scale: NoiseScale  # the sensor noise model
+
+
+def keyframe_support(state: KeyframeState, inputs: SupportInputs, params: Params, *,
+                     cfg: Config, grid):
     """The ego-motion's points, weights and beliefs with the latest keyframe's points joined
     to the pair's (``(Points, weights, belief)``, the keyframe's after the pair's).
 
@@ -147,6 +160,7 @@ def keyframe_support(state: KeyframeState, kf, T_w_prev, pts: Points, bg, eviden
     a valid point it believes in but does not use). So a keyframe taken while a box stood
     still does not pull the ego-motion along once the box moves.
     """
+    kf, T_w_prev, pts, bg, evidence, focal, scale = inputs
     index = keyframe_index(grid, cfg.keyframe_stride)
     kpts = keyframe_points(state, kf, T_w_prev, params, focal=focal, scale=scale, index=index)
     prior = belief_weights(evidence, params)

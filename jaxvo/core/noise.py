@@ -153,11 +153,19 @@ def residuals(T, src, dst, noise: PointNoise):
     return d2[0], e2[0]
 
 
-def update_noise(scale: NoiseScale, r, used, noise: PointNoise, params, *,
+class NoiseInputs(NamedTuple):
+    """What one frame's noise calibration reads (:func:`update_noise`)."""
+
+    r: jax.Array  # (3, n) float32 residuals T src - dst under the ego-motion, metres
+    used: jax.Array  # (n,) bool the points the ego-motion was fitted to (where it is OK)
+    noise: PointNoise  # those points' point_noise under the current scale
+
+
+def update_noise(scale: NoiseScale, inputs: NoiseInputs, params, *,
                  floor: NoiseScale = NOISE_FLOOR, ceiling: NoiseScale = NOISE_CEILING):
-    """Calibrate the noise from the residuals ``r`` (3, n) of the points the ego-motion
-    ``used`` (n,) bool under the motion just estimated; ``noise`` is those points'
-    :func:`point_noise` under ``scale``.
+    """Calibrate the noise from the residuals ``inputs.r`` (3, n) of the points the
+    ego-motion ``used`` (n,) bool under the motion just estimated; ``inputs.noise`` is those
+    points' :func:`point_noise` under ``scale``.
 
     Each part's scale is measured as the median of its squared residuals over those
     points, in units of the current model, over the median of its chi-square (1 degree of
@@ -177,6 +185,7 @@ def update_noise(scale: NoiseScale, r, used, noise: PointNoise, params, *,
     Returns the new :class:`NoiseScale` (unchanged where the points are not
     :func:`jaxvo.core.robust.enough_points`).
     """
+    r, used, noise = inputs
     rate = params.noise_rate
     lat2, ray2 = components(r, noise)
     m_lat = quantile_scale(lat2 * noise.w_lat, used, 0.5, CHI2_2_MEDIAN)

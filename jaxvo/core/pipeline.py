@@ -51,11 +51,12 @@ from jaxvo.core.inputs import GridFlow, KeyframeFlow
 from jaxvo.core.keyframe import (
     KeyframeInputs,
     KeyframeState,
+    SupportInputs,
     init_keyframe,
     keyframe_support,
     update_keyframe,
 )
-from jaxvo.core.noise import NoiseScale, init_noise, transfer, update_noise
+from jaxvo.core.noise import NoiseInputs, NoiseScale, init_noise, transfer, update_noise
 from jaxvo.core.occlusion import (
     OcclusionInputs,
     OcclusionState,
@@ -185,8 +186,8 @@ def step(state: PipelineState, flow: GridFlow, key, params: Params, *, cfg: Step
     # 6. the sensor noise, from the residuals of the points the ego-motion was fitted to
     noise = state.noise
     if cfg.noise_calibration:
-        noise = update_noise(noise, transfer(eo.T_cur_prev, pts.src) - pts.dst,
-                             (bg.use > 0) & eo.ok, pts.noise, params)
+        noise = update_noise(noise, NoiseInputs(transfer(eo.T_cur_prev, pts.src) - pts.dst,
+                                                (bg.use > 0) & eo.ok, pts.noise), params)
     # 7. a new keyframe where the host says so, with the cells the temporal model holds
     # static on this image (its evidence is already carried onto this image's grid)
     kf_state, kout = state.keyframe, None
@@ -216,8 +217,9 @@ def _ego_inputs(state: PipelineState, flow: GridFlow, keyframe: KeyframeFlow | N
     ego_pts, ego_weights, belief = pts, bg.use, bg.belief
     if keyframe is not None:
         ego_pts, ego_weights, belief = keyframe_support(
-            state.keyframe, keyframe, state.ego.T_w_c, pts, bg, state.temporal.evidence, params,
-            cfg=cfg, grid=grid, focal=flow.focal, scale=state.noise)
+            state.keyframe, SupportInputs(keyframe, state.ego.T_w_c, pts, bg,
+                                          state.temporal.evidence, flow.focal, state.noise),
+            params, cfg=cfg, grid=grid)
     candidates = jnp.concatenate([predicted_motion(state.ego)[None], seg.motions])
     return EgoInputs(ego_pts, ego_weights, seg.motions[jnp.maximum(bg.background - 1, 0)],
                      first_failure(flow.status, seg.status, bg.status), belief, candidates)
