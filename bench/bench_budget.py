@@ -75,7 +75,7 @@ from splits import Case, cases, runnable
 from jaxvo.config import Config, Params, params_as_arrays
 from jaxvo.core.egomotion import fit_egomotion
 from jaxvo.core.inputs import GridFlow
-from jaxvo.core.noise import frame_points
+from jaxvo.core.points import frame_points
 from jaxvo.evaluation.metrics import align_umeyama
 from jaxvo.evaluation.scores import trajectory_scores
 from jaxvo.host.transforms import invert_pose, relative_pose, rotation_angle

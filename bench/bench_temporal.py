@@ -21,7 +21,7 @@ from _common import machine_line
 
 from jaxvo.config import Config, Params, grid_shape, params_as_arrays
 from jaxvo.core.identifiers import identify, measured_labels
-from jaxvo.core.temporal import init_temporal, update_temporal
+from jaxvo.core.temporal import TemporalInputs, init_temporal, update_temporal
 
 
 class Seg(NamedTuple):
@@ -65,10 +65,11 @@ def temporal_frame(state, seg, disp, valid, params, *, cfg, grid):
     """One frame of the temporal stage: Algorithm 3's identifiers, then the update (no
     background choice, no segment explained by the ego-motion, no evidence)."""
     labels = measured_labels(seg, valid, cfg=cfg)
-    return update_temporal(state, labels, disp, valid, params, cfg=cfg, grid=grid,
-                           segment_ids=identify(state.identifiers, labels, params, cfg=cfg),
-                           explained=jnp.zeros((cfg.max_segments,), bool),
-                           evidence_delta=jnp.zeros(valid.shape, jnp.float32))
+    inputs = TemporalInputs(labels, disp, valid,
+                            segment_ids=identify(state.identifiers, labels, params, cfg=cfg),
+                            explained=jnp.zeros((cfg.max_segments,), bool),
+                            evidence_delta=jnp.zeros(valid.shape, jnp.float32))
+    return update_temporal(state, inputs, params, cfg=cfg, grid=grid)
 
 
 def main():

@@ -17,7 +17,7 @@ import numpy as np
 from jaxvo.config import Config, Params, params_as_arrays
 from jaxvo.core.evidence import update_evidence
 from jaxvo.core.identifiers import identify, measured_labels
-from jaxvo.core.temporal import init_temporal, update_temporal
+from jaxvo.core.temporal import TemporalInputs, init_temporal, update_temporal
 
 CFG = Config()
 GRID = (12, 16)
@@ -63,9 +63,9 @@ def temporal_frame(state, seg, disp, valid, prm, *, segment_ids=None, explained=
         explained = jnp.zeros((CFG.max_segments,), bool)
     if evidence_delta is None:
         evidence_delta = jnp.zeros(valid.shape, jnp.float32)
-    return update_temporal(state, labels, disp, valid, prm, cfg=CFG, grid=GRID,
-                           segment_ids=segment_ids, explained=explained,
-                           evidence_delta=evidence_delta)
+    return update_temporal(
+        state, TemporalInputs(labels, disp, valid, segment_ids, explained, evidence_delta),
+        prm, cfg=CFG, grid=GRID)
 
 
 def _counted_update(state, seg, disp, valid, prm):

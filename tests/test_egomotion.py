@@ -219,7 +219,7 @@ def test_established_background_outside_the_chosen_segment_supports_the_pose():
     left out by the inlier test of the grown support. Before the support grew, only the
     sliver's points counted (``belief`` = the sliver's weights: nothing else established)."""
     from jaxvo.core.egomotion import fit_egomotion
-    from jaxvo.core.noise import frame_points
+    from jaxvo.core.points import frame_points
 
     rng = np.random.default_rng(7)
     prev, cur, T, labels, obj = _split_background(rng)
@@ -248,7 +248,7 @@ def test_the_start_cannot_move_the_estimate():
     """The random hypotheses choose where the re-weighting starts, not where it ends: starts
     a few centimetres and a degree apart give the same pose within 0.1 mm and 0.01 deg."""
     from jaxvo.core.egomotion import fit_egomotion
-    from jaxvo.core.noise import frame_points
+    from jaxvo.core.points import frame_points
 
     rng = np.random.default_rng(3)
     prev, cur, T = _scene(rng, 300)

@@ -1,9 +1,20 @@
-"""Device-side pose helpers and the masked median against numpy references."""
+"""Device-side pose helpers and the masked median against numpy and SciPy references
+(SciPy's rotations and polar decomposition for the perturbations and the re-orthonormalised
+poses)."""
 
 import jax.numpy as jnp
 import numpy as np
+from scipy.linalg import polar
+from scipy.spatial.transform import Rotation
 
-from jaxvo.core.geometry import invert_pose, make_pose, masked_median, transform_points
+from jaxvo.core.geometry import (
+    invert_pose,
+    make_pose,
+    masked_median,
+    orthonormal,
+    perturb,
+    transform_points,
+)
 
 
 def _random_pose(rng):
@@ -70,3 +81,41 @@ def test_so3_exp_is_the_rotation_about_the_axis_and_exact_near_zero():
         got = np.asarray(so3_exp(jnp.asarray(axis * angle, jnp.float32)))
         assert np.all(np.isfinite(got))
         np.testing.assert_allclose(got, ref, atol=2e-6)
+
+
+def _poses(rng, k):
+    T = np.tile(np.eye(4), (k, 1, 1))
+    T[:, :3, :3] = Rotation.from_rotvec(rng.normal(0, 0.5, (k, 3))).as_matrix()
+    T[:, :3, 3] = rng.normal(0, 1.0, (k, 3))
+    return T
+
+
+def test_perturb_rotates_and_shifts_each_pose_on_the_left():
+    rng = np.random.default_rng(1)
+    T = _poses(rng, 4)
+    xi = np.concatenate([rng.normal(0, 0.3, (4, 3)), rng.normal(0, 0.1, (4, 3))], axis=1)
+    got = np.asarray(perturb(jnp.asarray(T, jnp.float32), jnp.asarray(xi, jnp.float32)))
+    left = np.tile(np.eye(4), (4, 1, 1))
+    left[:, :3, :3] = Rotation.from_rotvec(xi[:, :3]).as_matrix()
+    left[:, :3, 3] = xi[:, 3:]
+    # tolerance: 1e-5 (float32 rotations of rotation vectors up to about 1 rad, metres)
+    np.testing.assert_allclose(got, left @ T, atol=1e-5)
+
+
+def test_orthonormal_pulls_a_drifted_rotation_back_onto_so3():
+    rng = np.random.default_rng(2)
+    T = _poses(rng, 3)
+    drifted = T.copy()
+    # float32 rounding compounded over many steps: an error of 5e-4 in each entry
+    drifted[:, :3, :3] += rng.normal(0, 5e-4, (3, 3, 3))
+    before = [np.abs(D.T @ D - np.eye(3)).max() for D in drifted[:, :3, :3]]
+    got = np.asarray(orthonormal(jnp.asarray(drifted, jnp.float32)), np.float64)
+    R = got[:, :3, :3]
+    # one Newton-Schulz step leaves about 1.5 times the squared error (a few 1e-6) of the
+    # nearest rotation, SciPy's polar factor; tolerance 1e-5 (float32)
+    assert min(before) > 5e-4
+    for k in range(3):
+        np.testing.assert_allclose(R[k], polar(drifted[k, :3, :3])[0], atol=1e-5)
+        np.testing.assert_allclose(R[k].T @ R[k], np.eye(3), atol=1e-5)
+    np.testing.assert_allclose(got[:, :3, 3], drifted[:, :3, 3], atol=1e-6)  # translation kept
+    np.testing.assert_array_equal(got[:, 3], np.tile([0.0, 0.0, 0.0, 1.0], (3, 1)))

@@ -16,6 +16,7 @@ from test_flow import CFG, H, K, W, bgr, plane, texture, warp
 from jaxvo.config import Config, Params
 from jaxvo.core.inputs import KeyframeFlow, invalid_keyframe_flow
 from jaxvo.core.keyframe import (
+    KeyframeInputs,
     KeyframeState,
     _problem,
     init_keyframe,
@@ -24,7 +25,8 @@ from jaxvo.core.keyframe import (
     refine,
     update_keyframe,
 )
-from jaxvo.core.noise import frame_points, init_noise
+from jaxvo.core.noise import init_noise
+from jaxvo.core.points import frame_points
 from jaxvo.host.flow import FrameChain, GridFlowTracker
 from jaxvo.odometry import Odometry, run_sequence
 from jaxvo.synth.scenes import make_sequence
@@ -76,9 +78,10 @@ def _update(state, kf, T, static):
     n = len(static)
     none = frame_points(jnp.zeros((n, 3)), jnp.zeros((n, 3)), jnp.zeros(n, bool), Params(),
                         focal=525.0)
-    pair = (jnp.eye(4), jnp.eye(4), none, jnp.zeros(n, bool))  # the pair adds no information
-    return update_keyframe(state, kf, jnp.asarray(T, jnp.float32), jnp.asarray(static), pair,
-                           init_noise(Params()), Params(), cfg=UNIT_CFG, grid=GRID, focal=525.0)
+    # the pair adds no information
+    inputs = KeyframeInputs(kf, jnp.asarray(T, jnp.float32), jnp.asarray(static), jnp.eye(4),
+                            jnp.eye(4), none, jnp.zeros(n, bool), init_noise(Params()), 525.0)
+    return update_keyframe(state, inputs, Params(), cfg=UNIT_CFG, grid=GRID)
 
 
 def test_update_keyframe_takes_a_keyframe_only_when_told():

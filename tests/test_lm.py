@@ -1,16 +1,15 @@
-"""Levenberg-Marquardt as an optax transformation, the pose perturbations it steps in and a
-pair's points as a quadratic factor (jaxvo.core.lm), each against an independent reference:
-numpy's least squares, SciPy's rotations and polar decomposition, a float64 Jacobian
-written out point by point and central differences."""
+"""Levenberg-Marquardt as an optax transformation and a pair's points as a quadratic factor
+(jaxvo.core.lm), each against an independent reference: numpy's least squares, SciPy's
+rotations, a float64 Jacobian written out point by point and central differences."""
 
 import jax.numpy as jnp
 import numpy as np
 import pytest
-from scipy.linalg import polar
 from scipy.spatial.transform import Rotation
 
-from jaxvo.core.lm import ArrowCurvature, levenberg_marquardt, orthonormal, pair_factor, perturb
-from jaxvo.core.noise import PointNoise, Points
+from jaxvo.core.lm import ArrowCurvature, levenberg_marquardt, pair_factor
+from jaxvo.core.noise import PointNoise
+from jaxvo.core.points import Points
 
 
 def test_levenberg_marquardt_reaches_the_least_squares_solution_of_an_arrow_problem():
@@ -62,44 +61,6 @@ def test_levenberg_marquardt_undoes_a_step_that_raised_the_cost():
     # a shorter step from the origin in the same direction: -g / (1 + lambda) per entry
     np.testing.assert_allclose(np.concatenate(first), -np.concatenate(g) / 1.0001, rtol=1e-5)
     np.testing.assert_allclose(np.concatenate(back), -np.concatenate(g) / 1.001, rtol=1e-5)
-
-
-def _poses(rng, k):
-    T = np.tile(np.eye(4), (k, 1, 1))
-    T[:, :3, :3] = Rotation.from_rotvec(rng.normal(0, 0.5, (k, 3))).as_matrix()
-    T[:, :3, 3] = rng.normal(0, 1.0, (k, 3))
-    return T
-
-
-def test_perturb_rotates_and_shifts_each_pose_on_the_left():
-    rng = np.random.default_rng(1)
-    T = _poses(rng, 4)
-    xi = np.concatenate([rng.normal(0, 0.3, (4, 3)), rng.normal(0, 0.1, (4, 3))], axis=1)
-    got = np.asarray(perturb(jnp.asarray(T, jnp.float32), jnp.asarray(xi, jnp.float32)))
-    left = np.tile(np.eye(4), (4, 1, 1))
-    left[:, :3, :3] = Rotation.from_rotvec(xi[:, :3]).as_matrix()
-    left[:, :3, 3] = xi[:, 3:]
-    # tolerance: 1e-5 (float32 rotations of rotation vectors up to about 1 rad, metres)
-    np.testing.assert_allclose(got, left @ T, atol=1e-5)
-
-
-def test_orthonormal_pulls_a_drifted_rotation_back_onto_so3():
-    rng = np.random.default_rng(2)
-    T = _poses(rng, 3)
-    drifted = T.copy()
-    # float32 rounding compounded over many steps: an error of 5e-4 in each entry
-    drifted[:, :3, :3] += rng.normal(0, 5e-4, (3, 3, 3))
-    before = [np.abs(D.T @ D - np.eye(3)).max() for D in drifted[:, :3, :3]]
-    got = np.asarray(orthonormal(jnp.asarray(drifted, jnp.float32)), np.float64)
-    R = got[:, :3, :3]
-    # one Newton-Schulz step leaves about 1.5 times the squared error (a few 1e-6) of the
-    # nearest rotation, SciPy's polar factor; tolerance 1e-5 (float32)
-    assert min(before) > 5e-4
-    for k in range(3):
-        np.testing.assert_allclose(R[k], polar(drifted[k, :3, :3])[0], atol=1e-5)
-        np.testing.assert_allclose(R[k].T @ R[k], np.eye(3), atol=1e-5)
-    np.testing.assert_allclose(got[:, :3, 3], drifted[:, :3, 3], atol=1e-6)  # translation kept
-    np.testing.assert_array_equal(got[:, 3], np.tile([0.0, 0.0, 0.0, 1.0], (3, 1)))
 
 
 def test_pair_factor_is_the_gauss_newton_model_of_the_pairs_weighted_residuals():

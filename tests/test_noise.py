@@ -16,14 +16,15 @@ import pytest
 
 from jaxvo.config import Params
 from jaxvo.core.noise import (
+    NoiseInputs,
     NoiseScale,
-    frame_points,
     mahalanobis,
     point_noise,
     residuals,
     residuals_many,
     update_noise,
 )
+from jaxvo.core.points import frame_points
 from jaxvo.core.robust import chi2_quantile
 
 FOCAL = 525.0
@@ -210,7 +211,7 @@ def _calibrate(scale, src, dst, used, rate):
     T = jnp.asarray(MOTION, jnp.float32)
     r = T[:3, :3] @ src + T[:3, 3:4] - dst
     noise = point_noise(src, dst, jnp.float32(FOCAL), scale)
-    return update_noise(scale, r, used, noise, Params(noise_rate=rate), floor=FLOOR,
+    return update_noise(scale, NoiseInputs(r, used, noise), Params(noise_rate=rate), floor=FLOOR,
                         ceiling=CEILING)
 
 

@@ -8,7 +8,7 @@ import jax.numpy as jnp
 import numpy as np
 import pytest
 
-from jaxvo.core.procrustes import fit_rigid, fit_rigid_cols, residuals
+from jaxvo.core.procrustes import fit_rigid, fit_rigid_cols
 
 # float32 fit against a float64 reference: rotation entries and translations (metres) agree
 # to this for well-conditioned sets of points spread over ~1 m.
@@ -135,7 +135,7 @@ def test_weighted_fit_equals_fit_on_subset(single_fit):
     np.testing.assert_allclose(np.asarray(T_w)[:3, :3], r, atol=ROT_TOL)
 
 
-def test_column_layout_and_residuals(single_fit):
+def test_the_column_layout_fits_as_the_rows(single_fit):
     rng = np.random.default_rng(4)
     n = 6  # the shape of the degenerate-set tests: no recompile of single_fit
     src = rng.normal(size=(n, 3)).astype(np.float32)
@@ -144,11 +144,6 @@ def test_column_layout_and_residuals(single_fit):
     T_rows, _ = single_fit(src, dst, w)
     T_cols, _ = jax.jit(fit_rigid_cols)(src.T, dst.T, w)
     np.testing.assert_allclose(np.asarray(T_rows), np.asarray(T_cols), atol=1e-6)
-    T = np.asarray(T_rows, np.float64)
-    ref = np.sum((src @ T[:3, :3].T + T[:3, 3] - dst) ** 2, axis=1)  # eq. (2.19)
-    res = jax.jit(residuals)
-    np.testing.assert_allclose(np.asarray(res(T_rows, src, dst)), ref, rtol=1e-4, atol=1e-9)
-    assert np.all(np.isfinite(np.asarray(res(jnp.eye(4), src * 0, dst * 0))))
 
 
 class FitVariants(chex.TestCase):

@@ -255,7 +255,7 @@ def test_model_noise_at_every_depth_is_one_segment(seg, params):
     fewer (0.94 here, 0.73-0.98 over scene seeds 7-10): its motion is refitted with equal
     weights on its inliers (spatial._refine, _cluster_refine), so the far points' wide
     noise pulls it by a millimetre or two, beyond the near points' tight noise."""
-    from jaxvo.core.noise import frame_points
+    from jaxvo.core.points import frame_points
     from jaxvo.core.spatial import _res
 
     rng = np.random.default_rng(7)
@@ -409,7 +409,7 @@ def test_leftover_points_become_a_segment_only_when_they_move_apart(params, case
     """A moving block that no kept segment explains (as when joint refinement has lost it)
     becomes a segment of its own; leftovers that move as a kept segment does, or that are
     too few, do not."""
-    from jaxvo.core.noise import frame_points
+    from jaxvo.core.points import frame_points
     from jaxvo.core.spatial import _leftover_segment, _res
 
     prev, cur, valid, truth = make_scene(4, TWO)

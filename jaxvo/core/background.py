@@ -32,8 +32,10 @@ from jaxvo.config import Config, Params
 from jaxvo.core.evidence import explained_segments, moving_logodds, neighbourhood
 from jaxvo.core.geometry import tiny
 from jaxvo.core.identifiers import STATIC_ID, relabel, swap_perm
-from jaxvo.core.noise import NoiseScale, Points, residuals_many
+from jaxvo.core.noise import NoiseScale, residuals_many
+from jaxvo.core.points import Points
 from jaxvo.core.robust import MOST, enough_points, explains
+from jaxvo.core.spatial import Segmentation
 from jaxvo.status import Status
 
 
@@ -196,9 +198,25 @@ def background_support(d2_seg, sizes, weights, z, d2_pred, have_last, thr, unpre
     return jnp.where(used, total, 0.0), jnp.where(used, unpredicted + f, 0.0)
 
 
-def update_background(seg, pts: Points, T_pred, have_last, params: Params, *, cfg: Config,
-                      grid: tuple[int, int], segment_ids, evidence, initialised,
-                      scale: NoiseScale, occluded=None):
+class BackgroundInputs(NamedTuple):
+    """What the background choice of one frame reads (:func:`update_background`)."""
+
+    seg: Segmentation  # the frame's spatial segmentation (jaxvo.core.spatial)
+    pts: Points  # the frame's points and their noise (jaxvo.core.points.frame_points)
+    T_pred: jax.Array  # (4, 4) float32 the predicted camera motion T_cur_prev
+    have_last: jax.Array  # () bool whether T_pred was measured (else identity)
+    # (max_segments,) int32 the segments' identifiers (jaxvo.core.identifiers.identify)
+    segment_ids: jax.Array
+    evidence: jax.Array  # (n,) float32 each cell's moving log-odds entering the frame
+    initialised: jax.Array  # () bool some segment had an identifier before
+    scale: NoiseScale  # the sensor noise (the depth readings' noise of the depth order)
+    # (n,) bool the points the occlusion memory holds nearer than what was seen there
+    # (jaxvo.core.occlusion); None: none
+    occluded: jax.Array | None = None
+
+
+def update_background(inputs: BackgroundInputs, params: Params, *, cfg: Config,
+                      grid: tuple[int, int]):
     """The background of this frame and the points the ego-motion may use.
 
     Among the segments not made mostly of known movers (established moving, or held
@@ -217,19 +235,15 @@ def update_background(seg, pts: Points, T_pred, have_last, params: Params, *, cf
     background that fast motion or depth distortion split off) and the occluders.
 
     Args:
-      seg: the spatial ``Segmentation``; pts: the frame's points
-      (:func:`jaxvo.core.noise.frame_points`); T_pred: (4, 4) the predicted camera motion;
-      have_last: () bool whether it was measured; segment_ids: (max_segments,) int32 the
-      segments' identifiers (:func:`jaxvo.core.identifiers.identify`); evidence: (n,)
-      float32 each cell's moving log-odds entering the frame (:mod:`jaxvo.core.evidence`);
-      initialised: () bool some segment had an identifier before; scale: the sensor noise
-      (the depth readings' noise of the depth order); occluded: (n,) bool the points the
-      occlusion memory holds nearer than what was seen there (:mod:`jaxvo.core.occlusion`).
+      inputs: the frame's :class:`BackgroundInputs`; params: numeric settings.
+      cfg: static settings; grid: static ``(rows, cols)``.
 
     Returns:
       ``BackgroundOut``; its ``permutation`` renumbers the identifiers of the later stages'
       states so that the background's is 1.
     """
+    (seg, pts, T_pred, have_last, segment_ids, evidence, initialised, scale,
+     occluded) = inputs
     valid = pts.valid
     d2_all = residuals_many(jnp.concatenate([T_pred[None], seg.motions]), pts.src, pts.dst,
                             pts.noise)[0]

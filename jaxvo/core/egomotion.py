@@ -23,7 +23,8 @@ import jax.numpy as jnp
 
 from jaxvo.config import Config, Params
 from jaxvo.core.geometry import invert_pose, make_pose, so3_exp, tiny
-from jaxvo.core.noise import Points, frame_points, residuals, residuals_many
+from jaxvo.core.noise import residuals, residuals_many
+from jaxvo.core.points import Points, frame_points
 from jaxvo.core.procrustes import fit_rigid_cols
 from jaxvo.core.robust import (
     CHI_3_Q25,
@@ -149,7 +150,7 @@ def estimate_egomotion(pts_prev, pts_cur, weights, params: Params, *, cfg: Confi
 def fit_egomotion(pts: Points, weights, params: Params, *, cfg: Config, T_init=None,
                   belief=None, candidates=None):
     """:func:`estimate_egomotion` on a frame's points as the pipeline builds them once
-    (:func:`jaxvo.core.noise.frame_points`); ``weights`` (n,) > 0 where a point may be used.
+    (:func:`jaxvo.core.points.frame_points`); ``weights`` (n,) > 0 where a point may be used.
 
     The fit starts from the candidate motion of least robust cost over ``weights``
     (``T_init``, the background segment's; ``candidates`` (k, 4, 4), the predicted motion
@@ -276,21 +277,35 @@ def predicted_motion(state: EgoState):
     return jnp.where(state.have_last, state.T_last, jnp.eye(4, dtype=jnp.float32))
 
 
-def update_egomotion(state: EgoState, pts: Points, weights, T_init, status, params: Params, *,
-                     cfg: Config, belief=None, candidates=None):
-    """One frame of the camera's motion: :func:`fit_egomotion` from the background's motion
-    ``T_init`` (4, 4) on the points of ``weights`` (n,), and the pose chain.
+class EgoInputs(NamedTuple):
+    """What one frame's ego-motion reads (:func:`update_egomotion`)."""
 
-    ``status`` () is the earlier stages' (flow, segmentation): a frame where one of them or
-    the fit failed carries the predicted motion (:func:`predicted_motion`), so a moving
-    camera is never frozen by a skipped pair. ``belief`` (n,) and ``candidates`` (k, 4, 4):
-    see :func:`fit_egomotion`.
+    pts: Points  # the points to fit: the frame's, with keyframes also the keyframe's
+    weights: jax.Array  # (n,) float32 each point's weight as background (BackgroundOut.use)
+    T_init: jax.Array  # (4, 4) float32 the background segment's motion, the first start
+    # () int32 Status of the earlier stages (flow, segmentation, background): not OK
+    # carries the predicted motion
+    status: jax.Array
+    belief: jax.Array | None = None  # (n,) float32 each point's belief as background
+    # (k, 4, 4) float32 further starts (the predicted motion, every segment's); None: none
+    candidates: jax.Array | None = None
+
+
+def update_egomotion(state: EgoState, inputs: EgoInputs, params: Params, *, cfg: Config):
+    """One frame of the camera's motion: :func:`fit_egomotion` from the background's motion
+    ``inputs.T_init`` (4, 4) on the points of ``inputs.weights`` (n,), and the pose chain.
+
+    ``inputs.status`` () is the earlier stages' (flow, segmentation): a frame where one of
+    them or the fit failed carries the predicted motion (:func:`predicted_motion`), so a
+    moving camera is never frozen by a skipped pair. ``belief`` (n,) and ``candidates``
+    (k, 4, 4): see :func:`fit_egomotion`.
 
     Returns ``(EgoState, EgoOut)``.
     """
-    T_ego, ego_status, inliers = fit_egomotion(pts, weights, params, cfg=cfg, T_init=T_init,
-                                               belief=belief, candidates=candidates)
-    status = first_failure(status, ego_status)
+    T_ego, ego_status, inliers = fit_egomotion(
+        inputs.pts, inputs.weights, params, cfg=cfg, T_init=inputs.T_init,
+        belief=inputs.belief, candidates=inputs.candidates)
+    status = first_failure(inputs.status, ego_status)
     ok = status == Status.OK
     T_cur_prev = jnp.where(ok, T_ego, predicted_motion(state))
     T_w_c = state.T_w_c @ invert_pose(T_cur_prev)

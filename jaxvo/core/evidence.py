@@ -11,11 +11,15 @@ output follows (:func:`reported_ids`).
 
 from __future__ import annotations
 
+from typing import NamedTuple
+
+import jax
 import jax.numpy as jnp
 
 from jaxvo.config import Config, Params
 from jaxvo.core.identifiers import STATIC_ID
-from jaxvo.core.noise import Points, residuals
+from jaxvo.core.noise import residuals
+from jaxvo.core.points import Points
 from jaxvo.core.robust import MOST, explains
 
 
@@ -89,8 +93,23 @@ def neighbourhood_agreement(values, valid, *, grid: tuple[int, int]):
     return jnp.where(count >= 5, median, -jnp.inf)
 
 
-def moving_evidence(seg_labels, pts: Points, T_cur_prev, d2_seg, ok, params: Params, *,
-                    cfg: Config, grid: tuple[int, int], in_front=None, occluded=None):
+class EvidenceInputs(NamedTuple):
+    """What one frame's moving evidence reads (:func:`moving_evidence`)."""
+
+    seg_labels: jax.Array  # (n,) int32 the spatial segments of the pair (0 none)
+    pts: Points  # the frame's points and their noise
+    T_cur_prev: jax.Array  # (4, 4) float32 the ego-motion
+    d2_seg: jax.Array  # (max_segments, n) float32 normalised residuals under each segment
+    ok: jax.Array  # () bool the ego-motion was measured (else no evidence)
+    # (n,) float32 the depth order's log-likelihood ratio, moving over static
+    # (BackgroundOut.in_front); None: none
+    in_front: jax.Array | None = None
+    # (n,) bool the points the occlusion memory holds nearer than what was seen; None: none
+    occluded: jax.Array | None = None
+
+
+def moving_evidence(inputs: EvidenceInputs, params: Params, *, cfg: Config,
+                    grid: tuple[int, int]):
     """This frame's evidence of each point's own motion under the ego-motion ``T_cur_prev``:
     ``(explained (S,) bool, delta (n,) float32)``, the segments the ego-motion explains
     (:func:`explained_segments`) and every point's log-likelihood ratio
@@ -106,7 +125,10 @@ def moving_evidence(seg_labels, pts: Points, T_cur_prev, d2_seg, ok, params: Par
     of a mover follows the camera; where noise splits a static scene, which piece lies in
     front is chance); ``occluded`` (n,) bool, the points the occlusion memory holds
     nearer than what was seen there, ``params.evidence_step`` each (the static scene never
-    comes nearer than itself)."""
+    comes nearer than itself).
+
+    ``inputs``: :class:`EvidenceInputs`; ``cfg``, ``grid``: static."""
+    seg_labels, pts, T_cur_prev, d2_seg, ok, in_front, occluded = inputs
     d2_ego = residuals(T_cur_prev, pts.src, pts.dst, pts.noise)[0]
     explained = explained_segments(seg_labels, d2_ego, pts.valid, pts.thr, cfg=cfg)
     delta = evidence_delta(seg_labels, d2_ego, d2_seg, explained, pts.valid & ok, params,

@@ -42,18 +42,12 @@ import numpy as np
 import optax
 
 from jaxvo.config import Config, Params
-from jaxvo.core.background import belief_weights
-from jaxvo.core.geometry import invert_pose, tiny
-from jaxvo.core.lm import (
-    ArrowCurvature,
-    adjoint,
-    levenberg_marquardt,
-    orthonormal,
-    pair_factor,
-    perturb,
-    skew,
-)
-from jaxvo.core.noise import NoiseScale, Points, frame_points
+from jaxvo.core.background import BackgroundOut, belief_weights
+from jaxvo.core.geometry import adjoint, invert_pose, orthonormal, perturb, skew, tiny
+from jaxvo.core.inputs import KeyframeFlow
+from jaxvo.core.lm import ArrowCurvature, levenberg_marquardt, pair_factor
+from jaxvo.core.noise import NoiseScale
+from jaxvo.core.points import Points, frame_points
 from jaxvo.core.robust import cauchy, chi2_quantile
 
 
@@ -121,7 +115,7 @@ def keyframe_points(state: KeyframeState, kf, T_w_prev, params: Params, *, focal
     Args:
       state: the window; kf: the pair's ``KeyframeFlow`` (``pts_kf``, ``pts_cur`` (n, 3)
         metres, ``valid`` (n,)); T_w_prev: (4, 4) pose of the pair's previous camera.
-      params, focal, scale: as :func:`jaxvo.core.noise.frame_points`.
+      params, focal, scale: as :func:`jaxvo.core.points.frame_points`.
       index: (m,) the grid points a keyframe offers (:func:`keyframe_index`).
     Returns:
       :class:`Points` (m of them) with ``src`` in the previous camera's frame: the
@@ -141,8 +135,21 @@ def join_points(a: Points, b: Points) -> Points:
                   cat(a.valid, b.valid), a.thr, a.tie)
 
 
-def keyframe_support(state: KeyframeState, kf, T_w_prev, pts: Points, bg, evidence,
-                     params: Params, *, cfg: Config, grid, focal, scale: NoiseScale):
+class SupportInputs(NamedTuple):
+    """What the keyframe's support of the ego-motion reads (:func:`keyframe_support`)."""
+
+    kf: KeyframeFlow  # the pair's keyframe flow (jaxvo.host.keyframes.KeyframeTracker)
+    T_w_prev: jax.Array  # (4, 4) float32 the previous camera's pose
+    pts: Points  # the pair's points
+    # the background's output (jaxvo.core.background.BackgroundOut): its use and belief
+    bg: BackgroundOut
+    evidence: jax.Array  # (n,) float32 each cell's moving log-odds entering the frame
+    focal: jax.Array  # () float32 focal length, pixels
+    scale: NoiseScale  # the sensor noise model
+
+
+def keyframe_support(state: KeyframeState, inputs: SupportInputs, params: Params, *,
+                     cfg: Config, grid):
     """The ego-motion's points, weights and beliefs with the latest keyframe's points joined
     to the pair's (``(Points, weights, belief)``, the keyframe's after the pair's).
 
@@ -153,6 +160,7 @@ def keyframe_support(state: KeyframeState, kf, T_w_prev, pts: Points, bg, eviden
     a valid point it believes in but does not use). So a keyframe taken while a box stood
     still does not pull the ego-motion along once the box moves.
     """
+    kf, T_w_prev, pts, bg, evidence, focal, scale = inputs
     index = keyframe_index(grid, cfg.keyframe_stride)
     kpts = keyframe_points(state, kf, T_w_prev, params, focal=focal, scale=scale, index=index)
     prior = belief_weights(evidence, params)
@@ -402,30 +410,41 @@ def _learn_first(state: KeyframeState, kf, index) -> KeyframeState:
         static=state.static.at[-1].set(ok), fresh=jnp.bool_(False))
 
 
-def update_keyframe(state: KeyframeState, kf, T_w_c, static, pair, noise: NoiseScale,
-                    params: Params, *, cfg: Config, grid, focal):
+class KeyframeInputs(NamedTuple):
+    """What the keyframe window reads after the pair (:func:`update_keyframe`)."""
+
+    kf: KeyframeFlow  # the pair's keyframe flow (jaxvo.host.keyframes.KeyframeTracker)
+    T_w_c: jax.Array  # (4, 4) float32 the current camera's pose from the ego-motion
+    static: jax.Array  # (n,) bool grid points of the current image the temporal model holds static
+    # the pair's ego-motion, the previous camera's pose, the pair's points and those the
+    # ego-motion used: the chain's motion from the latest keyframe to the current camera
+    # and the pair's information on it (jaxvo.core.lm.pair_factor), the window's tie
+    # between a new keyframe and the one before
+    T_cur_prev: jax.Array  # (4, 4) float32
+    T_w_prev: jax.Array  # (4, 4) float32
+    pts: Points
+    used: jax.Array  # (n,) bool
+    noise: NoiseScale  # the sensor noise model
+    focal: jax.Array  # () float32 focal length, pixels
+
+
+def update_keyframe(state: KeyframeState, inputs: KeyframeInputs, params: Params, *,
+                    cfg: Config, grid):
     """After the pair: where the host renews the keyframe (``kf.renew``), the current frame
     joins the window as its latest keyframe and the window is refined.
 
     Args:
-      state: the window; kf: the pair's ``KeyframeFlow``.
-      T_w_c: (4, 4) the current camera's pose from the ego-motion.
-      static: (n,) bool grid points of the current image the temporal model holds static.
-      pair: ``(T_cur_prev, T_w_prev, pts, used)``: the pair's ego-motion, the previous
-        camera's pose, the pair's points and those the ego-motion used. They give the chain's
-        motion from the latest keyframe to the current camera and the pair's information
-        on it (:func:`jaxvo.core.lm.pair_factor`), the window's tie between a new keyframe
-        and the one before.
-      noise: the sensor noise model; params: numeric settings (``confidence``).
+      state: the window; inputs: the pair's :class:`KeyframeInputs`.
+      params: numeric settings (``confidence``).
       cfg: static settings (``keyframe_window``, ``keyframe_iters``, ``keyframe_stride``);
-      grid: static ``(rows, cols)``; focal: () pixels.
+      grid: static ``(rows, cols)``.
 
     Returns:
       ``(KeyframeState, KeyframeOut)``; the output's pose is the refined latest keyframe's
       where a keyframe was taken, else ``T_w_c``.
     """
     index = keyframe_index(grid, cfg.keyframe_stride)
-    T_cur_prev, T_w_prev, pts, used = pair
+    kf, T_w_c, static, T_cur_prev, T_w_prev, pts, used, noise, focal = inputs
 
     def take(st):  # on keyframe frames only (lax.cond): the pair's factor is built here
         T_cur_kf = T_cur_prev @ invert_pose(T_w_prev) @ st.T_w_kf[-1]

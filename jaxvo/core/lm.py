@@ -1,5 +1,6 @@
-"""Levenberg-Marquardt for bundle adjustment's structure, as an optax transformation, and
-the pose perturbations it steps in (device side).
+"""Levenberg-Marquardt for bundle adjustment's structure, as an optax transformation, and a
+pair's points as a quadratic factor on its motion (device side; the pose perturbations it
+steps in are :func:`jaxvo.core.geometry.perturb`).
 
 The keyframe window (:mod:`jaxvo.core.keyframe`) solves for a few poses and many point
 depths at once: its Gauss-Newton matrix is an arrow, dense over the poses, diagonal over
@@ -17,8 +18,9 @@ import jax
 import jax.numpy as jnp
 import optax
 
-from jaxvo.core.geometry import make_pose, so3_exp, tiny
-from jaxvo.core.noise import Points, mahalanobis
+from jaxvo.core.geometry import skew, tiny
+from jaxvo.core.noise import mahalanobis
+from jaxvo.core.points import Points
 from jaxvo.core.robust import cauchy
 
 # Levenberg-Marquardt damping (relative to the Gauss-Newton matrix's diagonal): start, the
@@ -112,49 +114,11 @@ def levenberg_marquardt(
     return optax.GradientTransformationExtraArgs(init, update)
 
 
-def perturb(T, xi):
-    """Left perturbation ``exp(xi) T`` of poses ``T`` (K, 4, 4) by ``xi`` (K, 6) = (omega,
-    nu): points move as ``X + omega x X + nu`` to first order."""
-    R = jax.vmap(so3_exp)(xi[:, :3])
-    return make_pose(R @ T[:, :3, :3], jnp.einsum("kij,kj->ki", R, T[:, :3, 3]) + xi[:, 3:])
-
-
-def orthonormal(T):
-    """Poses ``T`` (..., 4, 4) with rotations pulled back onto SO(3) by one Newton-Schulz
-    step of the polar decomposition, ``R (3 I - R^T R) / 2``. The window maps its poses into
-    the oldest frame's coordinates and back every step (``T_ref (T_ref^-1 T)`` with the
-    transpose as the inverse); without this a rotation's float32 rounding compounded from
-    step to step (orthogonality errors from 3e-5 to 3e-3 in ten frames of 7-Scenes)."""
-    R = T[..., :3, :3]
-    RtR = jnp.swapaxes(R, -1, -2) @ R
-    R = R @ (1.5 * jnp.eye(3, dtype=R.dtype) - 0.5 * RtR)
-    return make_pose(R, T[..., :3, 3])
-
-
-def skew(v):
-    """(..., 3) -> (..., 3, 3) cross-product matrices ``[v]x``."""
-    z = jnp.zeros_like(v[..., 0])
-    return jnp.stack([jnp.stack([z, -v[..., 2], v[..., 1]], -1),
-                      jnp.stack([v[..., 2], z, -v[..., 0]], -1),
-                      jnp.stack([-v[..., 1], v[..., 0], z], -1)], axis=-2)
-
-
-
-
 def cross_cols(a, b):
     """Cross products of columns: (..., 3, n) x (..., 3, n)."""
     return jnp.stack([a[..., 1, :] * b[..., 2, :] - a[..., 2, :] * b[..., 1, :],
                       a[..., 2, :] * b[..., 0, :] - a[..., 0, :] * b[..., 2, :],
                       a[..., 0, :] * b[..., 1, :] - a[..., 1, :] * b[..., 0, :]], axis=-2)
-
-
-def adjoint(T):
-    """Adjoint (..., 6, 6) of poses (..., 4, 4) for ``xi = (omega, nu)``: ``T exp(xi)
-    T^-1 = exp(Ad_T xi)``, ``Ad_T = [[R, 0], [[t]x R, R]]``."""
-    R, t = T[..., :3, :3], T[..., :3, 3]
-    zero = jnp.zeros_like(R)
-    return jnp.concatenate([jnp.concatenate([R, zero], -1),
-                            jnp.concatenate([skew(t) @ R, R], -1)], axis=-2)
 
 
 def pair_factor(T, pts: Points, use, c2):
@@ -172,7 +136,7 @@ def pair_factor(T, pts: Points, use, c2):
 
     Args:
       T: (4, 4) the pair's ego-motion; pts: the pair's points and their noise
-        (:func:`jaxvo.core.noise.frame_points`); use: (n,) bool; c2: () the robust loss's scale.
+        (:func:`jaxvo.core.points.frame_points`); use: (n,) bool; c2: () the robust loss's scale.
 
     Returns:
       ``(H (6, 6), g (6,))`` float32.

@@ -35,13 +35,7 @@ import jax
 import jax.numpy as jnp
 
 from jaxvo.core.geometry import tiny
-from jaxvo.core.robust import (
-    CHI2_1_MEDIAN,
-    CHI2_2_MEDIAN,
-    chi2_quantile,
-    enough_points,
-    quantile_scale,
-)
+from jaxvo.core.robust import CHI2_1_MEDIAN, CHI2_2_MEDIAN, enough_points, quantile_scale
 
 
 class NoiseScale(NamedTuple):
@@ -112,46 +106,6 @@ def point_noise(pts_prev, pts_cur, focal, scale: NoiseScale, fb_error=None,
                       jnp.where(ok, 1.0 / jnp.maximum(var_ray, tiny()), 0.0))
 
 
-class Points(NamedTuple):
-    """One frame pair's points as every stage reads them: columns, noise, validity, tests.
-
-    Built once per frame (:func:`frame_points`) and handed to the spatial segmentation, the
-    background choice, the ego-motion, the noise calibration and the keyframes.
-    """
-
-    src: jax.Array  # (3, n) float32 previous points, metres (0 where invalid)
-    dst: jax.Array  # (3, n) float32 current points, metres
-    noise: PointNoise  # per-point weights of the normalised residual
-    valid: jax.Array  # (n,) bool
-    thr: jax.Array  # () float32 inlier test: chi2_3(confidence), noise units
-    tie: jax.Array  # () float32 two motions explain a point alike: chi2_1(confidence)
-
-
-def frame_points(pts_prev, pts_cur, valid, params, *, focal, scale=None, fb_error=None,
-                 depth_slope=None) -> Points:
-    """One frame pair's points (n, 3) as columns with their noise and the tests' thresholds.
-
-    Points that are non-finite or have non-positive depth count as invalid and are zeroed.
-    ``scale`` is the sensor noise (:class:`NoiseScale`), by default ``params``' starting one;
-    ``fb_error`` and ``depth_slope`` (n,) the tracker's quality of each point
-    (:class:`jaxvo.host.flow.GridFlow`; see :func:`point_noise`), by default none.
-    """
-    finite = jnp.all(jnp.isfinite(pts_prev), axis=1) & jnp.all(jnp.isfinite(pts_cur), axis=1)
-    valid = valid & finite & (pts_prev[:, 2] > 0) & (pts_cur[:, 2] > 0)
-    # Columns (3, n) from here on: each coordinate a contiguous vector (see
-    # jaxvo.core.procrustes.fit_rigid_cols).
-    src = jnp.where(valid, pts_prev.T, 0.0).astype(jnp.float32)
-    dst = jnp.where(valid, pts_cur.T, 0.0).astype(jnp.float32)
-    scale = init_noise(params) if scale is None else scale
-    def per_point(x):
-        return None if x is None else jnp.where(valid, jnp.asarray(x, jnp.float32), 0.0)
-
-    noise = point_noise(src, dst, jnp.asarray(focal, jnp.float32), scale,
-                        per_point(fb_error), per_point(depth_slope))
-    return Points(src, dst, noise, valid, chi2_quantile(3, params.confidence),
-                  chi2_quantile(1, params.confidence))
-
-
 # Every function below works on coordinate planes: a vector quantity over many points is
 # three arrays, one per axis, never an array with an axis of 3 to reduce over, which XLA's
 # CPU backend vectorises far worse (docs/report/core_decisions.md).
@@ -199,11 +153,19 @@ def residuals(T, src, dst, noise: PointNoise):
     return d2[0], e2[0]
 
 
-def update_noise(scale: NoiseScale, r, used, noise: PointNoise, params, *,
+class NoiseInputs(NamedTuple):
+    """What one frame's noise calibration reads (:func:`update_noise`)."""
+
+    r: jax.Array  # (3, n) float32 residuals T src - dst under the ego-motion, metres
+    used: jax.Array  # (n,) bool the points the ego-motion was fitted to (where it is OK)
+    noise: PointNoise  # those points' point_noise under the current scale
+
+
+def update_noise(scale: NoiseScale, inputs: NoiseInputs, params, *,
                  floor: NoiseScale = NOISE_FLOOR, ceiling: NoiseScale = NOISE_CEILING):
-    """Calibrate the noise from the residuals ``r`` (3, n) of the points the ego-motion
-    ``used`` (n,) bool under the motion just estimated; ``noise`` is those points'
-    :func:`point_noise` under ``scale``.
+    """Calibrate the noise from the residuals ``inputs.r`` (3, n) of the points the
+    ego-motion ``used`` (n,) bool under the motion just estimated; ``inputs.noise`` is those
+    points' :func:`point_noise` under ``scale``.
 
     Each part's scale is measured as the median of its squared residuals over those
     points, in units of the current model, over the median of its chi-square (1 degree of
@@ -223,6 +185,7 @@ def update_noise(scale: NoiseScale, r, used, noise: PointNoise, params, *,
     Returns the new :class:`NoiseScale` (unchanged where the points are not
     :func:`jaxvo.core.robust.enough_points`).
     """
+    r, used, noise = inputs
     rate = params.noise_rate
     lat2, ray2 = components(r, noise)
     m_lat = quantile_scale(lat2 * noise.w_lat, used, 0.5, CHI2_2_MEDIAN)

@@ -43,6 +43,17 @@ def init_occlusion(*, grid: tuple[int, int]) -> OcclusionState:
                           jnp.eye(4, dtype=jnp.float32))
 
 
+class OcclusionInputs(NamedTuple):
+    """What one image gives the occlusion memory (:func:`update_occlusion`)."""
+
+    depth: jax.Array  # (n,) float32 this image's depth at its grid points, metres (0 none)
+    uv: jax.Array  # (n, 2) float32 the grid points' pixels in this image
+    T_w_c: jax.Array  # (4, 4) float32 this image's camera pose (camera-to-world)
+    camera: jax.Array  # (4,) float32 the intrinsics fx, fy, cx, cy, pixels
+    scale: NoiseScale  # the sensor noise (its depth_coeff: the depth readings' noise)
+    tie: jax.Array  # () float32 the near-tie test chi2_1(confidence) (Points.tie)
+
+
 def _into_last(state: OcclusionState, depth, uv, T_w_c, camera):
     """Each grid point of this image (depth (n,), pixels uv (n, 2)) in the last camera:
     ``(depth there (n,), continuous grid column and row (n,), (n,))``."""
@@ -59,29 +70,28 @@ def _into_last(state: OcclusionState, depth, uv, T_w_c, camera):
     return z, u, v
 
 
-def update_occlusion(state: OcclusionState, depth, uv, T_w_c, camera, scale: NoiseScale, tie,
-                     *, grid: tuple[int, int], cell: int):
+def update_occlusion(state: OcclusionState, inputs: OcclusionInputs, *, grid: tuple[int, int],
+                     cell: int):
     """One image of the occlusion memory: ``(state, nearer (n,) float32, occluded (n,)
     bool)`` on this image's grid.
 
-    Each grid point with a depth reading is back-projected (``camera`` (4,) fx, fy, cx, cy;
-    ``uv`` (n, 2) its pixel), moved into the last camera (the poses ``state.T_w_c`` and
-    ``T_w_c``, this image's), and its depth there compared with the last image's depths at
+    Each grid point with a depth reading is back-projected (``inputs.camera``;
+    ``inputs.uv`` its pixel), moved into the last camera (the poses ``state.T_w_c`` and
+    ``inputs.T_w_c``, this image's), and its depth there compared with the last image's depths at
     the four grid points around where it lands: by how much it lies outside their range
     (nearer: positive; farther: negative; within: 0, so that the grid's sampling of a
     sloping surface counts as nothing). That change is added to the memory of the nearest
     of the four (anchored in the world by the camera's motion); the sum stays where it is
-    beyond the depth noise of two readings at the test ``tie`` (``chi2_1(confidence)``)
+    beyond the depth noise of two readings at the test ``inputs.tie`` (``chi2_1(confidence)``)
     and nearer (``occluded``), and is 0 elsewhere: a surface no nearer than what was seen,
     or one that receded to show what lay behind. A point without a reading, or landing
     where the last image had none, learns nothing (0).
 
     Args:
-      state: the last image's depths, memory and pose; depth: (n,) float32 this image's
-      depth at its grid points, metres, 0 none; uv: (n, 2) their pixels; T_w_c: (4, 4) this
-      image's pose; camera: (4,); scale: the depth noise (``depth_coeff``); tie: ().
-      grid: (rows, cols); cell: the grid cell, pixels (static).
+      state: the last image's depths, memory and pose; inputs: this image's
+      :class:`OcclusionInputs`. grid: (rows, cols); cell: the grid cell, pixels (static).
     """
+    depth, uv, T_w_c, camera, scale, tie = inputs
     rows, cols = grid
     z_last, u, v = _into_last(state, depth, uv, T_w_c, camera)
     gx = (u + 0.5) / cell - 0.5  # grid point (c, r) sits at pixel ((c + .5) cell - .5, ...)

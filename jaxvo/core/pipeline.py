@@ -1,9 +1,10 @@
 """The per-frame step of the odometry, and the whole-sequence scan built from it (device side).
 
 One step reads top to bottom as the thesis's pipeline (Fig. 1.2), a chain of stage updates
-``update_x(state_x, inputs) -> (state_x, out_x)``, each stage's state its own:
+``update_x(state_x, XInputs(...), params, *, cfg, grid) -> (state_x, out_x)``, each stage's
+state its own and each stage's inputs one typed value built here:
 
-  the frame's points and their noise, built once (:func:`jaxvo.core.noise.frame_points`)
+  the frame's points and their noise, built once (:func:`jaxvo.core.points.frame_points`)
   -> spatial segmentation (Algorithms 1, 2; :mod:`jaxvo.core.spatial`)
   -> identifiers (Algorithm 3; :mod:`jaxvo.core.identifiers`) and the background
      (:func:`jaxvo.core.background.update_background`)
@@ -29,17 +30,48 @@ import jax
 import jax.numpy as jnp
 
 from jaxvo.config import Params, StepOptions
-from jaxvo.core.background import BackgroundOut, update_background
-from jaxvo.core.egomotion import EgoState, init_ego, predicted_motion, update_egomotion
-from jaxvo.core.evidence import moving_evidence, moving_logodds, neighbourhood, reported_ids
+from jaxvo.core.background import BackgroundInputs, BackgroundOut, update_background
+from jaxvo.core.egomotion import (
+    EgoInputs,
+    EgoState,
+    init_ego,
+    predicted_motion,
+    update_egomotion,
+)
+from jaxvo.core.evidence import (
+    EvidenceInputs,
+    moving_evidence,
+    moving_logodds,
+    neighbourhood,
+    reported_ids,
+)
 from jaxvo.core.geometry import full_precision
 from jaxvo.core.identifiers import identify, measured_labels
 from jaxvo.core.inputs import GridFlow, KeyframeFlow
-from jaxvo.core.keyframe import KeyframeState, init_keyframe, keyframe_support, update_keyframe
-from jaxvo.core.noise import NoiseScale, frame_points, init_noise, transfer, update_noise
-from jaxvo.core.occlusion import OcclusionState, init_occlusion, update_occlusion
+from jaxvo.core.keyframe import (
+    KeyframeInputs,
+    KeyframeState,
+    SupportInputs,
+    init_keyframe,
+    keyframe_support,
+    update_keyframe,
+)
+from jaxvo.core.noise import NoiseInputs, NoiseScale, init_noise, transfer, update_noise
+from jaxvo.core.occlusion import (
+    OcclusionInputs,
+    OcclusionState,
+    init_occlusion,
+    update_occlusion,
+)
+from jaxvo.core.points import frame_points
 from jaxvo.core.spatial import Segmentation, segment_points
-from jaxvo.core.temporal import TemporalOut, TemporalState, init_temporal, update_temporal
+from jaxvo.core.temporal import (
+    TemporalInputs,
+    TemporalOut,
+    TemporalState,
+    init_temporal,
+    update_temporal,
+)
 from jaxvo.status import Status, first_failure
 
 
@@ -123,51 +155,49 @@ def step(state: PipelineState, flow: GridFlow, key, params: Params, *, cfg: Step
     # surface earlier frames established as background
     segment_ids = identify(state.temporal.identifiers, labels, params, cfg=cfg)
     occlusion, _, occluded = update_occlusion(
-        state.occlusion, flow.depth_prev, flow.uv_prev, state.ego.T_w_c, flow.camera,
-        state.noise, pts.tie, grid=grid, cell=cfg.cell)
+        state.occlusion, OcclusionInputs(flow.depth_prev, flow.uv_prev, state.ego.T_w_c,
+                                         flow.camera, state.noise, pts.tie),
+        grid=grid, cell=cfg.cell)
     bg = update_background(
-        seg, pts, predicted_motion(state.ego), state.ego.have_last, params,
-        cfg=cfg, grid=grid, segment_ids=segment_ids, evidence=state.temporal.evidence,
-        initialised=state.temporal.identifiers.initialised, scale=state.noise,
-        occluded=occluded)
+        BackgroundInputs(seg, pts, predicted_motion(state.ego), state.ego.have_last,
+                         segment_ids, state.temporal.evidence,
+                         state.temporal.identifiers.initialised, state.noise, occluded),
+        params, cfg=cfg, grid=grid)
     # 3. ego-motion from the best of the frame's candidate motions, its support grown over
     # the established background; with keyframes also on the keyframe's static points
     # tracked into this image (jaxvo.core.keyframe)
-    ego_pts, ego_weights, belief = pts, bg.use, bg.belief
     use_kf = cfg.keyframes and keyframe is not None
-    if use_kf:
-        ego_pts, ego_weights, belief = keyframe_support(
-            state.keyframe, keyframe, state.ego.T_w_c, pts, bg, state.temporal.evidence, params,
-            cfg=cfg, grid=grid, focal=flow.focal, scale=state.noise)
-    candidates = jnp.concatenate([predicted_motion(state.ego)[None], seg.motions])
-    ego, eo = update_egomotion(state.ego, ego_pts, ego_weights,
-                               seg.motions[jnp.maximum(bg.background - 1, 0)],
-                               first_failure(flow.status, seg.status, bg.status), params,
-                               cfg=cfg,
-                               belief=belief, candidates=candidates)
+    ego, eo = update_egomotion(
+        state.ego, _ego_inputs(state, flow, keyframe if use_kf else None, pts, seg, bg, params,
+                               cfg=cfg, grid=grid),
+        params, cfg=cfg)
     eo = eo._replace(used=eo.used[:pts.valid.shape[0]])
     # 4. evidence of each point's own motion under the ego-motion
-    explained, delta = moving_evidence(seg.labels, pts, eo.T_cur_prev, bg.d2_seg, eo.ok,
-                                       params, cfg=cfg, grid=grid, in_front=bg.in_front,
-                                       occluded=bg.occluded)
+    explained, delta = moving_evidence(
+        EvidenceInputs(seg.labels, pts, eo.T_cur_prev, bg.d2_seg, eo.ok, bg.in_front,
+                       bg.occluded),
+        params, cfg=cfg, grid=grid)
     # 5. labels: the dual-mode grid model, compensated to the current image
     temporal, tout = update_temporal(
-        state.temporal, labels, flow.uv_cur - flow.uv_prev, pts.valid, params, cfg=cfg,
-        grid=grid, segment_ids=bg.segment_ids, explained=explained, evidence_delta=delta,
-        depth_prev=flow.depth_prev, permutation=bg.permutation)
+        state.temporal, TemporalInputs(labels, flow.uv_cur - flow.uv_prev, pts.valid,
+                                       bg.segment_ids, explained, delta, flow.depth_prev,
+                                       bg.permutation),
+        params, cfg=cfg, grid=grid)
     # 6. the sensor noise, from the residuals of the points the ego-motion was fitted to
     noise = state.noise
     if cfg.noise_calibration:
-        noise = update_noise(noise, transfer(eo.T_cur_prev, pts.src) - pts.dst,
-                             (bg.use > 0) & eo.ok, pts.noise, params)
+        noise = update_noise(noise, NoiseInputs(transfer(eo.T_cur_prev, pts.src) - pts.dst,
+                                                (bg.use > 0) & eo.ok, pts.noise), params)
     # 7. a new keyframe where the host says so, with the cells the temporal model holds
     # static on this image (its evidence is already carried onto this image's grid)
     kf_state, kout = state.keyframe, None
     if use_kf:
         kf_state, kout = update_keyframe(
-            kf_state, keyframe, ego.T_w_c, temporal.evidence <= moving_logodds(params),
-            (eo.T_cur_prev, state.ego.T_w_c, pts, eo.used), noise, params, cfg=cfg, grid=grid,
-            focal=flow.focal)
+            kf_state, KeyframeInputs(keyframe, ego.T_w_c,
+                                     temporal.evidence <= moving_logodds(params),
+                                     eo.T_cur_prev, state.ego.T_w_c, pts, eo.used, noise,
+                                     flow.focal),
+            params, cfg=cfg, grid=grid)
         ego = ego._replace(T_w_c=kout.T_w_c)
     out = _output(ego, eo, seg, bg, tout, noise, pts.valid, params, cfg=cfg, grid=grid)
     if kout is not None:
@@ -175,6 +205,24 @@ def step(state: PipelineState, flow: GridFlow, key, params: Params, *, cfg: Step
     return PipelineState(temporal=temporal, ego=ego,
                          frame=state.frame + 1, noise=noise, keyframe=kf_state,
                          occlusion=occlusion), out
+
+
+def _ego_inputs(state: PipelineState, flow: GridFlow, keyframe: KeyframeFlow | None, pts,
+                seg: Segmentation, bg: BackgroundOut, params: Params, *, cfg: StepOptions,
+                grid) -> EgoInputs:
+    """The ego-motion's :class:`~jaxvo.core.egomotion.EgoInputs`: the points of the
+    background (``bg.use``), with a ``keyframe`` also the keyframe's static points tracked
+    into this image (:func:`jaxvo.core.keyframe.keyframe_support`), from the background
+    segment's motion, among the candidates the predicted motion and every segment's."""
+    ego_pts, ego_weights, belief = pts, bg.use, bg.belief
+    if keyframe is not None:
+        ego_pts, ego_weights, belief = keyframe_support(
+            state.keyframe, SupportInputs(keyframe, state.ego.T_w_c, pts, bg,
+                                          state.temporal.evidence, flow.focal, state.noise),
+            params, cfg=cfg, grid=grid)
+    candidates = jnp.concatenate([predicted_motion(state.ego)[None], seg.motions])
+    return EgoInputs(ego_pts, ego_weights, seg.motions[jnp.maximum(bg.background - 1, 0)],
+                     first_failure(flow.status, seg.status, bg.status), belief, candidates)
 
 
 def _output(ego: EgoState, eo, seg: Segmentation, bg: BackgroundOut, tout: TemporalOut,

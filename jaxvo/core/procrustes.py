@@ -1,4 +1,5 @@
-"""Weighted rigid fit (thesis eqs. 2.1, 2.2) and its residuals (eq. 2.19), pure JAX.
+"""Weighted rigid fit (thesis eqs. 2.1, 2.2), pure JAX (its residuals, eq. 2.19, are
+:func:`jaxvo.core.noise.residuals`'s ``e2``).
 
 The thesis writes the rotation as the polar factor ``R = M (M^T M)^(-1/2)`` of the
 cross-covariance ``M = (X_k - P_k)(X_j - P_j)^T`` (eq. 2.1). That closed form is a reflection
@@ -162,20 +163,3 @@ def fit_rigid_cols(src_t, dst_t, w):
     R = jnp.where(ok, R, jnp.eye(3, dtype=dtype))
     t = jnp.where(ok, p_dst - R @ p_src, 0.0)
     return make_pose(R, t), ok
-
-
-def residuals(T, src, dst):
-    """Squared transfer errors ``|R src_i + t - dst_i|^2`` per point, thesis eq. (2.19).
-
-    Args:
-      T: (4, 4) pose mapping ``src`` to ``dst``.
-      src, dst: (n, 3) points in metres.
-
-    Returns:
-      (n,) squared errors in m^2.
-    """
-    err = 0.0
-    for k in range(3):
-        d = T[k, 0] * src[:, 0] + T[k, 1] * src[:, 1] + T[k, 2] * src[:, 2] + T[k, 3] - dst[:, k]
-        err = err + d * d
-    return err

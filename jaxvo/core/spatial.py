@@ -37,15 +37,8 @@ import jax.numpy as jnp
 from jax import lax
 
 from jaxvo.core.cluster import dbscan, jaccard_distance, overlaps
-from jaxvo.core.noise import (
-    PointNoise,
-    Points,
-    frame_points,
-    mahalanobis,
-    residuals,
-    residuals_many,
-    transfer_many,
-)
+from jaxvo.core.noise import PointNoise, mahalanobis, residuals, residuals_many, transfer_many
+from jaxvo.core.points import Points, frame_points
 from jaxvo.core.procrustes import fit_rigid_cols
 from jaxvo.core.robust import chi2_quantile, explains
 from jaxvo.status import Status
@@ -421,7 +414,7 @@ def segment(key, pts_prev, pts_cur, valid, params, *, cfg, grid, focal=525.0, sc
 
     Returns:
       :class:`Segmentation` (see :func:`segment_points`, which this calls on the frame's
-      :func:`jaxvo.core.noise.frame_points`).
+      :func:`jaxvo.core.points.frame_points`).
     """
     n = grid[0] * grid[1]
     if pts_prev.shape != (n, 3) or pts_cur.shape != (n, 3) or valid.shape != (n,):
@@ -432,7 +425,7 @@ def segment(key, pts_prev, pts_cur, valid, params, *, cfg, grid, focal=525.0, sc
 
 def segment_points(key, pts: Points, params, *, cfg, grid, batch_axis=None) -> Segmentation:
     """:func:`segment` on a frame's points as the pipeline builds them once
-    (:func:`jaxvo.core.noise.frame_points`).
+    (:func:`jaxvo.core.points.frame_points`).
 
     Returns:
       :class:`Segmentation`. A frame that fails (too few valid points, no verified sample,

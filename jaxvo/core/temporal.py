@@ -70,48 +70,49 @@ def init_temporal(*, cfg: Config, grid: tuple[int, int]) -> TemporalState:
                          init_grid_model(cfg=cfg, grid=grid))
 
 
-def update_temporal(
-    state: TemporalState,
-    labels,
-    disp,
-    flow_valid,
-    params: Params,
-    *,
-    cfg: Config,
-    grid: tuple[int, int],
-    segment_ids,
-    explained,
-    evidence_delta,
-    depth_prev=None,
-    permutation=None,
-) -> tuple[TemporalState, TemporalOut]:
+class TemporalInputs(NamedTuple):
+    """What one frame of the temporal stage reads (:func:`update_temporal`); grid arrays on
+    the grid of the previous image of the pair."""
+
+    # (n,) int32 the spatial segments measured this frame
+    # (jaxvo.core.identifiers.measured_labels; 0 = none, 1..max_segments)
+    labels: jax.Array
+    disp: jax.Array  # (n, 2) float32 uv_cur - uv_prev of each grid point, pixels
+    flow_valid: jax.Array  # (n,) bool; cells with invalid flow carry no measurement
+    # (max_segments,) int32 the identifiers given to the segments
+    # (jaxvo.core.identifiers.identify, after the background choice)
+    segment_ids: jax.Array
+    # (max_segments,) bool the segments whose points the background motion explains; they
+    # are measured as identifier 1
+    explained: jax.Array
+    # (n,) float32 log-likelihood ratios (moving over static) of this frame's measurement
+    # of each cell (jaxvo.core.evidence.moving_evidence)
+    evidence_delta: jax.Array
+    # (n,) float32 the previous image's depth at each cell (a cell without a reading, 0, is
+    # hidden and keeps its evidence); None: every cell seen
+    depth_prev: jax.Array | None = None
+    # (max_ids,) int32 the background choice's renumbering of the identifiers
+    # (jaxvo.core.background.BackgroundOut); None: none
+    permutation: jax.Array | None = None
+
+
+def update_temporal(state: TemporalState, inputs: TemporalInputs, params: Params, *,
+                    cfg: Config, grid: tuple[int, int]) -> tuple[TemporalState, TemporalOut]:
     """One frame of motion temporal segmentation (Algorithm 3, eqs. 4.1-4.9).
 
     Args:
       state: aligned with the grid of the previous image of the pair.
-      labels: (n,) int32 the spatial segments measured this frame
-        (:func:`jaxvo.core.identifiers.measured_labels`, 0 = none, 1..max_segments), on the
-        grid of the previous image.
-      disp: (n, 2) float32 ``uv_cur - uv_prev`` of each grid point, pixels.
-      flow_valid: (n,) bool; cells with invalid flow carry no measurement.
+      inputs: the frame's :class:`TemporalInputs`.
       params: ``max_age`` (frames), ``evidence_decay``, ``evidence_margin``,
         ``confidence``; floats or traced arrays.
       cfg, grid: static.
-      segment_ids: (max_segments,) int32, the identifiers given to the segments
-        (:func:`jaxvo.core.identifiers.identify`, after the background choice).
-      explained: (max_segments,) bool, the segments whose points the background motion
-        explains; they are measured as identifier 1.
-      evidence_delta: (n,) float32 log-likelihood ratios (moving over static) of this
-        frame's measurement of each cell (:func:`jaxvo.core.evidence.moving_evidence`).
-      depth_prev: (n,) float32, the previous image's depth at each cell (a cell without a
-        reading, 0, is hidden and keeps its evidence); None: every cell seen.
-      permutation: (max_ids,) int32 the background choice's renumbering of the identifiers
-        (:class:`jaxvo.core.background.BackgroundOut`); None: none.
 
     Returns:
       ``(state, out)``: the state compensated to the current image's grid, and a
       :class:`TemporalOut` on the previous image's grid (the grid of ``labels``).
     """
+    (labels, disp, flow_valid, segment_ids, explained, evidence_delta, depth_prev,
+     permutation) = inputs
     # 4.1: the segments' identifiers; those the ego-motion explains are the background
     seen = jnp.any(jax.nn.one_hot(segment_ids - 1, cfg.max_ids, dtype=bool), axis=0)
     segment_ids, matched = matched_labels(labels, segment_ids, explained, cfg=cfg)
