@@ -124,9 +124,9 @@ def test_order_is_log_2p_a_pair_behind_and_log_2_1mp_in_front_within_a_frames_bo
     assert float(jnp.max(jnp.abs(ev))) <= Params().evidence_step
 
 
-def _choose(ids, support, candidate=None, **kw):
+def _choose(ids, support, candidate=None):
     return choose_background(_pad(ids, 0, jnp.int32), _pad(support), _pad([1.1] * len(ids)),
-                             jnp.bool_(True), Params(**kw), max_ids=M,
+                             jnp.bool_(True), max_ids=M,
                              candidate=None if candidate is None else _pad(candidate, False, bool))
 
 
@@ -155,7 +155,7 @@ def test_a_segment_that_does_not_move_as_predicted_loses_the_background():
     consistency of both, the support decides."""
     ids, background, reacquired, _ = choose_background(
         _pad([1, 2], 0, jnp.int32), _pad([10.0, 9.0]), _pad([1e-3, 1.1]), jnp.bool_(True),
-        Params(), max_ids=M)
+        max_ids=M)
     assert int(background) == 2 and bool(reacquired)
     np.testing.assert_array_equal(np.asarray(ids)[:2], [2, 1])
     _, background, *_ = _choose([1, 2], [10.0, 9.0])
@@ -176,8 +176,7 @@ def test_the_swap_relabels_every_map_model_and_count_consistently():
     ))
     seg_ids = _pad([1, 3, 2], 0, jnp.int32)
     new_ids, background, reacquired, perm_out = _choose_jit(
-        seg_ids, _pad([5.0, 60.0, 1.0]), _pad([0.1, 1.1, 0.1]), jnp.bool_(True), params(),
-        max_ids=M)
+        seg_ids, _pad([5.0, 60.0, 1.0]), _pad([0.1, 1.1, 0.1]), jnp.bool_(True), max_ids=M)
     assert int(background) == 2 and bool(reacquired)
     perm = np.arange(M + 1)
     perm[[1, 3]] = [3, 1]  # identifier -> identifier, 0 stays 0

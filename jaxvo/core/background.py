@@ -8,9 +8,10 @@ covering more than half the view took the background's. Here a mover cannot win 
   the moving evidence, :mod:`jaxvo.core.evidence`, carries every cell's history), and how
   well it moves as the camera was predicted to;
 * the background is what lies behind: at the boundaries between motions the static side
-  is the farther one (:func:`depth_order`); one frame's depth order is a vote in the
-  choice (:func:`order_loglik`) and, for the points of a segment in front of another
-  motion, moving evidence that accumulates over frames;
+  is the farther one (:func:`depth_order`, :func:`order_loglik`); for the points of a
+  segment in front of another motion that their own motion already says is moving, this is
+  moving evidence that accumulates over frames (:mod:`jaxvo.core.evidence`), never a vote
+  in one frame's choice (docs/report/core_decisions.md);
 * points the occlusion memory holds nearer than what was seen there
   (:mod:`jaxvo.core.occlusion`) are occluders: never the background's;
 * a segment made mostly of known movers is no candidate, and where no segment is one, no
@@ -95,8 +96,8 @@ def order_loglik(behind, front, params: Params):
     return jnp.clip(total, -params.evidence_step, params.evidence_step)
 
 
-def choose_background(segment_ids, support, consistency, initialised, params: Params, *,
-                      max_ids: int, candidate=None):
+def choose_background(segment_ids, support, consistency, initialised, *, max_ids: int,
+                      candidate=None):
     """The background of this frame among the ``candidate`` (S,) bool segments: the one of
     most support times consistency; it becomes identifier 1.
 
@@ -220,11 +221,11 @@ def update_background(inputs: BackgroundInputs, params: Params, *, cfg: Config,
     """The background of this frame and the points the ego-motion may use.
 
     Among the segments not made mostly of known movers (established moving, or held
-    nearer than what was seen there), the one of highest posterior
-    (:func:`choose_background`): its prior the surface its motion explains that earlier
-    frames established as background, moving as the camera was predicted to
-    (:func:`background_support`), its likelihood this frame's depth order
-    (:func:`depth_order`, :func:`order_loglik`). A segment made mostly of known movers is a
+    nearer than what was seen there), the one whose motion explains the most surface that
+    earlier frames established as background, moving as the camera was predicted to
+    (:func:`background_support`, :func:`choose_background`). This frame's depth order
+    (:func:`depth_order`, :func:`order_loglik`) is returned as ``in_front`` for the moving
+    evidence, not used in the choice. A segment made mostly of known movers is a
     candidate still where its motion explains enough points established as background (a
     segment that took in the background beside a mover). Where no segment is a candidate
     no background is in view: the status says so and the camera's motion is carried.
@@ -264,7 +265,7 @@ def update_background(inputs: BackgroundInputs, params: Params, *, cfg: Config,
     candidate = (~explains(mover[None, :], member, MOST)
                  | enough_points(explained & (belief >= 1.0), params))
     segment_ids, bg, reacquired, perm = choose_background(
-        segment_ids, support, consistency, initialised, params, max_ids=cfg.max_ids,
+        segment_ids, support, consistency, initialised, max_ids=cfg.max_ids,
         candidate=candidate)
     bgi = jnp.maximum(bg - 1, 0)
     static_seg = (explained_segments(seg.labels, d2_seg[bgi], valid, pts.thr, cfg=cfg)
