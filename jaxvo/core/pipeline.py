@@ -150,9 +150,9 @@ def step(state: PipelineState, flow: GridFlow, key, params: Params, *, cfg: Step
     # 1. spatial segmentation (Algorithms 1, 2) under the sensor noise model
     seg = segment_points(key, pts, params, cfg=cfg, grid=grid, batch_axis=batch_axis)
     labels = measured_labels(seg, pts.valid, cfg=cfg)
-    # 2. identifiers (Algorithm 3) and the background: the segment that lies behind the
-    # motions unlike its own and the surfaces seen before (the occlusion memory), of the
-    # surface earlier frames established as background
+    # 2. identifiers (Algorithm 3) and the background: among the segments not made of known
+    # movers (moving evidence, or nearer than what was seen there: the occlusion memory),
+    # the one of most surface earlier frames established as background
     segment_ids = identify(state.temporal.identifiers, labels, params, cfg=cfg)
     occlusion, _, occluded = update_occlusion(
         state.occlusion, OcclusionInputs(flow.depth_prev, flow.uv_prev, state.ego.T_w_c,
