@@ -8,8 +8,10 @@ times each ``Odometry.process`` call with the clock around it (the step's output
 arrays, so the call returns when the frame is done); the first calls, which compile or load
 the compiled step, are reported apart.
 
-Usage: ``python bench/time_process.py [--frames 120] [--step 1] [--skip 10]``; prints one
-JSON line: ``{"code": ..., "first_s": ..., "median_ms": ..., "p90_ms": ..., "frames": ...}``.
+Usage: ``python bench/time_process.py [--frames 120] [--step 1] [--skip 10]
+[--config NAME=VALUE ...]``; prints one JSON line: ``{"code": ..., "config": ..., "first_s":
+..., "median_ms": ..., "p90_ms": ..., "frames": ...}``. ``--config`` sets ``Config`` fields
+(``bench_seeds.config_from``), for a setting's cost on the same code.
 """
 
 from __future__ import annotations
@@ -24,6 +26,7 @@ import numpy as np
 
 sys.path.insert(0, str(Path(__file__).resolve().parent))
 from _common import SEVEN_SCENES, load_average
+from bench_seeds import config_from
 
 import jaxvo
 from jaxvo.host.io import InMemorySequence, data_root, open_sequence
@@ -35,10 +38,12 @@ def main(argv=None) -> int:
     ap.add_argument("--frames", type=int, default=120)
     ap.add_argument("--step", type=int, default=1)
     ap.add_argument("--skip", type=int, default=10, help="first calls left out of the steady figures")
+    ap.add_argument("--config", nargs="*", default=[], metavar="NAME=VALUE",
+                    help="Config values to run with (e.g. lk_window=13)")
     args = ap.parse_args(argv)
     seq = InMemorySequence(open_sequence(data_root() / SEVEN_SCENES), frames=args.frames,
                            step=args.step)
-    odo = Odometry(seq.intrinsics, seed=0)
+    odo = Odometry(seq.intrinsics, cfg=config_from(args.config), seed=0)
     times = []
     for frame in seq:
         t0 = time.perf_counter()
@@ -46,6 +51,7 @@ def main(argv=None) -> int:
         times.append(time.perf_counter() - t0)
     steady = 1e3 * np.asarray(times[args.skip:])
     print(json.dumps({"code": str(Path(jaxvo.__file__).resolve().parent.parent),
+                      "config": args.config,
                       "first_s": round(times[0] + times[1], 3),
                       "median_ms": round(float(np.median(steady)), 3),
                       "p90_ms": round(float(np.percentile(steady, 90)), 3),
