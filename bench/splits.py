@@ -45,11 +45,13 @@ class Case(NamedTuple):
     build: Callable[[], InMemorySequence]
 
 
-def _static(start: int, step: int):
+def static_case(start: int, step: int, length: int = HALF):
+    """A builder of the 7-Scenes frames ``start`` .. ``start + length - 1`` at every
+    ``step``-th frame."""
     def build():
         seq = InMemorySequence(open_sequence(data_root() / SEVEN_SCENES), start=start,
-                               frames=-(-HALF // step), step=step)
-        seq.name = f"{SEVEN_SCENES}_{start:04d}_{start + HALF - 1:04d}_every{step}"
+                               frames=-(-length // step), step=step)
+        seq.name = f"{SEVEN_SCENES}_{start:04d}_{start + length - 1:04d}_every{step}"
         return seq
     return build
 
@@ -67,7 +69,7 @@ def cases() -> list[Case]:
     for split, start, seed in (("dev", 0, 0), ("val", HALF, 1)):
         out += [Case(f"comp_{s}_{split}", split, "composite", SEVEN_SCENES,
                      _composite(s, start, seed)) for s in COMPOSITES]
-        out += [Case(f"static_{split}_every{k}", split, "static", SEVEN_SCENES, _static(start, k))
+        out += [Case(f"static_{split}_every{k}", split, "static", SEVEN_SCENES, static_case(start, k))
                 for k in (1, 2, 4)]
     out.append(Case("tum_walking", "val", "people", TUM_WALKING, lambda: with_groundtruth(
         InMemorySequence(open_sequence(data_root() / TUM_WALKING)), tum_walking_truth())))
