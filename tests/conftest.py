@@ -10,6 +10,7 @@ from __future__ import annotations
 
 import os
 import shutil
+import signal
 import tempfile
 from pathlib import Path
 
@@ -20,6 +21,16 @@ from jaxvo.host.io import data_root as _data_root
 
 # Folder (under pytest's cache, .pytest_cache/d/) of the compiled programs the tests share
 XLA_CACHE = "jaxvo-xla"
+
+
+def _take_ctrl_c() -> None:
+    """Ctrl-C as an interactive shell delivers it, also when the suite was started as a
+    background job: a shell without job control starts those with SIGINT ignored, which
+    their children inherit, and then the tests of what Ctrl-C does (in this process and in
+    `jaxvo` children) see nothing arrive. A handler, unlike "ignored", is not inherited
+    through exec, so the children get the default back too."""
+    if signal.getsignal(signal.SIGINT) is signal.SIG_IGN:
+        signal.signal(signal.SIGINT, signal.default_int_handler)
 
 
 def pytest_configure(config):
@@ -35,6 +46,7 @@ def pytest_configure(config):
     Tests that need a compile to happen (the compile cache's own, a Ctrl-C during a
     compile) give their child its own folder or ``off``, which win over this.
     """
+    _take_ctrl_c()
     if os.environ.get(ENV, "").strip().lower() == OFF:
         config._jaxvo_xla = None
         return
