@@ -92,8 +92,9 @@ from jaxvo.config import Config, Params, params_as_arrays
 from jaxvo.core.egomotion import fit_egomotion
 from jaxvo.core.inputs import GridFlow
 from jaxvo.core.points import frame_points
-from jaxvo.evaluation.metrics import align_umeyama
+from jaxvo.evaluation.metrics import align_umeyama, ate
 from jaxvo.evaluation.scores import trajectory_scores
+from jaxvo.host.outputs import write_text
 from jaxvo.host.peers import OPEN3D_PEERS, OPENCV_PEERS, available_peers
 from jaxvo.host.transforms import invert_pose, relative_pose, rotation_angle
 from jaxvo.status import Status
@@ -239,15 +240,12 @@ def length_budget(P, Q) -> dict:
     """How much of the ATE is the path's length: the ATE after a rigid alignment and after
     a similarity one (mm), that similarity's scale (above 1: the estimated path is short),
     and the per-axis slopes over 1 and 10 frames (:func:`axis_slopes`)."""
-    ok = _present(P, Q)
-    out: dict = {"axis_slope": {k: axis_slopes(P, Q, k) for k in DELTAS[:2]}}
-    for name, scale in (("se3", False), ("sim3", True)):
-        S = align_umeyama(P[ok, :3, 3], Q[ok, :3, 3], scale=scale)
-        e = S.apply_points(P[ok, :3, 3]) - Q[ok, :3, 3]
-        out[f"ate_{name}_mm"] = 1e3 * float(np.sqrt(np.mean(np.sum(e * e, axis=1))))
-        if scale:
-            out["sim3_scale"] = float(S.scale)
-    return out
+    frames = np.flatnonzero(_present(P, Q)).astype(np.float64)  # a frame's index as its time
+    est, truth = (Trajectory(frames, X[frames.astype(int)]) for X in (P, Q))
+    rigid, similar = (ate(truth, est, scale=scale) for scale in (False, True))
+    return {"axis_slope": {k: axis_slopes(P, Q, k) for k in DELTAS[:2]},
+            "ate_se3_mm": 1e3 * rigid.stats.rmse, "ate_sim3_mm": 1e3 * similar.stats.rmse,
+            "sim3_scale": float(similar.alignment.scale)}
 
 
 def pose_budget(P, Q) -> dict:
@@ -508,12 +506,11 @@ def orbslam3_runs(case: Case, runs: Path, repeats: int) -> tuple[list[Trajectory
             seq = case.build()
             _, run = orbslam3_peer.run_orbslam3(seq)
             runs.mkdir(parents=True, exist_ok=True)
-            tmp = path.with_suffix(".tmp")
-            write_trajectory(tmp, run.trajectory, comment="ORB-SLAM3 RGB-D, end-of-run trajectory")
-            tmp.replace(path)
-            meta.write_text(json.dumps({"frames": len(seq), "tracked": len(run.trajectory),
-                                        "lost": run.lost, "ms_per_frame": run.ms_per_frame,
-                                        "load_average": load_average()}, indent=1))
+            # whole or not at all, each (a run is cached once both are there)
+            write_trajectory(path, run.trajectory, comment="ORB-SLAM3 RGB-D, end-of-run trajectory")
+            write_text(meta, json.dumps({"frames": len(seq), "tracked": len(run.trajectory),
+                                         "lost": run.lost, "ms_per_frame": run.ms_per_frame,
+                                         "load_average": load_average()}, indent=1))
         trajs.append(read_trajectory(path))
         metas.append(json.loads(meta.read_text()))
     return trajs, metas
@@ -535,7 +532,7 @@ def other_peers(case: Case, cache: Path, runs: Path) -> dict[str, float]:
             run = orbslam3_peer.run_any_peer(seq, kind)
             o3d[kind] = 1e3 * trajectory_scores(seq.groundtruth, run.trajectory)["ate_rmse_m"]
         runs.mkdir(parents=True, exist_ok=True)
-        path.write_text(json.dumps(o3d, indent=1))
+        write_text(path, json.dumps(o3d, indent=1))
     return out | o3d
 
 
@@ -960,9 +957,9 @@ def main(argv=None) -> int:
             "vocabulary": orbslam3_peer.vocabulary_note(), "skipped": skipped}
     meta["summary"] = summary(rows)
     args.out.mkdir(parents=True, exist_ok=True)
-    (args.out / "budget.json").write_text(json.dumps({"meta": meta, "rows": rows}, indent=1))
+    write_text(args.out / "budget.json", json.dumps({"meta": meta, "rows": rows}, indent=1))
     md = report(rows, meta)
-    (args.out / "budget.md").write_text(md)
+    write_text(args.out / "budget.md", md)
     print(md)
     return 0
 

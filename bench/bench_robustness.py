@@ -45,6 +45,7 @@ from jaxvo.evaluation.metrics import SegmentationScores
 from jaxvo.evaluation.scores import trajectory_scores
 from jaxvo.host.flow import sequence_flows
 from jaxvo.host.masks import moving_at_grid
+from jaxvo.host.outputs import write_text
 from jaxvo.host.peers import OPENCV_PEERS
 from jaxvo.host.plugin import iter_dynamic_masks
 from jaxvo.status import Status
@@ -187,7 +188,7 @@ def peers_alone(case: Case, cache: Path, seq=None) -> dict:
         run = orbslam3_peer.run_any_peer(seq, kind)
         out[kind] = trajectory_scores(seq.groundtruth, run.trajectory)
         out[kind]["ms_per_frame"] = run.ms_per_frame
-    path.write_text(json.dumps(out, indent=1))
+    write_text(path, json.dumps(out, indent=1))  # whole or not at all: it is read back
     return out
 
 
