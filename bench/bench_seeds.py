@@ -39,9 +39,18 @@ from bench_robustness import CFG, peers_alone, prepare
 from people_masks import people_masks
 from splits import Case, cases, runnable
 
-from jaxvo.config import Config, Params, StepOptions, grid_shape, params_as_arrays
+from jaxvo.config import (
+    Config,
+    Params,
+    StepOptions,
+    check_config,
+    check_params,
+    grid_shape,
+    params_as_arrays,
+)
 from jaxvo.core.inputs import GridFlow, KeyframeFlow
 from jaxvo.core.pipeline import frame_key, init_pipeline, step
+from jaxvo.errors import InputError
 from jaxvo.evaluation.metrics import SegmentationScores
 from jaxvo.evaluation.scores import trajectory_scores
 from jaxvo.host.io import data_root
@@ -87,23 +96,57 @@ def run_seeds(flows: dict, T0, params: Params, cfg: Config, seeds: int, first_se
     return trajs, outs
 
 
+def _setting(defaults, text: str) -> tuple[str, object]:
+    """``NAME=VALUE`` as ``(name, value)``, the value read as the type of ``defaults``'s
+    field (a bool from 1/true/yes/on or 0/false/no/off); ``ValueError`` in one line for an
+    unknown name or a value of the wrong type."""
+    name, sep, value = text.partition("=")
+    fields = defaults._fields if isinstance(defaults, tuple) else [
+        f.name for f in dataclasses.fields(defaults)]
+    if not sep or name not in fields:
+        raise ValueError(f"{text!r}: want NAME=VALUE, NAME one of {', '.join(fields)}")
+    kind = type(getattr(defaults, name))
+    if kind is bool:
+        if value.lower() not in ("1", "true", "yes", "on", "0", "false", "no", "off"):
+            raise ValueError(f"{text!r}: {name} is true or false")
+        return name, value.lower() in ("1", "true", "yes", "on")
+    try:
+        return name, kind(value)
+    except ValueError:
+        want = {int: "an integer", float: "a number"}.get(kind, kind.__name__)
+        raise ValueError(f"{text!r}: {name} must be {want}") from None
+
+
 def config_from(pairs: list[str]) -> Config:
     """``Config`` with ``NAME=VALUE`` pairs set, each value read as its field's type."""
-    cfg = Config()
-    for name, value in (a.split("=", 1) for a in pairs):
-        kind = type(getattr(cfg, name))
-        v = value.lower() in ("1", "true", "yes", "on") if kind is bool else kind(value)
-        cfg = dataclasses.replace(cfg, **{name: v})
-    return cfg
+    return dataclasses.replace(Config(), **dict(_setting(Config(), a) for a in pairs))
+
+
+def config_setting(text: str) -> str:
+    """An argparse ``type`` for a ``--config NAME=VALUE``: checked, kept as given."""
+    try:
+        check_config(dataclasses.replace(Config(), **dict([_setting(Config(), text)])))
+    except (ValueError, InputError) as e:
+        raise argparse.ArgumentTypeError(str(e)) from None
+    return text
+
+
+def params_setting(text: str) -> str:
+    """An argparse ``type`` for a ``--set NAME=VALUE`` (a Params value): checked, kept."""
+    try:
+        check_params(Params()._replace(**dict([_setting(Params(), text)])))
+    except (ValueError, InputError) as e:
+        raise argparse.ArgumentTypeError(str(e)) from None
+    return text
 
 
 def add_run_options(ap: argparse.ArgumentParser) -> None:
     """The options of a seeded accuracy run that this script and ``bench_cover.py`` share:
     ``--set`` (Params), ``--config`` (Config), ``--cache``, ``--out`` and ``--title``."""
-    ap.add_argument("--set", nargs="*", default=[], metavar="NAME=VALUE",
+    ap.add_argument("--set", nargs="*", default=[], metavar="NAME=VALUE", type=params_setting,
                     help="Params values to run with")
     ap.add_argument("--config", nargs="*", default=[], metavar="NAME=VALUE",
-                    help="Config values to run with (e.g. keyframes=true)")
+                    type=config_setting, help="Config values to run with (e.g. keyframes=true)")
     ap.add_argument("--cache", type=Path, default=Path("results/cache"))
     ap.add_argument("--out", type=Path, default=Path("results"))
     ap.add_argument("--title", default="", help="a line saying what this run is")
@@ -111,7 +154,7 @@ def add_run_options(ap: argparse.ArgumentParser) -> None:
 
 def params_from(pairs: list[str]) -> Params:
     """``Params`` with ``NAME=VALUE`` pairs set (floats)."""
-    return Params()._replace(**{k: float(v) for k, v in (a.split("=", 1) for a in pairs)})
+    return Params()._replace(**{k: float(v) for k, v in (_setting(Params(), a) for a in pairs)})
 
 
 def reference_case(case: Case) -> Case:

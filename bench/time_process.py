@@ -26,7 +26,7 @@ import numpy as np
 
 sys.path.insert(0, str(Path(__file__).resolve().parent))
 from _common import SEVEN_SCENES, load_average
-from bench_seeds import config_from
+from bench_seeds import config_from, config_setting
 
 import jaxvo
 from jaxvo.host.io import InMemorySequence, data_root, open_sequence
@@ -39,7 +39,7 @@ def main(argv=None) -> int:
     ap.add_argument("--step", type=int, default=1)
     ap.add_argument("--skip", type=int, default=10, help="first calls left out of the steady figures")
     ap.add_argument("--config", nargs="*", default=[], metavar="NAME=VALUE",
-                    help="Config values to run with (e.g. lk_window=13)")
+                    type=config_setting, help="Config values to run with (e.g. lk_window=13)")
     args = ap.parse_args(argv)
     seq = InMemorySequence(open_sequence(data_root() / SEVEN_SCENES), frames=args.frames,
                            step=args.step)
