@@ -29,7 +29,7 @@ from typing import NamedTuple
 import jax
 import jax.numpy as jnp
 
-from jaxvo.config import Config, Params
+from jaxvo.config import Params, StepOptions
 from jaxvo.core.evidence import explained_segments, moving_logodds, neighbourhood
 from jaxvo.core.geometry import tiny
 from jaxvo.core.identifiers import STATIC_ID, relabel, swap_perm
@@ -40,7 +40,7 @@ from jaxvo.core.spatial import Segmentation
 from jaxvo.status import Status
 
 
-def depth_order(labels, z, sigma, explained, tie, *, grid: tuple[int, int], cfg: Config):
+def depth_order(labels, z, sigma, explained, tie, *, grid: tuple[int, int], cfg: StepOptions):
     """``(behind (S, S), front (S, S))`` float32: for each two segments ``a``, ``b``, the
     decisive neighbour pairs of points that move unlike each other where ``a``'s point lies
     behind ``b``'s, and where it lies in front.
@@ -216,7 +216,7 @@ class BackgroundInputs(NamedTuple):
     occluded: jax.Array | None = None
 
 
-def update_background(inputs: BackgroundInputs, params: Params, *, cfg: Config,
+def update_background(inputs: BackgroundInputs, params: Params, *, cfg: StepOptions,
                       grid: tuple[int, int]):
     """The background of this frame and the points the ego-motion may use.
 

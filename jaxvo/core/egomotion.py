@@ -21,7 +21,7 @@ import chex
 import jax
 import jax.numpy as jnp
 
-from jaxvo.config import Config, Params
+from jaxvo.config import Params, StepOptions
 from jaxvo.core.geometry import invert_pose, make_pose, so3_exp, tiny
 from jaxvo.core.noise import residuals, residuals_many
 from jaxvo.core.points import Points, frame_points
@@ -110,7 +110,7 @@ def refine_reprojection(T, src, dst, weights, iters):
     return jax.lax.fori_loop(0, iters, gn, T)
 
 
-def estimate_egomotion(pts_prev, pts_cur, weights, params: Params, *, cfg: Config,
+def estimate_egomotion(pts_prev, pts_cur, weights, params: Params, *, cfg: StepOptions,
                        focal=525.0, scale=None, T_init=None):
     """Robust rigid motion of the static background between two frames.
 
@@ -147,7 +147,7 @@ def estimate_egomotion(pts_prev, pts_cur, weights, params: Params, *, cfg: Confi
     return fit_egomotion(pts, weights, params, cfg=cfg, T_init=T_init)
 
 
-def fit_egomotion(pts: Points, weights, params: Params, *, cfg: Config, T_init=None,
+def fit_egomotion(pts: Points, weights, params: Params, *, cfg: StepOptions, T_init=None,
                   belief=None, candidates=None):
     """:func:`estimate_egomotion` on a frame's points as the pipeline builds them once
     (:func:`jaxvo.core.points.frame_points`); ``weights`` (n,) > 0 where a point may be used.
@@ -291,7 +291,7 @@ class EgoInputs(NamedTuple):
     candidates: jax.Array | None = None
 
 
-def update_egomotion(state: EgoState, inputs: EgoInputs, params: Params, *, cfg: Config):
+def update_egomotion(state: EgoState, inputs: EgoInputs, params: Params, *, cfg: StepOptions):
     """One frame of the camera's motion: :func:`fit_egomotion` from the background's motion
     ``inputs.T_init`` (4, 4) on the points of ``inputs.weights`` (n,), and the pose chain.
 

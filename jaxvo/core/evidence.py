@@ -16,7 +16,7 @@ from typing import NamedTuple
 import jax
 import jax.numpy as jnp
 
-from jaxvo.config import Config, Params
+from jaxvo.config import Params, StepOptions
 from jaxvo.core.identifiers import STATIC_ID
 from jaxvo.core.noise import residuals
 from jaxvo.core.points import Points
@@ -30,7 +30,7 @@ def moving_logodds(params: Params):
     return jnp.log(p) - jnp.log1p(-p)
 
 
-def explained_segments(seg_labels, d2, valid, thr, *, cfg: Config):
+def explained_segments(seg_labels, d2, valid, thr, *, cfg: StepOptions):
     """(S,) bool the segments most (:data:`jaxvo.core.robust.MOST`) of whose valid points the
     motion behind ``d2`` (n,) explains within the inlier test ``thr``."""
     member = (seg_labels[None, :] == jnp.arange(1, cfg.max_segments + 1)[:, None]) & valid
@@ -108,7 +108,7 @@ class EvidenceInputs(NamedTuple):
     occluded: jax.Array | None = None
 
 
-def moving_evidence(inputs: EvidenceInputs, params: Params, *, cfg: Config,
+def moving_evidence(inputs: EvidenceInputs, params: Params, *, cfg: StepOptions,
                     grid: tuple[int, int]):
     """This frame's evidence of each point's own motion under the ego-motion ``T_cur_prev``:
     ``(explained (S,) bool, delta (n,) float32)``, the segments the ego-motion explains
@@ -164,7 +164,7 @@ def update_evidence(evidence, delta, measured, hidden, params: Params):
     return jnp.clip(e, -bound, bound).astype(jnp.float32)
 
 
-def reported_ids(ids, matched, moving, *, cfg: Config):
+def reported_ids(ids, matched, moving, *, cfg: StepOptions):
     """(n,) int32 the identifiers every output reports: an object's identifier (>= 2)
     exactly where the cell is reported moving (``moving`` (n,) bool, its evidence), so that
     the identifiers, the masks, the overlays and the scores agree on what moves.

@@ -28,7 +28,7 @@ from typing import NamedTuple
 import jax
 import jax.numpy as jnp
 
-from jaxvo.config import Config
+from jaxvo.config import StepOptions
 from jaxvo.core.geometry import masked_median
 from jaxvo.core.identifiers import relabel
 
@@ -43,7 +43,7 @@ class GridModelState(NamedTuple):
     ids: jax.Array  # (n,) int32 temporal label map, 0 = unknown
 
 
-def init_grid_model(*, cfg: Config, grid: tuple[int, int]) -> GridModelState:
+def init_grid_model(*, cfg: StepOptions, grid: tuple[int, int]) -> GridModelState:
     """Empty models (age 0), every cell unknown."""
     n, m = grid[0] * grid[1], cfg.max_ids
     return GridModelState(
@@ -67,7 +67,7 @@ def _blend(prob, age, meas_1h, max_age):
     return new_prob, jnp.minimum(age + 1.0, max_age)
 
 
-def _update_models(state: GridModelState, meas, max_age, *, cfg: Config):
+def _update_models(state: GridModelState, meas, max_age, *, cfg: StepOptions):
     """Apply the update criteria of section 4.2.1 with the matched label ``meas`` (n,).
 
     Both models are initialised directly where empty; the apparent model is updated where
@@ -107,7 +107,7 @@ def _update_models(state: GridModelState, meas, max_age, *, cfg: Config):
     return app_p, app_a, cand_p, cand_a, ids
 
 
-def update_grid_model(state: GridModelState, matched, params, *, cfg: Config,
+def update_grid_model(state: GridModelState, matched, params, *, cfg: StepOptions,
                       permutation=None) -> GridModelState:
     """One frame of the grid model with the matched measurement ``matched`` (n,) int32
     (:func:`jaxvo.core.identifiers.matched_labels`, 0 = none) on the previous image's grid
@@ -126,7 +126,7 @@ def update_grid_model(state: GridModelState, matched, params, *, cfg: Config,
 # --------------------------------------------------------------------------------------
 
 
-def _fill_displacement(disp, flow_valid, ids, *, cfg: Config):
+def _fill_displacement(disp, flow_valid, ids, *, cfg: StepOptions):
     """(n, 2) displacement of every cell, pixels: its own where its flow is valid, else the
     mean of its identifier's valid cells, else the median of all valid cells."""
     ok = flow_valid & jnp.all(jnp.isfinite(disp), axis=1)
@@ -142,7 +142,7 @@ def _fill_displacement(disp, flow_valid, ids, *, cfg: Config):
     return jnp.where(ok[:, None], d_safe, fill)
 
 
-def splat_weights(disp, flow_valid, ids, *, cfg: Config, grid: tuple[int, int]):
+def splat_weights(disp, flow_valid, ids, *, cfg: StepOptions, grid: tuple[int, int]):
     """Where each previous cell's model goes: thesis eqs. (4.6)-(4.9) with the flow read
     forward.
 
@@ -210,7 +210,7 @@ class Carry(NamedTuple):
     total: jax.Array  # (n,) float32 overlap landing on each current cell
 
 
-def carry_weights(disp, flow_valid, ids, *, cfg: Config, grid: tuple[int, int]) -> Carry:
+def carry_weights(disp, flow_valid, ids, *, cfg: StepOptions, grid: tuple[int, int]) -> Carry:
     """The compensation of one step: :func:`splat_weights` and what lands on each cell."""
     dst, w = splat_weights(disp, flow_valid, ids, cfg=cfg, grid=grid)
     total = jnp.zeros((ids.shape[0],), jnp.float32).at[dst.reshape(-1)].add(w.reshape(-1))
@@ -227,7 +227,7 @@ def carry_labels(labels, carry: Carry, num: int):
     return _splat_labels(labels, carry.dst, carry.w, num)
 
 
-def carry_model(state: GridModelState, carry: Carry, *, cfg: Config) -> GridModelState:
+def carry_model(state: GridModelState, carry: Carry, *, cfg: StepOptions) -> GridModelState:
     """The models carried forward to the current image's grid (section 4.2.2)."""
     return GridModelState(
         app_prob=carry_values(state.app_prob, carry),

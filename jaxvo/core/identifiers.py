@@ -31,7 +31,7 @@ from typing import NamedTuple
 import jax
 import jax.numpy as jnp
 
-from jaxvo.config import Config, Params
+from jaxvo.config import Params, StepOptions
 from jaxvo.status import Status
 
 _NEVER = -(2**30)  # last_seen of an identifier never observed: always free
@@ -51,7 +51,7 @@ class IdentifierState(NamedTuple):
     initialised: jax.Array  # () bool some segment has received an identifier
 
 
-def init_identifiers(*, cfg: Config, grid: tuple[int, int]) -> IdentifierState:
+def init_identifiers(*, cfg: StepOptions, grid: tuple[int, int]) -> IdentifierState:
     """No identifier in use, an empty matching window."""
     n, m = grid[0] * grid[1], cfg.max_ids
     return IdentifierState(
@@ -142,7 +142,7 @@ def _forgotten(state: IdentifierState, retention):
     return (state.frame - state.last_seen).astype(jnp.float32) - 1.0 >= retention
 
 
-def _assign_identifiers(state: IdentifierState, seg_labels, params: Params, *, cfg: Config):
+def _assign_identifiers(state: IdentifierState, seg_labels, params: Params, *, cfg: StepOptions):
     """Algorithm 3 and the identifier management of section 4.1.
 
     Returns ``(segment_ids (S,) int32, n_seg (S,) float32)``.
@@ -182,7 +182,7 @@ def _assign_identifiers(state: IdentifierState, seg_labels, params: Params, *, c
     return segment_ids, n_seg
 
 
-def measured_labels(seg, flow_valid, *, cfg: Config):
+def measured_labels(seg, flow_valid, *, cfg: StepOptions):
     """(n,) int32 the spatial labels of the cells measured this frame (0 elsewhere): a
     segmentation that failed, or a cell without valid flow, measures nothing."""
     labels = jnp.asarray(seg.labels, jnp.int32)
@@ -190,7 +190,7 @@ def measured_labels(seg, flow_valid, *, cfg: Config):
     return jnp.where(ok & (labels <= cfg.max_segments), labels, 0)
 
 
-def identify(state: IdentifierState, labels, params: Params, *, cfg: Config):
+def identify(state: IdentifierState, labels, params: Params, *, cfg: StepOptions):
     """(max_segments,) int32 the identifier of each spatial segment (Algorithm 3, section
     4.1), from the measured ``labels`` (n,) (:func:`measured_labels`); 0 when no identifier
     was free."""
@@ -220,7 +220,7 @@ def permute_identifiers(state: IdentifierState, perm) -> IdentifierState:
                           obs_count=state.obs_count[perm], last_seen=state.last_seen[perm])
 
 
-def matched_labels(labels, segment_ids, explained, *, cfg: Config):
+def matched_labels(labels, segment_ids, explained, *, cfg: StepOptions):
     """This frame's measurement of every cell after label matching: ``(segment_ids
     (max_segments,) int32, matched (n,) int32)``, the segments the ego-motion ``explained``
     (max_segments,) bool measured as identifier 1 (pieces of the background that noise

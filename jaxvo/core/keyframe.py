@@ -41,7 +41,7 @@ import jax.numpy as jnp
 import numpy as np
 import optax
 
-from jaxvo.config import Config, Params
+from jaxvo.config import Params, StepOptions
 from jaxvo.core.background import BackgroundOut, belief_weights
 from jaxvo.core.geometry import adjoint, invert_pose, orthonormal, perturb, skew, tiny
 from jaxvo.core.inputs import KeyframeFlow
@@ -87,7 +87,7 @@ class KeyframeOut(NamedTuple):
     count: jax.Array  # () int32 keyframes taken so far: the latest keyframe's number
 
 
-def init_keyframe(T_w_c0, *, cfg: Config, grid: tuple[int, int]) -> KeyframeState:
+def init_keyframe(T_w_c0, *, cfg: StepOptions, grid: tuple[int, int]) -> KeyframeState:
     """The first frame is the first keyframe (its points come with the first pair's
     keyframe flow); nothing is known to move yet."""
     K, m = max(cfg.keyframe_window, 1), len(keyframe_index(grid, cfg.keyframe_stride))
@@ -149,7 +149,7 @@ class SupportInputs(NamedTuple):
 
 
 def keyframe_support(state: KeyframeState, inputs: SupportInputs, params: Params, *,
-                     cfg: Config, grid):
+                     cfg: StepOptions, grid):
     """The ego-motion's points, weights and beliefs with the latest keyframe's points joined
     to the pair's (``(Points, weights, belief)``, the keyframe's after the pair's).
 
@@ -429,7 +429,7 @@ class KeyframeInputs(NamedTuple):
 
 
 def update_keyframe(state: KeyframeState, inputs: KeyframeInputs, params: Params, *,
-                    cfg: Config, grid):
+                    cfg: StepOptions, grid):
     """After the pair: where the host renews the keyframe (``kf.renew``), the current frame
     joins the window as its latest keyframe and the window is refined.
 

@@ -24,7 +24,7 @@ from typing import NamedTuple
 import jax
 import jax.numpy as jnp
 
-from jaxvo.config import Config, Params
+from jaxvo.config import Params, StepOptions
 from jaxvo.core.evidence import update_evidence
 from jaxvo.core.grid_model import (
     GridModelState,
@@ -58,7 +58,7 @@ class TemporalOut(NamedTuple):
     evidence: jax.Array  # (n,) float32 log-odds that the cell moves, after this frame
 
 
-def init_temporal(*, cfg: Config, grid: tuple[int, int]) -> TemporalState:
+def init_temporal(*, cfg: StepOptions, grid: tuple[int, int]) -> TemporalState:
     """Empty grid models (age 0), no identifier in use, empty matching window, no evidence.
 
     Args:
@@ -97,7 +97,7 @@ class TemporalInputs(NamedTuple):
 
 
 def update_temporal(state: TemporalState, inputs: TemporalInputs, params: Params, *,
-                    cfg: Config, grid: tuple[int, int]) -> tuple[TemporalState, TemporalOut]:
+                    cfg: StepOptions, grid: tuple[int, int]) -> tuple[TemporalState, TemporalOut]:
     """One frame of motion temporal segmentation (Algorithm 3, eqs. 4.1-4.9).
 
     Args:
