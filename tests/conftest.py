@@ -11,6 +11,7 @@ from __future__ import annotations
 import os
 import shutil
 import signal
+import sys
 import tempfile
 from pathlib import Path
 
@@ -87,6 +88,18 @@ def _require(*parts: str) -> Path:
     if not path.exists():
         pytest.skip(f"real data not found at {path} (set JAXVO_DATA to the shared data folder)")
     return path
+
+
+def bench_module(name: str):
+    """A script of ``bench/`` imported as a module (they import each other by name, from
+    their own folder, so the folder is on the path while it loads)."""
+    import importlib
+
+    sys.path.insert(0, str(Path(__file__).resolve().parent.parent / "bench"))
+    try:
+        return importlib.import_module(name)
+    finally:
+        sys.path.pop(0)
 
 
 @pytest.fixture

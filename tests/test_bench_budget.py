@@ -3,24 +3,15 @@ short, uniformly or across the view only, reads as such."""
 
 from __future__ import annotations
 
-import sys
-from pathlib import Path
-
 import cv2
 import numpy as np
 import pytest
-
-BENCH = Path(__file__).resolve().parent.parent / "bench"
+from conftest import bench_module
 
 
 @pytest.fixture(scope="module")
 def budget():
-    sys.path.insert(0, str(BENCH))
-    try:
-        import bench_budget
-    finally:
-        sys.path.pop(0)
-    return bench_budget
+    return bench_module("bench_budget")
 
 
 def _rot(axis, angle):

@@ -4,22 +4,14 @@ each field's type, and a bad one refused in one line before anything runs."""
 from __future__ import annotations
 
 import argparse
-import sys
-from pathlib import Path
 
 import pytest
-
-BENCH = Path(__file__).resolve().parent.parent / "bench"
+from conftest import bench_module
 
 
 @pytest.fixture(scope="module")
 def seeds():
-    sys.path.insert(0, str(BENCH))
-    try:
-        import bench_seeds
-    finally:
-        sys.path.pop(0)
-    return bench_seeds
+    return bench_module("bench_seeds")
 
 
 def test_values_take_their_fields_types(seeds):

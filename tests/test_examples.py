@@ -11,6 +11,7 @@ import sys
 from pathlib import Path
 
 import pytest
+from conftest import bench_module
 
 from jaxvo.synth.scenes import make_sequence, write_sequence
 
@@ -41,12 +42,7 @@ def recorded(tmp_path_factory) -> Path:
 
 
 def _orbslam3_missing() -> str | None:
-    sys.path.insert(0, str(EXAMPLES.parent / "bench"))
-    try:
-        from orbslam3_peer import missing
-    finally:
-        sys.path.pop(0)
-    return missing()
+    return bench_module("orbslam3_peer").missing()
 
 
 def _args(name: str, recorded: Path, tmp_path: Path) -> list[str]:
