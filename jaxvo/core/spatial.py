@@ -77,6 +77,15 @@ class _Hypothesis(NamedTuple):
     found: jax.Array  # () bool
 
 
+class _Clusters(NamedTuple):
+    """Algorithm 2's refined clusters, one slot each (:func:`_cluster`)."""
+
+    motions: jax.Array  # (C, 4, 4) float32 each cluster's refined motion T_cur_prev
+    d2: jax.Array  # (C, n) float32 every point's normalised residual under each motion
+    inliers: jax.Array  # (C, n) bool the points within each motion's inlier test
+    keep: jax.Array  # (C,) bool the slots kept as segments
+
+
 def _res(T, pts: Points):
     """``(d2, e2)``: normalised and raw squared residuals of every point under ``T``."""
     return residuals(T, pts.src, pts.dst, pts.noise)
@@ -438,14 +447,14 @@ def segment_points(key, pts: Points, params, *, cfg, grid, batch_axis=None) -> S
                             batch_axis=batch_axis)
     hyp_best = jnp.argmin(jnp.where(hyps.inliers, hyps.d2, _FAR * 10), axis=0)
     hyp_labels = jnp.where(jnp.any(hyps.inliers, axis=0), hyp_best + 1, 0).astype(jnp.int32)
-    motions, d2_c, inl_c, keep = _cluster(hyps, pts, params, cfg=cfg)
+    clusters = _cluster(hyps, pts, params, cfg=cfg)
     status = jnp.where(
         too_few,
         jnp.int32(Status.TOO_FEW_FLOW),
         jnp.where(num_hyp == 0, jnp.int32(Status.NO_HYPOTHESIS), jnp.int32(Status.OK)),
     )
-    return _label(motions, d2_c, inl_c, keep, pts, params, status, hyp_labels, num_hyp,
-                  cfg=cfg)
+    return _label(clusters, pts, params, status, cfg=cfg)._replace(
+        hyp_labels=hyp_labels, num_hypotheses=num_hyp.astype(jnp.int32))
 
 
 def _search(key, pts: Points, params, too_few, *, cfg, grid, batch_axis):
@@ -517,7 +526,7 @@ def _cluster(hyps: _Hypothesis, pts: Points, params, *, cfg):
     and refining until the clusters settle) and those of at most ``min_segment_points``
     points dropped.
 
-    Returns ``(motions (C, 4, 4), d2 (C, n), inliers (C, n), keep (C,) bool)``.
+    Returns :class:`_Clusters`.
     """
     n_slots = min(cfg.num_hypotheses, cfg.max_segments)
     top, active = _representatives(hyps, params, cfg=cfg)
@@ -540,15 +549,16 @@ def _cluster(hyps: _Hypothesis, pts: Points, params, *, cfg):
         return keep.at[c].set(big_enough[c] & ~dup)
 
     keep = lax.fori_loop(0, n_slots, merge, jnp.zeros((n_slots,), bool))
-    return motions, d2_c, inl_c, keep
+    return _Clusters(motions, d2_c, inl_c, keep)
 
 
-def _label(motions, d2_c, inl_c, keep, pts: Points, params, status, hyp_labels, num_hyp, *,
-           cfg) -> Segmentation:
+def _label(clusters: _Clusters, pts: Points, params, status, *, cfg) -> Segmentation:
     """Labelling: each valid point takes the kept segment that explains it best; segments
     left too small are dropped, one more may be found among the points none explains
     (:func:`_leftover_segment`); segments are numbered by size. ``status`` is the search's
-    (OK becomes NO_SEGMENT when no segment is left)."""
+    (OK becomes NO_SEGMENT when no segment is left). The search's own outputs
+    (``hyp_labels``, ``num_hypotheses``) are left for the caller to fill in."""
+    motions, d2_c, inl_c, keep = clusters
     n_slots, max_seg = keep.shape[0], cfg.max_segments
     best, has = _assign(d2_c, inl_c, keep, pts.tie)
     keep = keep & (_counts(best, has, n_slots) > params.min_segment_points)
@@ -577,7 +587,7 @@ def _label(motions, d2_c, inl_c, keep, pts: Points, params, status, hyp_labels, 
         motions=out_motions,
         sizes=out_sizes,
         num_segments=jnp.where(ok, num_seg, 0).astype(jnp.int32),
-        hyp_labels=hyp_labels,
-        num_hypotheses=num_hyp.astype(jnp.int32),
+        hyp_labels=jnp.zeros_like(labels),
+        num_hypotheses=jnp.int32(0),
         status=status,
     )
