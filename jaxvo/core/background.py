@@ -32,7 +32,7 @@ import jax.numpy as jnp
 from jaxvo.config import Params, StepOptions
 from jaxvo.core.evidence import explained_segments, moving_logodds, neighbourhood
 from jaxvo.core.geometry import tiny
-from jaxvo.core.identifiers import STATIC_ID, relabel, swap_perm
+from jaxvo.core.identifiers import STATIC_ID, IdentifierState, identify, relabel, swap_perm
 from jaxvo.core.noise import NoiseScale, residuals_many
 from jaxvo.core.points import Points
 from jaxvo.core.robust import MOST, enough_points, explains
@@ -206,10 +206,13 @@ class BackgroundInputs(NamedTuple):
     pts: Points  # the frame's points and their noise (jaxvo.core.points.frame_points)
     T_pred: jax.Array  # (4, 4) float32 the predicted camera motion T_cur_prev
     have_last: jax.Array  # () bool whether T_pred was measured (else identity)
-    # (max_segments,) int32 the segments' identifiers (jaxvo.core.identifiers.identify)
-    segment_ids: jax.Array
+    # (n,) int32 the spatial segments measured this frame
+    # (jaxvo.core.identifiers.measured_labels; 0 = none)
+    labels: jax.Array
+    # the identifiers entering the frame (TemporalState.identifiers): the segments are
+    # identified against its window (Algorithm 3, jaxvo.core.identifiers.identify)
+    identifiers: IdentifierState
     evidence: jax.Array  # (n,) float32 each cell's moving log-odds entering the frame
-    initialised: jax.Array  # () bool some segment had an identifier before
     scale: NoiseScale  # the sensor noise (the depth readings' noise of the depth order)
     # (n,) bool the points the occlusion memory holds nearer than what was seen there
     # (jaxvo.core.occlusion); None: none
@@ -243,8 +246,8 @@ def update_background(inputs: BackgroundInputs, params: Params, *, cfg: StepOpti
       ``BackgroundOut``; its ``permutation`` renumbers the identifiers of the later stages'
       states so that the background's is 1.
     """
-    (seg, pts, T_pred, have_last, segment_ids, evidence, initialised, scale,
-     occluded) = inputs
+    (seg, pts, T_pred, have_last, labels, identifiers, evidence, scale, occluded) = inputs
+    segment_ids = identify(identifiers, labels, params, cfg=cfg)
     valid = pts.valid
     d2_all = residuals_many(jnp.concatenate([T_pred[None], seg.motions]), pts.src, pts.dst,
                             pts.noise)[0]
@@ -265,7 +268,7 @@ def update_background(inputs: BackgroundInputs, params: Params, *, cfg: StepOpti
     candidate = (~explains(mover[None, :], member, MOST)
                  | enough_points(explained & (belief >= 1.0), params))
     segment_ids, bg, reacquired, perm = choose_background(
-        segment_ids, support, consistency, initialised, max_ids=cfg.max_ids,
+        segment_ids, support, consistency, identifiers.initialised, max_ids=cfg.max_ids,
         candidate=candidate)
     bgi = jnp.maximum(bg - 1, 0)
     static_seg = (explained_segments(seg.labels, d2_seg[bgi], valid, pts.thr, cfg=cfg)
@@ -276,5 +279,6 @@ def update_background(inputs: BackgroundInputs, params: Params, *, cfg: StepOpti
                        jnp.int32(Status.OK))
     own = order[jnp.clip(seg.labels - 1, 0, cfg.max_segments - 1)]
     in_front = jnp.where((seg.labels > 0) & valid & (own < 0), -own, 0.0)
-    return BackgroundOut(segment_ids, bg, reacquired, use, belief, d2_seg, perm, status,
-                         in_front, occluded)
+    return BackgroundOut(segment_ids=segment_ids, background=bg, reacquired=reacquired,
+                         use=use, belief=belief, d2_seg=d2_seg, permutation=perm,
+                         status=status, in_front=in_front, occluded=occluded)

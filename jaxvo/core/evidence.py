@@ -108,12 +108,21 @@ class EvidenceInputs(NamedTuple):
     occluded: jax.Array | None = None
 
 
+class EvidenceOut(NamedTuple):
+    """One frame's evidence of each point's own motion (:func:`moving_evidence`)."""
+
+    explained: jax.Array  # (max_segments,) bool the segments the ego-motion explains
+    delta: jax.Array  # (n,) float32 each point's log-likelihood ratio, moving over static
+
+
 def moving_evidence(inputs: EvidenceInputs, params: Params, *, cfg: StepOptions,
-                    grid: tuple[int, int]):
+                    grid: tuple[int, int]) -> EvidenceOut:
     """This frame's evidence of each point's own motion under the ego-motion ``T_cur_prev``:
-    ``(explained (S,) bool, delta (n,) float32)``, the segments the ego-motion explains
+    an :class:`EvidenceOut`, the segments the ego-motion explains
     (:func:`explained_segments`) and every point's log-likelihood ratio
-    (:func:`evidence_delta`); none where the frame is not ``ok``.
+    (:func:`evidence_delta`); none where the frame is not ``ok``. A measurement without a
+    state of its own: the cells' log-odds it feeds are filtered (:func:`update_evidence`)
+    and carried with the other per-cell maps (:mod:`jaxvo.core.temporal`).
 
     Where a point lies adds to it, an independent measurement (where each point lies, not
     how it moves): ``in_front`` (n,), the depth order's log-likelihood ratio of a point
@@ -138,7 +147,7 @@ def moving_evidence(inputs: EvidenceInputs, params: Params, *, cfg: StepOptions,
         delta = delta + jnp.where(pts.valid & decided, in_front, 0.0)
     if occluded is not None:
         delta = delta + jnp.where(pts.valid & occluded, params.evidence_step, 0.0)
-    return explained & ok, delta
+    return EvidenceOut(explained=explained & ok, delta=delta)
 
 
 def update_evidence(evidence, delta, measured, hidden, params: Params):

@@ -21,8 +21,8 @@ the depth noise after :func:`jaxvo.host.flow.refine_depth` depends on the sensor
 correlation, and colour-to-depth misregistration adds to both (measured against ground
 truth by ``bench/calibrate_noise.py``; the figures in docs/report/core_decisions.md). Every test uses the model of
 :class:`jaxvo.config.Params`' ``pixel_sigma`` and ``depth_coeff`` (a real sensor's values,
-measured on the development frames); with ``noise_rate > 0`` the pipeline also calibrates
-both online from the residuals of the background under its own ego-motion
+measured on the development frames); with ``Config.noise_calibration`` the pipeline also
+calibrates both online from the residuals of the background under its own ego-motion
 (:func:`update_noise`). That is off by default: it did not pay on the validation split
 (``docs/report/robustness.md``).
 """

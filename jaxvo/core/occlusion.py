@@ -22,6 +22,7 @@ from typing import NamedTuple
 import jax
 import jax.numpy as jnp
 
+from jaxvo.config import Params, StepOptions
 from jaxvo.core.geometry import invert_pose, tiny
 from jaxvo.core.noise import NoiseScale
 
@@ -54,6 +55,15 @@ class OcclusionInputs(NamedTuple):
     tie: jax.Array  # () float32 the near-tie test chi2_1(confidence) (Points.tie)
 
 
+class OcclusionOut(NamedTuple):
+    """What the occlusion memory says of one image's grid points (:func:`update_occlusion`)."""
+
+    # (n,) float32 how much nearer each point lies than what was seen there before, metres,
+    # where that is beyond the depth noise (else 0)
+    nearer: jax.Array
+    occluded: jax.Array  # (n,) bool the points held nearer than what was seen: occluders
+
+
 def _into_last(state: OcclusionState, depth, uv, T_w_c, camera):
     """Each grid point of this image (depth (n,), pixels uv (n, 2)) in the last camera:
     ``(depth there (n,), continuous grid column and row (n,), (n,))``."""
@@ -70,10 +80,10 @@ def _into_last(state: OcclusionState, depth, uv, T_w_c, camera):
     return z, u, v
 
 
-def update_occlusion(state: OcclusionState, inputs: OcclusionInputs, *, grid: tuple[int, int],
-                     cell: int):
-    """One image of the occlusion memory: ``(state, nearer (n,) float32, occluded (n,)
-    bool)`` on this image's grid.
+def update_occlusion(state: OcclusionState, inputs: OcclusionInputs, params: Params, *,
+                     cfg: StepOptions, grid: tuple[int, int]
+                     ) -> tuple[OcclusionState, OcclusionOut]:
+    """One image of the occlusion memory: ``(state, OcclusionOut)`` on this image's grid.
 
     Each grid point with a depth reading is back-projected (``inputs.camera``;
     ``inputs.uv`` its pixel), moved into the last camera (the poses ``state.T_w_c`` and
@@ -89,10 +99,14 @@ def update_occlusion(state: OcclusionState, inputs: OcclusionInputs, *, grid: tu
 
     Args:
       state: the last image's depths, memory and pose; inputs: this image's
-      :class:`OcclusionInputs`. grid: (rows, cols); cell: the grid cell, pixels (static).
+      :class:`OcclusionInputs`; params: unread (the memory has no numeric setting of its
+      own: its test is ``inputs.tie``); cfg: static, ``cfg.cell`` the grid cell, pixels;
+      grid: static (rows, cols).
     """
+    del params  # every stage takes the same arguments; this one's test comes in inputs.tie
     depth, uv, T_w_c, camera, scale, tie = inputs
     rows, cols = grid
+    cell = cfg.cell
     z_last, u, v = _into_last(state, depth, uv, T_w_c, camera)
     gx = (u + 0.5) / cell - 0.5  # grid point (c, r) sits at pixel ((c + .5) cell - .5, ...)
     gy = (v + 0.5) / cell - 0.5
@@ -114,4 +128,4 @@ def update_occlusion(state: OcclusionState, inputs: OcclusionInputs, *, grid: tu
     nearer = jnp.where(occluded, acc, 0.0).astype(jnp.float32)
     new = OcclusionState(jnp.asarray(depth, jnp.float32), nearer,
                          jnp.asarray(T_w_c, jnp.float32))
-    return new, nearer, occluded
+    return new, OcclusionOut(nearer=nearer, occluded=occluded)

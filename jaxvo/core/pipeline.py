@@ -1,13 +1,16 @@
 """The per-frame step of the odometry, and the whole-sequence scan built from it (device side).
 
 One step reads top to bottom as the thesis's pipeline (Fig. 1.2), a chain of stage updates
-``update_x(state_x, XInputs(...), params, *, cfg, grid) -> (state_x, out_x)``, each stage's
-state its own and each stage's inputs one typed value built here:
+``update_x(state_x, XInputs(...), params, *, cfg, grid) -> (state_x, out_x)`` (a stage with
+nothing to carry, one frame's measurement: ``x(XInputs(...), params, *, cfg, grid) ->
+out_x``), each stage's state its own and each stage's inputs one typed value built here by
+keyword:
 
   the frame's points and their noise, built once (:func:`jaxvo.core.points.frame_points`)
   -> spatial segmentation (Algorithms 1, 2; :mod:`jaxvo.core.spatial`)
-  -> identifiers (Algorithm 3; :mod:`jaxvo.core.identifiers`) and the background
-     (:func:`jaxvo.core.background.update_background`)
+  -> the occlusion memory (:func:`jaxvo.core.occlusion.update_occlusion`)
+  -> the segments' identifiers (Algorithm 3; :func:`jaxvo.core.identifiers.identify`) and
+     the background among them (:func:`jaxvo.core.background.update_background`)
   -> ego-motion from the background -> camera pose chain (:mod:`jaxvo.core.egomotion`)
   -> moving evidence under the ego-motion (:func:`jaxvo.core.evidence.moving_evidence`)
   -> labels: the dual-mode grid model, compensated (:func:`jaxvo.core.temporal.update_temporal`)
@@ -46,7 +49,7 @@ from jaxvo.core.evidence import (
     reported_ids,
 )
 from jaxvo.core.geometry import full_precision
-from jaxvo.core.identifiers import identify, measured_labels
+from jaxvo.core.identifiers import measured_labels
 from jaxvo.core.inputs import GridFlow, KeyframeFlow
 from jaxvo.core.keyframe import (
     KeyframeInputs,
@@ -81,7 +84,7 @@ class PipelineState(NamedTuple):
     temporal: TemporalState  # identifiers, moving evidence, dual-mode grid model (on the grid)
     ego: EgoState  # the camera's pose and its last measured motion
     frame: jax.Array  # () int32, frame pairs processed so far
-    noise: NoiseScale  # the sensor noise model (jaxvo.core.noise; calibrated when noise_rate > 0)
+    noise: NoiseScale  # the sensor noise model (jaxvo.core.noise; calibrated with cfg.noise_calibration)
     keyframe: KeyframeState | None = None  # the latest keyframe (cfg.keyframes), None: off
     occlusion: OcclusionState | None = None  # the occlusion memory of the last image
 
@@ -141,70 +144,52 @@ def step(state: PipelineState, flow: GridFlow, key, params: Params, *, cfg: Step
       params: numeric settings, possibly traced (vmappable).
       cfg: the step's options (``Config.step``), static; grid: static ``(rows, cols)``.
       batch_axis: the vmapped axes' name(s) in a study, :func:`jaxvo.core.spatial.segment`.
-      keyframe: with ``cfg.keyframes``, the pair's :class:`~jaxvo.core.inputs.KeyframeFlow`
-        (:class:`jaxvo.host.keyframes.KeyframeTracker`); None: frame to frame only.
+      keyframe: with ``cfg.keyframes`` (required then), the pair's
+        :class:`~jaxvo.core.inputs.KeyframeFlow` (:class:`jaxvo.host.keyframes.KeyframeTracker`).
     """
+    if cfg.keyframes != (keyframe is not None):
+        raise ValueError("the step takes a KeyframeFlow exactly when cfg.keyframes is set "
+                         f"(cfg.keyframes={cfg.keyframes}, keyframe given: {keyframe is not None})")
+    stage = dict(cfg=cfg, grid=grid)
     pts = frame_points(flow.pts_prev, flow.pts_cur, flow.valid & (flow.status == Status.OK),
                        params, focal=flow.focal, scale=state.noise, fb_error=flow.fb_error,
                        depth_slope=flow.depth_slope)
-    # 1. spatial segmentation (Algorithms 1, 2) under the sensor noise model
-    seg = segment_points(key, pts, params, cfg=cfg, grid=grid, batch_axis=batch_axis)
+    seg = segment_points(key, pts, params, batch_axis=batch_axis, **stage)
     labels = measured_labels(seg, pts.valid, cfg=cfg)
-    # 2. identifiers (Algorithm 3) and the background: among the segments not made of known
-    # movers (moving evidence, or nearer than what was seen there: the occlusion memory),
-    # the one of most surface earlier frames established as background
-    segment_ids = identify(state.temporal.identifiers, labels, params, cfg=cfg)
-    occlusion, _, occluded = update_occlusion(
-        state.occlusion, OcclusionInputs(flow.depth_prev, flow.uv_prev, state.ego.T_w_c,
-                                         flow.camera, state.noise, pts.tie),
-        grid=grid, cell=cfg.cell)
-    bg = update_background(
-        BackgroundInputs(seg, pts, predicted_motion(state.ego), state.ego.have_last,
-                         segment_ids, state.temporal.evidence,
-                         state.temporal.identifiers.initialised, state.noise, occluded),
-        params, cfg=cfg, grid=grid)
-    # 3. ego-motion from the best of the frame's candidate motions, its support grown over
-    # the established background; with keyframes also on the keyframe's static points
-    # tracked into this image (jaxvo.core.keyframe)
-    use_kf = cfg.keyframes and keyframe is not None
-    ego, eo = update_egomotion(
-        state.ego, _ego_inputs(state, flow, keyframe if use_kf else None, pts, seg, bg, params,
-                               cfg=cfg, grid=grid),
-        params, cfg=cfg)
-    eo = eo._replace(used=eo.used[:pts.valid.shape[0]])
-    # 4. evidence of each point's own motion under the ego-motion
-    explained, delta = moving_evidence(
-        EvidenceInputs(seg.labels, pts, eo.T_cur_prev, bg.d2_seg, eo.ok, bg.in_front,
-                       bg.occluded),
-        params, cfg=cfg, grid=grid)
-    # 5. labels: the dual-mode grid model, compensated to the current image
-    temporal, tout = update_temporal(
-        state.temporal, TemporalInputs(labels, flow.uv_cur - flow.uv_prev, pts.valid,
-                                       bg.segment_ids, explained, delta, flow.depth_prev,
-                                       bg.permutation),
-        params, cfg=cfg, grid=grid)
-    # 6. the sensor noise, from the residuals of the points the ego-motion was fitted to
+    occlusion, occ = update_occlusion(state.occlusion, OcclusionInputs(
+        depth=flow.depth_prev, uv=flow.uv_prev, T_w_c=state.ego.T_w_c, camera=flow.camera,
+        scale=state.noise, tie=pts.tie), params, **stage)
+    bg = update_background(BackgroundInputs(
+        seg=seg, pts=pts, T_pred=predicted_motion(state.ego), have_last=state.ego.have_last,
+        labels=labels, identifiers=state.temporal.identifiers,
+        evidence=state.temporal.evidence, scale=state.noise, occluded=occ.occluded),
+        params, **stage)
+    ego, eo = update_egomotion(state.ego, _ego_inputs(state, flow, keyframe, pts, seg, bg,
+                                                      params, **stage), params, cfg=cfg)
+    eo = eo._replace(used=eo.used[:pts.valid.shape[0]])  # the pair's points, not the keyframe's
+    ev = moving_evidence(EvidenceInputs(
+        seg_labels=seg.labels, pts=pts, T_cur_prev=eo.T_cur_prev, d2_seg=bg.d2_seg, ok=eo.ok,
+        in_front=bg.in_front, occluded=bg.occluded), params, **stage)
+    temporal, tout = update_temporal(state.temporal, TemporalInputs(
+        labels=labels, disp=flow.uv_cur - flow.uv_prev, flow_valid=pts.valid,
+        segment_ids=bg.segment_ids, explained=ev.explained, evidence_delta=ev.delta,
+        depth_prev=flow.depth_prev, permutation=bg.permutation), params, **stage)
     noise = state.noise
     if cfg.noise_calibration:
-        noise = update_noise(noise, NoiseInputs(transfer(eo.T_cur_prev, pts.src) - pts.dst,
-                                                (bg.use > 0) & eo.ok, pts.noise), params)
-    # 7. a new keyframe where the host says so, with the cells the temporal model holds
-    # static on this image (its evidence is already carried onto this image's grid)
+        noise = update_noise(noise, NoiseInputs(
+            r=transfer(eo.T_cur_prev, pts.src) - pts.dst, used=(bg.use > 0) & eo.ok,
+            noise=pts.noise), params)
     kf_state, kout = state.keyframe, None
-    if use_kf:
-        kf_state, kout = update_keyframe(
-            kf_state, KeyframeInputs(keyframe, ego.T_w_c,
-                                     temporal.evidence <= moving_logodds(params),
-                                     eo.T_cur_prev, state.ego.T_w_c, pts, eo.used, noise,
-                                     flow.focal),
-            params, cfg=cfg, grid=grid)
+    if keyframe is not None:  # the cells the temporal model holds static on this image
+        kf_state, kout = update_keyframe(kf_state, KeyframeInputs(
+            kf=keyframe, T_w_c=ego.T_w_c, static=temporal.evidence <= moving_logodds(params),
+            T_cur_prev=eo.T_cur_prev, T_w_prev=state.ego.T_w_c, pts=pts, used=eo.used,
+            noise=noise, focal=flow.focal), params, **stage)
         ego = ego._replace(T_w_c=kout.T_w_c)
-    out = _output(ego, eo, seg, bg, tout, noise, pts.valid, params, cfg=cfg, grid=grid)
-    if kout is not None:
-        out = out._replace(keyframes=kout.count)
-    return PipelineState(temporal=temporal, ego=ego,
-                         frame=state.frame + 1, noise=noise, keyframe=kf_state,
-                         occlusion=occlusion), out
+    out = _output(ego, eo, seg, bg, tout, noise, pts.valid, params, **stage)
+    return PipelineState(temporal=temporal, ego=ego, frame=state.frame + 1, noise=noise,
+                         keyframe=kf_state, occlusion=occlusion), out._replace(
+        keyframes=None if kout is None else kout.count)
 
 
 def _ego_inputs(state: PipelineState, flow: GridFlow, keyframe: KeyframeFlow | None, pts,
@@ -216,13 +201,15 @@ def _ego_inputs(state: PipelineState, flow: GridFlow, keyframe: KeyframeFlow | N
     segment's motion, among the candidates the predicted motion and every segment's."""
     ego_pts, ego_weights, belief = pts, bg.use, bg.belief
     if keyframe is not None:
-        ego_pts, ego_weights, belief = keyframe_support(
-            state.keyframe, SupportInputs(keyframe, state.ego.T_w_c, pts, bg,
-                                          state.temporal.evidence, flow.focal, state.noise),
+        ego_pts, ego_weights, belief = keyframe_support(state.keyframe, SupportInputs(
+            kf=keyframe, T_w_prev=state.ego.T_w_c, pts=pts, bg=bg,
+            evidence=state.temporal.evidence, focal=flow.focal, scale=state.noise),
             params, cfg=cfg, grid=grid)
     candidates = jnp.concatenate([predicted_motion(state.ego)[None], seg.motions])
-    return EgoInputs(ego_pts, ego_weights, seg.motions[jnp.maximum(bg.background - 1, 0)],
-                     first_failure(flow.status, seg.status, bg.status), belief, candidates)
+    return EgoInputs(pts=ego_pts, weights=ego_weights,
+                     T_init=seg.motions[jnp.maximum(bg.background - 1, 0)],
+                     status=first_failure(flow.status, seg.status, bg.status), belief=belief,
+                     candidates=candidates)
 
 
 def _output(ego: EgoState, eo, seg: Segmentation, bg: BackgroundOut, tout: TemporalOut,
