@@ -101,3 +101,13 @@ def invalid_keyframe_flow(n: int, window: int) -> KeyframeFlow:
     return KeyframeFlow(z, z.copy(), np.zeros(n, bool), np.bool_(True),
                         np.zeros((W, n, 3), np.float32), np.zeros((W, n), bool), z.copy(),
                         np.full(n, -1, np.int32))
+
+
+def keyframe_index(grid: tuple[int, int], stride: int) -> np.ndarray:
+    """The grid points (row-major indices) a keyframe offers: every ``stride``-th row and
+    column of the ``(rows, cols)`` grid. The one rule of both sides: the host's
+    :class:`jaxvo.host.keyframes.KeyframeTracker` tracks these points, the step reads them
+    (:mod:`jaxvo.core.keyframe`)."""
+    rows, cols = grid
+    r, c = np.meshgrid(np.arange(0, rows, stride), np.arange(0, cols, stride), indexing="ij")
+    return (r * cols + c).ravel().astype(np.int32)

@@ -38,25 +38,16 @@ from typing import NamedTuple
 
 import jax
 import jax.numpy as jnp
-import numpy as np
 import optax
 
 from jaxvo.config import Params, StepOptions
 from jaxvo.core.background import BackgroundOut, belief_weights
 from jaxvo.core.geometry import adjoint, invert_pose, orthonormal, perturb, skew, tiny
-from jaxvo.core.inputs import KeyframeFlow
+from jaxvo.core.inputs import KeyframeFlow, keyframe_index
 from jaxvo.core.lm import ArrowCurvature, levenberg_marquardt, pair_factor
 from jaxvo.core.noise import NoiseScale
 from jaxvo.core.points import Points, frame_points
 from jaxvo.core.robust import cauchy, chi2_quantile
-
-
-def keyframe_index(grid: tuple[int, int], stride: int) -> np.ndarray:
-    """The grid points (row-major indices) a keyframe offers: every ``stride``-th row and
-    column of the ``(rows, cols)`` grid (the host's :class:`KeyframeTracker` tracks these)."""
-    rows, cols = grid
-    r, c = np.meshgrid(np.arange(0, rows, stride), np.arange(0, cols, stride), indexing="ij")
-    return (r * cols + c).ravel().astype(np.int32)
 
 
 class KeyframeState(NamedTuple):

@@ -26,7 +26,7 @@ from __future__ import annotations
 
 import numpy as np
 
-from jaxvo.core.inputs import KeyframeFlow
+from jaxvo.core.inputs import KeyframeFlow, keyframe_index
 from jaxvo.host.camera import backproject
 from jaxvo.host.depth import depth_at
 from jaxvo.host.patches import lk_converged, similar
@@ -56,9 +56,8 @@ class KeyframeTracker:
         self.t = tracker
         cfg = tracker.cfg
         rows, cols = tracker.grid
-        sub = np.zeros((rows, cols), bool)
-        sub[::cfg.keyframe_stride, ::cfg.keyframe_stride] = True
-        self._sub = sub.reshape(-1)
+        self._sub = np.zeros(rows * cols, bool)
+        self._sub[keyframe_index(tracker.grid, cfg.keyframe_stride)] = True
         self._window = max(int(cfg.keyframe_window) - 1, 0)  # older keyframes observed: W
         self._keys: list[_Keyframe] = []  # the window's keyframes, oldest first
         self._ref = 0  # points the latest keyframe's first pair tracked
