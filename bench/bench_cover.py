@@ -1,4 +1,4 @@
-"""Heavy cover: does the ego-motion lock on a near mover that fills the view (issue 47)?
+"""Heavy cover: does the ego-motion lock on a near mover that fills the view?
 
 The heavy-cover family (``jaxvo.synth`` presets ``heavy_cover_50``, ``_70``, ``_90``): one
 near box covering about that share of the view from the first frame, moving with the camera
@@ -15,7 +15,11 @@ and only the motion says which one the fit followed); the share of pairs locked 
 measured), the box's cover of the view (its share of the grid cells),
 and the ATE beside the best OpenCV peer on the same frames.
 
-Run: ``.venv/bin/python bench/bench_cover.py [--seeds 10] [--only CASE ...] [--set
+``--family carried`` runs the carried family instead (presets ``carried_50``, ``_70``: a box
+carried with the camera itself, 150 frames: frames 0-149 and 150-299 of 7-Scenes), and
+writes ``cover_carried.md`` / ``.json``.
+
+Run: ``.venv/bin/python bench/bench_cover.py [--seeds 10] [--family heavy|carried] [--only CASE ...] [--set
 NAME=VALUE ...] [--out results/] [--title LINE]``; writes ``cover.md`` and ``cover.json``.
 """
 
@@ -42,31 +46,33 @@ from jaxvo.host.io import InMemorySequence, data_root
 from jaxvo.host.peers import OPENCV_PEERS
 from jaxvo.synth.scenes import composite_sequence, make_sequence
 
-COVERS = (50, 70, 90)
-FRAMES = 60  # frames 1, 10 and 50 are judged
+# each family's presets (jaxvo.synth) and frames a run: frames 1, 10 and 50 are judged
+FAMILIES = {"heavy": ("heavy_cover", (50, 70, 90), 60),
+            "carried": ("carried", (50, 70), 150)}
 AT = (1, 10, 50)
 # (kind, split, first 7-Scenes frame or None for the synthetic room)
 SETTINGS = (("synth", "dev", None), ("comp", "dev", 0), ("comp", "val", 150))
 
 
-def cover_cases(seeds: int) -> list[tuple[str, list[Case]]]:
+def cover_cases(seeds: int, family: str = "heavy") -> list[tuple[str, list[Case]]]:
     """Each (cover, setting) group's name and its cases, one per seed (``Case.build``
     renders the frames; :func:`lazy_sequence` gives the same sequence unrendered)."""
+    prefix, covers, frames = FAMILIES[family]
     groups = []
-    for cover in COVERS:
-        scenario = f"heavy_cover_{cover}"
+    for cover in covers:
+        scenario = f"{prefix}_{cover}"
         for kind, split, start in SETTINGS:
             name = f"{kind}_{scenario}_{split}"
             cases = []
             for s in range(seeds):
                 if start is None:
                     build = (lambda sc=scenario, s=s: InMemorySequence(
-                        make_sequence(sc, frames=FRAMES, seed=s)))
+                        make_sequence(sc, frames=frames, seed=s)))
                     source = None
                 else:
                     build = (lambda sc=scenario, s=s, st=start: InMemorySequence(
                         composite_sequence(data_root() / SEVEN_SCENES, sc, start=st,
-                                           frames=FRAMES, seed=s)))
+                                           frames=frames, seed=s)))
                     source = SEVEN_SCENES
                 cases.append(Case(f"{name}_s{s}", split, "synthetic" if start is None
                                   else "composite", source, build))
@@ -76,13 +82,14 @@ def cover_cases(seeds: int) -> list[tuple[str, list[Case]]]:
 
 def lazy_sequence(case: Case):
     """The case's sequence before rendering (its camera and object trajectories)."""
-    scenario = "heavy_cover_" + case.name.split("heavy_cover_")[1].split("_")[0]
+    prefix, _, frames = next(f for f in FAMILIES.values() if f"_{f[0]}_" in case.name)
+    scenario = f"{prefix}_" + case.name.split(f"{prefix}_")[1].split("_")[0]
     seed = int(case.name.rsplit("_s", 1)[1])
     if case.source is None:
-        return make_sequence(scenario, frames=FRAMES, seed=seed)
+        return make_sequence(scenario, frames=frames, seed=seed)
     start = 0 if "_dev_" in case.name else 150
     return composite_sequence(data_root() / SEVEN_SCENES, scenario, start=start,
-                              frames=FRAMES, seed=seed)
+                              frames=frames, seed=seed)
 
 
 def motion_locked(T_est: np.ndarray, seq, pts_prev: np.ndarray, valid: np.ndarray):
@@ -190,12 +197,15 @@ def main(argv=None) -> int:
     ap = argparse.ArgumentParser(description=__doc__.split("\n\n")[0])
     ap.add_argument("--seeds", type=int, default=10)
     ap.add_argument("--only", nargs="*", help="group names (e.g. comp_heavy_cover_50_dev)")
+    ap.add_argument("--family", choices=sorted(FAMILIES), default="heavy",
+                    help="heavy: the heavy-cover presets (60 frames); carried: a box carried "
+                    "with the camera itself (150 frames)")
     add_run_options(ap)
     args = ap.parse_args(argv)
     params = params_from(args.set)
     cfg = config_from(args.config) if args.config else CFG
     groups = []
-    for name, cases in cover_cases(args.seeds):
+    for name, cases in cover_cases(args.seeds, args.family):
         if args.only and name not in args.only:
             continue
         if cases[0].source is not None and not (data_root() / cases[0].source).is_dir():
@@ -212,10 +222,13 @@ def main(argv=None) -> int:
     args.out.mkdir(parents=True, exist_ok=True)
     meta = {"date": datetime.datetime.now().isoformat(timespec="seconds"), "seeds": args.seeds,
             "set": args.set, "config": args.config, "title": args.title}
-    (args.out / "cover.json").write_text(json.dumps({"meta": meta, "groups": groups}, indent=1))
-    md = [f"# Heavy cover over {args.seeds} seeds\n", machine_line(), "", args.title, "",
+    stem = "cover" if args.family == "heavy" else f"cover_{args.family}"
+    (args.out / f"{stem}.json").write_text(json.dumps({"meta": meta, "groups": groups},
+                                                      indent=1))
+    heading = {"heavy": "Heavy cover", "carried": "A box carried with the camera"}[args.family]
+    md = [f"# {heading} over {args.seeds} seeds\n", machine_line(), "", args.title, "",
           table(groups, args.seeds), ""]
-    (args.out / "cover.md").write_text("\n".join(md) + "\n")
+    (args.out / f"{stem}.md").write_text("\n".join(md) + "\n")
     print("\n".join(md))
     return 0
 

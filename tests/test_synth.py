@@ -282,3 +282,18 @@ def test_composite_into_real_sequence():
     np.testing.assert_array_equal(f.depth[~obj], r.depth[~obj])
     np.testing.assert_array_equal(f.bgr[~obj], r.bgr[~obj])
     assert np.all((r.depth[obj] == 0) | (f.depth[obj] < r.depth[obj]))
+
+
+def test_a_carried_box_stays_on_its_path_in_the_camera_frame():
+    """carried_*: the box's path is in the camera's own frame (follow 0), so however the
+    camera moves, the box's centre in the camera stays within its path's amplitude around
+    its centre (0.14, 0.04, 0.03 m around (0, 0, 0.7)); a box left where it was would be
+    left behind by the camera's 0.3 m over these 2 s."""
+    seq = synth.make_sequence("carried_50", frames=60, seed=2)
+    T_c = seq.groundtruth.poses
+    T_o = seq.object_trajectories[1].poses
+    offset = (np.linalg.inv(T_c) @ T_o)[:, :3, 3] - np.array([0.0, 0.0, 0.7])
+    assert np.all(np.abs(offset) <= np.array([0.14, 0.04, 0.03]) + 1e-6)
+    travelled = np.linalg.norm(T_c[-1, :3, 3] - T_c[0, :3, 3])
+    left_behind = (np.linalg.inv(T_c[-1]) @ T_o[0])[:3, 3] - np.array([0.0, 0.0, 0.7])
+    assert travelled > 0.1 and np.any(np.abs(left_behind) > np.array([0.14, 0.04, 0.03]))

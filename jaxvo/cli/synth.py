@@ -10,7 +10,8 @@ import time
 # ``--help`` does not import JAX.
 SCENARIO_NAMES = ("fixed_camera_1", "fixed_camera_2", "handheld_fast", "handheld_slow",
                   "close_approach", "static", "three_boxes", "enter_leave", "stop_start",
-                  "heavy_cover_50", "heavy_cover_70", "heavy_cover_90")
+                  "heavy_cover_50", "heavy_cover_70", "heavy_cover_90", "carried_50",
+                  "carried_70")
 
 
 def add_arguments(parser: argparse.ArgumentParser) -> None:
