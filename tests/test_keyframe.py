@@ -74,13 +74,15 @@ def test_keyframe_points_are_the_keyframe_points_in_the_previous_camera():
     np.testing.assert_allclose(np.asarray(pts.dst)[:, keep], p_cur.T[:, keep], atol=1e-6)
 
 
-def _update(state, kf, T, static):
+def _update(state, kf, T, static, ok=True):
     n = len(static)
     none = frame_points(jnp.zeros((n, 3)), jnp.zeros((n, 3)), jnp.zeros(n, bool), Params(),
                         focal=525.0)
     # the pair adds no information
-    inputs = KeyframeInputs(kf, jnp.asarray(T, jnp.float32), jnp.asarray(static), jnp.eye(4),
-                            jnp.eye(4), none, jnp.zeros(n, bool), init_noise(Params()), 525.0)
+    inputs = KeyframeInputs(kf=kf, T_w_c=jnp.asarray(T, jnp.float32),
+                            static=jnp.asarray(static), T_cur_prev=jnp.eye(4),
+                            T_w_prev=jnp.eye(4), pts=none, used=jnp.zeros(n, bool),
+                            noise=init_noise(Params()), focal=525.0, ok=jnp.bool_(ok))
     return update_keyframe(state, inputs, Params(), cfg=UNIT_CFG, grid=GRID)
 
 
@@ -118,6 +120,30 @@ def test_update_keyframe_takes_a_keyframe_only_when_told():
     np.testing.assert_array_equal(np.asarray(new.seen[-1, -2]), np.ones(n, bool))
     np.testing.assert_array_equal(np.asarray(new.obs[-1, -2]), p1)
     assert not bool(new.seen[-1, 0].any())  # slot 0 is still empty
+
+
+def test_a_keyframe_taken_where_the_ego_motion_was_not_measured_keeps_nothing():
+    """A keyframe the host renews on a frame whose ego-motion failed (no background in
+    view: a near object filling the image) holds no static point and reads none of the
+    window's: its cells' evidence says nothing of the world, and its readings would tie
+    the window's poses to the object. Its pose is the carried one, unrefined."""
+    n = GRID[0] * GRID[1]
+    rng = np.random.default_rng(2)
+    p0 = rng.uniform([-1, -1, 1], [1, 1, 4], (n, 3)).astype(np.float32)
+    T = np.eye(4, dtype=np.float32)
+    T[0, 3] = 0.5
+    st = init_keyframe(np.eye(4), cfg=UNIT_CFG, grid=GRID)
+    static = np.ones(n, bool)
+    first, _ = _update(st, _kf_flow(n, 2, pts_kf=p0, valid=np.ones(n, bool)), T, static)
+    seen = np.ones((2, n), bool)
+    kf = _kf_flow(n, 2, renew=np.bool_(True), new_kf=p0 + np.float32(0.1),
+                  win_cur=np.stack([p0, p0 + np.float32(0.3)]), win_valid=seen)
+    taken, out = _update(first, kf, T, static, ok=True)
+    assert bool(taken.static[-1].all()) and bool(taken.seen[-1, -2].all())
+    blind, out = _update(first, kf, T, static, ok=False)
+    assert int(out.count) == 2 and bool(blind.taken[-1])
+    assert not bool(blind.static[-1].any()) and not bool(blind.seen[-1].any())
+    np.testing.assert_array_equal(np.asarray(out.T_w_c), T)
 
 
 def _window(rng, K: int, m: int):

@@ -373,9 +373,10 @@ def _shift(x, new):
     return jnp.concatenate([x[1:], new[None]], axis=0)
 
 
-def _take(state: KeyframeState, kf, T_w_c, static, index, link) -> KeyframeState:
+def _take(state: KeyframeState, kf, T_w_c, static, index, link, measured) -> KeyframeState:
     """The window with the current frame as its latest keyframe: the oldest leaves, the
-    new one brings its points and its readings of the window's points."""
+    new one brings its points and its readings of the window's points (none where its
+    ego-motion was not ``measured``: nothing then says which of them are the world's)."""
     K = state.T_w_kf.shape[0]
     W = K - 1
     point = _shift(state.point, kf.new_kf[index])
@@ -384,7 +385,7 @@ def _take(state: KeyframeState, kf, T_w_c, static, index, link) -> KeyframeState
     seen = jnp.zeros_like(state.seen).at[:W, :W].set(state.seen[1:, 1:])
     if W:
         obs = obs.at[W, :W].set(kf.win_cur[:, index])
-        seen = seen.at[W, :W].set(kf.win_valid[:, index])
+        seen = seen.at[W, :W].set(kf.win_valid[:, index] & measured)
     T_meas, H, g = link
     return KeyframeState(_shift(state.T_w_kf, T_w_c), _shift(state.taken, jnp.bool_(True)),
                          point, stat, obs, seen, state.count + 1, jnp.bool_(False),
@@ -417,6 +418,9 @@ class KeyframeInputs(NamedTuple):
     used: jax.Array  # (n,) bool
     noise: NoiseScale  # the sensor noise model
     focal: jax.Array  # () float32 focal length, pixels
+    # () bool the pair's ego-motion was measured (EgoOut.ok): a keyframe taken where it was
+    # not (no background in view, too few points) keeps no point and reads nothing
+    ok: jax.Array
 
 
 def update_keyframe(state: KeyframeState, inputs: KeyframeInputs, params: Params, *,
@@ -435,12 +439,12 @@ def update_keyframe(state: KeyframeState, inputs: KeyframeInputs, params: Params
       where a keyframe was taken, else ``T_w_c``.
     """
     index = keyframe_index(grid, cfg.keyframe_stride)
-    kf, T_w_c, static, T_cur_prev, T_w_prev, pts, used, noise, focal = inputs
+    kf, T_w_c, static, T_cur_prev, T_w_prev, pts, used, noise, focal, ok = inputs
 
     def take(st):  # on keyframe frames only (lax.cond): the pair's factor is built here
         T_cur_kf = T_cur_prev @ invert_pose(T_w_prev) @ st.T_w_kf[-1]
         link = (T_cur_kf, *pair_factor(T_cur_prev, pts, used, pts.thr))
-        st = _take(st, kf, T_w_c, static, index, link)
+        st = _take(st, kf, T_w_c, static & ok, index, link, ok)
         if cfg.keyframe_window < 2 or not cfg.keyframe_iters:
             return st
         fixed = jnp.argmax(st.taken)

@@ -184,7 +184,7 @@ def step(state: PipelineState, flow: GridFlow, key, params: Params, *, cfg: Step
         kf_state, kout = update_keyframe(kf_state, KeyframeInputs(
             kf=keyframe, T_w_c=ego.T_w_c, static=temporal.evidence <= moving_logodds(params),
             T_cur_prev=eo.T_cur_prev, T_w_prev=state.ego.T_w_c, pts=pts, used=eo.used,
-            noise=noise, focal=flow.focal), params, **stage)
+            noise=noise, focal=flow.focal, ok=eo.ok), params, **stage)
         ego = ego._replace(T_w_c=kout.T_w_c)
     out = _output(ego, eo, seg, bg, tout, noise, pts.valid, params, **stage)
     return PipelineState(temporal=temporal, ego=ego, frame=state.frame + 1, noise=noise,
