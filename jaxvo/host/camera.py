@@ -65,8 +65,9 @@ PRESETS: dict[str, Intrinsics] = {
 # models; librealsense's Brown-Conrady is plumb_bob. Its "inverse" and "modified"
 # Brown-Conrady map a point to its pixel alike (radial factor first, the tangential terms
 # on the radially distorted point), which the current librealsense inverts by iteration
-# (``rs2_deproject_pixel_to_point``); SDKs before 2.50 applied inverse Brown-Conrady's
-# polynomial to the pixel directly, with the coefficients read as the inverse model.
+# (``rs2_deproject_pixel_to_point``); before its 2021 fix (librealsense pull request 8523)
+# it applied inverse Brown-Conrady's polynomial to the pixel directly, the coefficients
+# read as the inverse model.
 DISTORTION_MODELS: dict[str, tuple[str, ...]] = {
     "plumb_bob": ("k1", "k2", "p1", "p2", "k3"),
     "rational_polynomial": ("k1", "k2", "p1", "p2", "k3", "k4", "k5", "k6"),
