@@ -74,21 +74,20 @@ def report(runs: dict[int, dict], args, meta: dict) -> str:
                      runs[seeds[0]][name]["lens"]])
     given = float(np.median(ates[VARIANTS[1]])) / base
     verdict = "within" if abs(given - 1) <= WITHIN else "NOT within"
-    lens = meta["lens"]
-    return "\n".join([
-        "# Lens distortion undone at the tracked points\n",
-        machine_line(), "",
-        f"Scene `{args.scenario}`, {args.frames} frames, seeds {seeds[0]}-{seeds[-1]} (scene and "
-        f"run); lens `{args.lens}`: {lens}. ATE rmse after rigid alignment, millimetres, "
-        "median [best-worst] over the seeds; the ratio is each median over the pinhole "
-        "scene's. The lens's images are each pinhole render remapped as the lens shows it "
-        "(colour bilinear, depth bilinear on one surface and nearest across edges) before "
-        "the sensor model.", "",
-        markdown_table(["variant", "ATE mm, median [best-worst]", "median / pinhole",
-                        "per seed (mm)", "run summary says"], rows), "",
-        f"The lens given: median {given:.3f} of the pinhole scene's, {verdict} "
-        f"{100 * WITHIN:.0f} %. Made by `bench/bench_distortion.py --frames {args.frames} "
-        f"--seeds {args.seeds} --scenario {args.scenario} --lens {args.lens}`.", ""])
+    setting = (f"Scene `{args.scenario}`, {args.frames} frames, seeds {seeds[0]}-{seeds[-1]} "
+               f"(scene and run); lens `{args.lens}`: {meta['lens']}. ATE rmse after rigid "
+               "alignment, millimetres, median [best-worst] over the seeds; the ratio is each "
+               "median over the pinhole scene's. The lens's images are each pinhole render "
+               "remapped as the lens shows it (colour bilinear, depth bilinear on one surface "
+               "and nearest across edges) before the sensor model.")
+    table = markdown_table(["variant", "ATE mm, median [best-worst]", "median / pinhole",
+                            "per seed (mm)", "run summary says"], rows)
+    verdict_line = (f"The lens given: median {given:.3f} of the pinhole scene's, {verdict} "
+                    f"{100 * WITHIN:.0f} %. Made by `bench/bench_distortion.py --frames "
+                    f"{args.frames} --seeds {args.seeds} --scenario {args.scenario} --lens "
+                    f"{args.lens}`.")
+    parts = [machine_line(), setting, table, verdict_line]
+    return "# Lens distortion undone at the tracked points\n\n" + "\n\n".join(parts) + "\n"
 
 
 def main() -> int:

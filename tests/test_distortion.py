@@ -15,7 +15,6 @@ from jaxvo.host.camera import (
     PRESETS,
     TUM_DISTORTION,
     Distortion,
-    Intrinsics,
     backproject,
     camera_info_distortion,
     describe_distortion,
@@ -210,7 +209,8 @@ def static_residual(seq, K) -> float:
     T = np.linalg.inv(seq.groundtruth.poses[2]) @ seq.groundtruth.poses[0]
     uv0 = np.round(flow.uv_prev).astype(int)
     uv1 = np.clip(np.round(flow.uv_cur).astype(int), 0, [639, 479])
-    static = flow.valid & (f0.mask[uv0[:, 1], uv0[:, 0]] == 0) & (f1.mask[uv1[:, 1], uv1[:, 0]] == 0)
+    static = (flow.valid & (f0.mask[uv0[:, 1], uv0[:, 0]] == 0)
+              & (f1.mask[uv1[:, 1], uv1[:, 0]] == 0))
     moved = flow.pts_prev[static] @ T[:3, :3].T + T[:3, 3]
     return float(np.median(np.linalg.norm(moved - flow.pts_cur[static], axis=1)))
 
@@ -247,3 +247,25 @@ def test_run_through_a_lens_is_closer_to_the_pinhole_run_with_the_lens():
     seen.intrinsics = seen.intrinsics._replace(distortion=None)
     not_given = ate_of(seen)
     assert abs(given - plain) < 0.5 * abs(not_given - plain)
+
+
+@pytest.mark.slow
+def test_jaxvo_run_reads_a_folders_lens_and_says_so(tmp_path, capsys):
+    """A scene written through a lens: its camera.txt carries the distortion line, and the
+    run's summary names the model it applied; with --camera it is taken as pinhole, and the
+    summary says that."""
+    import json
+
+    from jaxvo.cli.main import main
+    from jaxvo.synth.scenes import write_sequence
+
+    folder = tmp_path / "lens"
+    write_sequence(make_sequence("handheld_fast", frames=4, seed=1, lens=FR1), folder)
+    assert "distortion plumb_bob 0.262383" in (folder / "camera.txt").read_text()
+    rc = main(["run", str(folder), "--out", str(tmp_path / "t.txt"), "-q", "--json"])
+    summary = json.loads(capsys.readouterr().out)
+    assert rc == 0 and summary["lens"].startswith("distortion: plumb_bob k1=0.262383")
+    rc = main(["run", str(folder), "--out", str(tmp_path / "u.txt"), "-q", "--json",
+               "--camera", "ros_default"])
+    summary = json.loads(capsys.readouterr().out)
+    assert rc == 0 and summary["lens"] == "images taken as pinhole (no distortion given)"

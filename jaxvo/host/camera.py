@@ -9,19 +9,7 @@ from typing import NamedTuple
 import numpy as np
 
 from jaxvo.errors import InputError
-
-
-class Distortion(NamedTuple):
-    """A lens's distortion: its model (a name of :data:`DISTORTION_MODELS`) and coefficients
-    in that model's order (:func:`distortion` checks and builds one)."""
-
-    model: str
-    coeffs: tuple[float, ...]
-
-    def describe(self) -> str:
-        """The model and its coefficients in one line (``plumb_bob k1=0.26 k2=-0.95 ...``)."""
-        names = DISTORTION_MODELS[self.model]
-        return " ".join([self.model] + [f"{n}={v:.7g}" for n, v in zip(names, self.coeffs)])
+from jaxvo.host.distortion import DISTORTION_MODELS, Distortion, undistort
 
 
 class Intrinsics(NamedTuple):
@@ -60,20 +48,6 @@ PRESETS: dict[str, Intrinsics] = {
 }
 
 
-# Lens models whose distortion jaxvo undoes, and the names of their coefficients in order.
-# plumb_bob and rational_polynomial are ROS's names for OpenCV's 5- and 8-coefficient
-# models; librealsense's Brown-Conrady is plumb_bob. Its "inverse" and "modified"
-# Brown-Conrady map a point to its pixel alike (radial factor first, the tangential terms
-# on the radially distorted point), which the current librealsense inverts by iteration
-# (``rs2_deproject_pixel_to_point``); before its 2021 fix (librealsense pull request 8523)
-# it applied inverse Brown-Conrady's polynomial to the pixel directly, the coefficients
-# read as the inverse model.
-DISTORTION_MODELS: dict[str, tuple[str, ...]] = {
-    "plumb_bob": ("k1", "k2", "p1", "p2", "k3"),
-    "rational_polynomial": ("k1", "k2", "p1", "p2", "k3", "k4", "k5", "k6"),
-    "inverse_brown_conrady": ("k1", "k2", "p1", "p2", "k3"),
-    "modified_brown_conrady": ("k1", "k2", "p1", "p2", "k3"),
-}
 # Other names of these models: librealsense's and OpenCV's calibration files' words
 _MODEL_NAMES = {"brown_conrady": "plumb_bob", "opencv": "plumb_bob", "radtan": "plumb_bob"}
 
@@ -252,7 +226,7 @@ def read_opencv_calibration(path: str | Path, *, depth_scale: float = 5000.0) ->
     try:
         fs = cv2.FileStorage(str(path), cv2.FILE_STORAGE_READ)
     except cv2.error as exc:
-        why = str(exc).strip().splitlines()[-1] if str(exc).strip() else "not a cv::FileStorage file"
+        why = (str(exc).strip() or "not a cv::FileStorage file").splitlines()[-1]
         raise InputError(f"{path}: cannot read as an OpenCV calibration ({why})") from None
     if not fs.isOpened():
         raise InputError(f"{path}: cannot read as an OpenCV calibration")
@@ -549,8 +523,6 @@ def backproject(uv: np.ndarray, z: np.ndarray, K: Intrinsics) -> np.ndarray:
     itself (a registered depth image holds each colour pixel's depth where that pixel is).
     """
     if K.distortion is not None:
-        from jaxvo.host.distortion import undistort  # OpenCV only for a distorted lens
-
         xn = undistort(uv, K)
         return (np.concatenate([xn, np.ones_like(xn[..., :1])], axis=-1)
                 * np.asarray(z, np.float64)[..., None])

@@ -8,16 +8,57 @@ images would touch every pixel. The depth is read at the pixel itself: a depth i
 registered to the colour camera holds each colour pixel's reading where that pixel is.
 
 OpenCV's models (ROS's ``plumb_bob``, ``rational_polynomial``) are undone by
-``cv2.undistortPointsIter`` (OpenCV 5: ``cv2.undistortPoints`` with a stopping rule); librealsense's inverse and modified Brown-Conrady as
-librealsense's ``rs2_deproject_pixel_to_point`` does, by fixed-point iteration.
+``cv2.undistortPointsIter`` (OpenCV 5: ``cv2.undistortPoints`` with a stopping rule);
+librealsense's inverse and modified Brown-Conrady as its ``rs2_deproject_pixel_to_point``
+does, by fixed-point iteration.
 """
 
 from __future__ import annotations
 
-import cv2
+from typing import NamedTuple, Protocol
+
 import numpy as np
 
-from jaxvo.host.camera import Distortion, Intrinsics
+# Lens models whose distortion jaxvo undoes, and the names of their coefficients in order.
+# plumb_bob and rational_polynomial are ROS's names for OpenCV's 5- and 8-coefficient
+# models; librealsense's Brown-Conrady is plumb_bob. Its "inverse" and "modified"
+# Brown-Conrady map a point to its pixel alike (radial factor first, the tangential terms
+# on the radially distorted point), which the current librealsense inverts by iteration
+# (``rs2_deproject_pixel_to_point``); before its 2021 fix (librealsense pull request 8523)
+# it applied inverse Brown-Conrady's polynomial to the pixel directly, the coefficients
+# read as the inverse model.
+DISTORTION_MODELS: dict[str, tuple[str, ...]] = {
+    "plumb_bob": ("k1", "k2", "p1", "p2", "k3"),
+    "rational_polynomial": ("k1", "k2", "p1", "p2", "k3", "k4", "k5", "k6"),
+    "inverse_brown_conrady": ("k1", "k2", "p1", "p2", "k3"),
+    "modified_brown_conrady": ("k1", "k2", "p1", "p2", "k3"),
+}
+
+
+class Distortion(NamedTuple):
+    """A lens's distortion: its model (a name of :data:`DISTORTION_MODELS`) and coefficients
+    in that model's order (:func:`jaxvo.host.camera.distortion` checks and builds one)."""
+
+    model: str
+    coeffs: tuple[float, ...]
+
+    def describe(self) -> str:
+        """The model and its coefficients in one line (``plumb_bob k1=0.26 k2=-0.95 ...``)."""
+        names = DISTORTION_MODELS[self.model]
+        return " ".join([self.model] + [f"{n}={v:.7g}" for n, v in zip(names, self.coeffs)])
+
+
+class Camera(Protocol):
+    """What the functions here read of a camera (:class:`jaxvo.host.camera.Intrinsics`)."""
+
+    fx: float
+    fy: float
+    cx: float
+    cy: float
+    distortion: Distortion | None
+
+    def matrix(self) -> np.ndarray: ...
+
 
 # A point is undone when its ray, distorted again, lands within this many pixels of it;
 # OpenCV's own default (5 iterations, no tolerance) leaves 0.08 pixels at the corners of a
@@ -27,7 +68,7 @@ UNDISTORT_ITERS = 50
 _OPENCV = ("plumb_bob", "rational_polynomial")
 
 
-def undistort(uv: np.ndarray, K: Intrinsics) -> np.ndarray:
+def undistort(uv: np.ndarray, K: Camera) -> np.ndarray:
     """The rays of pixels seen through ``K``'s lens, as normalised image coordinates.
 
     Args:
@@ -41,6 +82,8 @@ def undistort(uv: np.ndarray, K: Intrinsics) -> np.ndarray:
     if d is None:
         return np.stack([(uv[..., 0] - K.cx) / K.fx, (uv[..., 1] - K.cy) / K.fy], axis=-1)
     if d.model in _OPENCV:
+        import cv2  # loaded by the lens that needs it: host.camera imports this module
+
         pts = uv.reshape(-1, 1, 2)
         if len(pts) == 0:
             return np.zeros(uv.shape, np.float64)
@@ -55,7 +98,7 @@ def undistort(uv: np.ndarray, K: Intrinsics) -> np.ndarray:
     return _undo_brown_conrady(uv, K, d)
 
 
-def _undo_brown_conrady(uv: np.ndarray, K: Intrinsics, d: Distortion) -> np.ndarray:
+def _undo_brown_conrady(uv: np.ndarray, K: Camera, d: Distortion) -> np.ndarray:
     """librealsense's inverse (and modified) Brown-Conrady undone by its fixed-point
     iteration, run to :data:`UNDISTORT_PX` rather than its 10 fixed rounds."""
     k1, k2, p1, p2, k3 = d.coeffs
@@ -78,7 +121,7 @@ def _undo_brown_conrady(uv: np.ndarray, K: Intrinsics, d: Distortion) -> np.ndar
     return np.stack([x, y], axis=-1)
 
 
-def distort(xn: np.ndarray, K: Intrinsics) -> np.ndarray:
+def distort(xn: np.ndarray, K: Camera) -> np.ndarray:
     """The pixels where rays land through ``K``'s lens (the inverse of :func:`undistort`).
 
     Args:

@@ -196,8 +196,9 @@ def write_sequence(seq: SyntheticSequence, out_dir: str | Path, *,
             for t, T, qi in zip(traj.timestamps, traj.poses, q):
                 lines.append(f"{t:.6f} {k} " + " ".join(f"{v:.9f}" for v in (*T[:3, 3], *qi)))
         write_text(tmp / "objects.txt", "\n".join(lines) + "\n")
+        what = "pinhole intrinsics" if seq.intrinsics.distortion is None else "intrinsics and lens distortion"
         write_camera_file(tmp / "camera.txt", seq.intrinsics,
-                          comment=f"{seq.name}: pinhole intrinsics, pixels; depth units per metre")
+                          comment=f"{seq.name}: {what}, pixels; depth units per metre")
     return out
 
 
