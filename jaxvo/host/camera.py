@@ -30,6 +30,11 @@ class Intrinsics(NamedTuple):
         negative ``fy``, a camera whose y axis points up, counts by its size)."""
         return 0.5 * (abs(float(self.fx)) + abs(float(self.fy)))
 
+    def __array__(self, dtype=None, copy=None) -> np.ndarray:
+        """``np.asarray(K)``: the five numbers fx, fy, cx, cy, depth_scale, as before the lens
+        joined them (code that compares or stores a camera as an array keeps working)."""
+        return np.array(self[:5], dtype=dtype or np.float64)
+
     def matrix(self) -> np.ndarray:
         """The 3x3 camera matrix K."""
         return np.array(
