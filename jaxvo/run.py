@@ -38,7 +38,7 @@ from jaxvo.config import Config, check_config
 from jaxvo.errors import InputError, check_seed
 from jaxvo.errors import warn as warn_user
 from jaxvo.host.bagout import BagOptions, check_bag_options, check_bag_target, open_bag
-from jaxvo.host.camera import Intrinsics, check_depth_scale_value
+from jaxvo.host.camera import Intrinsics, check_depth_scale_value, describe_distortion
 from jaxvo.host.mapping import MapOptions, make_maps, map_outputs
 
 
@@ -430,6 +430,7 @@ def _summary(o: RunOptions, seq, n: int, start: str, rec: Recorder, compiling, w
         "frames": n,
         "frames_processed": rec.seen,
         "camera": getattr(seq, "camera_source", "given"),
+        "lens": describe_distortion(seq.intrinsics),
         "start_pose": start,
         "poses_written": rec.written,
         "keyframes": rec.keyframes,  # 0: frame to frame only (Config.keyframes off)
@@ -481,7 +482,8 @@ def summary_lines(summary: dict) -> list[str]:
         c["from_cache"] for c in s["compile"]) else "compile included")
     lines += [(f"  speed      {s['frames_per_second']:.1f} frames/s steady state, reading "
                f"and writing included (first pair {s['first_frame_pair_seconds']} s, {how})"),
-              f"  camera     {s['camera']}", f"  start pose {s['start_pose']}"]
+              f"  camera     {s['camera']}", f"  lens       {s['lens']}",
+              f"  start pose {s['start_pose']}"]
     if s["keyframes"]:
         lines.append(f"  keyframes  {s['keyframes']} taken (each frame's motion also fitted to "
                      "the latest keyframe's static points; the last keyframes refined together "

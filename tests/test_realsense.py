@@ -10,6 +10,7 @@ import json
 import struct
 from pathlib import Path
 
+import cv2
 import numpy as np
 import pytest
 
@@ -21,7 +22,7 @@ from rosbags.typesys import Stores, get_types_from_msg, get_typestore
 from jaxvo.cli.main import main
 from jaxvo.errors import InputError
 from jaxvo.evaluation.metrics import ate as ate_of
-from jaxvo.host.camera import Intrinsics
+from jaxvo.host.camera import Distortion, Intrinsics
 from jaxvo.host.io import open_sequence
 from jaxvo.host.realsense import register_depth
 from jaxvo.host.transforms import pose_from_tq, rotation_to_quat
@@ -108,10 +109,12 @@ def write_realsense(path: Path, frames, K: Intrinsics, *, depth_K: Intrinsics | 
         roi = T["sensor_msgs/msg/RegionOfInterest"](x_offset=0, y_offset=0, height=0,
                                                     width=0, do_rectify=False)
         k = np.array([cam.fx, 0, cam.cx, 0, cam.fy, cam.cy, 0, 0, 1], np.float64)
+        lens = cam.distortion or Distortion("brown_conrady", (0.0,) * 5)
+        model = lens.model.replace("plumb_bob", "brown_conrady").replace("_", " ").title()
         return T["sensor_msgs/msg/CameraInfo"](
-            header=header(0), height=size[0], width=size[1], distortion_model="Brown Conrady",
-            D=np.zeros(5), K=k, R=np.zeros(9), P=np.zeros(12), binning_x=0, binning_y=0,
-            roi=roi)
+            header=header(0), height=size[0], width=size[1], distortion_model=model,
+            D=np.asarray(lens.coeffs, np.float64), K=k, R=np.zeros(9), P=np.zeros(12),
+            binning_x=0, binning_y=0, roi=roi)
 
     def transform(E: np.ndarray, q=None):
         q = rotation_to_quat(E[:3, :3]) if q is None else np.asarray(q, np.float64)
@@ -246,6 +249,43 @@ def test_registration_against_the_plane_it_sees(depth_K, depth_size):
     # plane's depth changes by under 0.4 % of the depth per pixel here (slope 0.2 / 525 px)
     err = np.abs(out - truth)[seen] / truth[seen]
     assert err.max() < 0.006  # tol: 1.5 pixels of the plane's slope
+
+
+def test_registration_through_the_colour_lens():
+    """A colour camera with a lens: each depth pixel's point lands where OpenCV's
+    projectPoints puts it through that lens, and takes its depth there."""
+    lens = Distortion("plumb_bob", (0.12, -0.25, 0.002, -0.001, 0.1))
+    K_c = Intrinsics(525.0, 525.0, 319.5, 239.5, distortion=lens)
+    depth_K = Intrinsics(525.0, 525.0, 319.5, 239.5)
+    n = np.array([0.2, -0.1, 1.0])
+    n /= np.linalg.norm(n)
+    T_d_c = np.linalg.inv(T_COLOUR_DEPTH)
+    n_d = T_d_c[:3, :3] @ n
+    depth = plane_depth(depth_K, (480, 640), n_d, 2.0 + n_d @ T_d_c[:3, 3]).astype(np.float32)
+    out = register_depth(depth, depth_K, K_c, T_COLOUR_DEPTH, 480, 640)
+    v, u = np.mgrid[20:460:7, 20:620:7].reshape(2, -1)
+    z = depth[v, u].astype(np.float64)
+    p_d = np.stack([(u - depth_K.cx) / depth_K.fx * z, (v - depth_K.cy) / depth_K.fy * z, z], -1)
+    p_c = p_d @ T_COLOUR_DEPTH[:3, :3].T + T_COLOUR_DEPTH[:3, 3]
+    uv, _ = cv2.projectPoints(p_c, np.zeros(3), np.zeros(3), K_c.matrix(),
+                              np.asarray(lens.coeffs))
+    col = np.round(uv.reshape(-1, 2)).astype(int)
+    inside = (col >= 0).all(1) & (col[:, 0] < 640) & (col[:, 1] < 480)
+    got = out[col[inside, 1], col[inside, 0]]
+    err = np.abs(got - p_c[inside, 2]) / p_c[inside, 2]
+    assert (got > 0).all() and err.max() < 0.006  # tol: 1.5 pixels of the plane's slope
+    pinhole = register_depth(depth, depth_K, K_c._replace(distortion=None), T_COLOUR_DEPTH,
+                             480, 640)
+    assert not np.array_equal(pinhole, out)  # the lens moved the readings
+
+
+def test_a_recordings_lens_is_read(tmp_path, synthetic):
+    """librealsense's model names and coefficients come with the colour camera."""
+    seq, frames = synthetic
+    lens = Distortion("inverse_brown_conrady", (0.12, -0.2, 0.004, -0.003, 0.05))
+    rs = open_sequence(write_realsense(tmp_path / "rec.bag", frames[:2],
+                                       seq.intrinsics._replace(distortion=lens)))
+    assert rs.intrinsics.distortion == lens and rs.warnings == []
 
 
 def test_registration_with_the_identity_is_exact(synthetic):

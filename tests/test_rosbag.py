@@ -18,7 +18,7 @@ from rosbags.typesys import Stores, get_typestore
 
 from jaxvo.cli.main import main
 from jaxvo.errors import InputError
-from jaxvo.host.camera import Intrinsics
+from jaxvo.host.camera import Distortion, Intrinsics
 from jaxvo.host.io import open_sequence
 from jaxvo.host.rosbag import TUM_TOPICS, BagSequence, colour_bgr, depth_m
 from jaxvo.synth.scenes import make_sequence
@@ -47,11 +47,12 @@ def info_msg(ts, stamp: float, K: Intrinsics, h: int, w: int, ros1: bool):
     kmat = np.array([K.fx, 0, K.cx, 0, K.fy, K.cy, 0, 0, 1], np.float64)
     roi = T["sensor_msgs/msg/RegionOfInterest"](x_offset=0, y_offset=0, height=0, width=0,
                                                 do_rectify=False)
-    fields = {"D" if ros1 else "d": np.zeros(5), "K" if ros1 else "k": kmat,
+    lens = K.distortion or Distortion("plumb_bob", (0.0,) * 5)
+    fields = {"D" if ros1 else "d": np.asarray(lens.coeffs, np.float64), "K" if ros1 else "k": kmat,
               "R" if ros1 else "r": np.eye(3).ravel(),
               "P" if ros1 else "p": np.zeros(12)}
     return T["sensor_msgs/msg/CameraInfo"](header=img.header, height=h, width=w,
-                                           distortion_model="plumb_bob", binning_x=0,
+                                           distortion_model=lens.model, binning_x=0,
                                            binning_y=0, roi=roi, **fields)
 
 
@@ -259,6 +260,23 @@ def test_a_colour_encoding_not_read_names_the_bag_and_topic(tmp_path, frames):
     with pytest.raises(InputError, match=r"yuv.bag /camera/rgb/image_color: colour encoding "
                                          r"'yuv422' is not read"):
         open_sequence(path)
+
+
+@pytest.mark.parametrize("ros1", [True, False], ids=["ros1", "ros2"])
+def test_camera_info_distortion_is_read(tmp_path, frames, ros1):
+    """The camera info's lens comes with its K; a fisheye's, which jaxvo does not undo, is a
+    warning and the images are taken as pinhole."""
+    lens = Distortion("rational_polynomial", (0.1, -0.05, 0.001, -0.002, 0.01, 0.02, -0.01, 0.0))
+    path = write_bag(tmp_path / ("lens.bag" if ros1 else "lens"), frames[:2], ros1=ros1,
+                     K=K_INFO._replace(distortion=lens))
+    seq = open_sequence(path)
+    assert seq.intrinsics == K_INFO._replace(distortion=lens) and seq.warnings == []
+    fisheye = Distortion("equidistant", (0.1, 0.01, 0.0, 0.0))
+    path = write_bag(tmp_path / ("eq.bag" if ros1 else "eq"), frames[:2], ros1=ros1,
+                     K=K_INFO._replace(distortion=fisheye))
+    seq = open_sequence(path)
+    assert seq.intrinsics.distortion is None
+    assert any("equidistant distortion" in w and "pinhole" in w for w in seq.warnings)
 
 
 def test_camera_info_without_calibration_is_said_as_such(tmp_path, frames):

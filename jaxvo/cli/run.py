@@ -81,9 +81,10 @@ def add_arguments(p: argparse.ArgumentParser) -> None:
                    help="trajectory to write (TUM format, camera-to-world; evo reads it); "
                    "'-' writes it to standard output, and the summary to standard error")
     camera = p.add_mutually_exclusive_group()
-    camera.add_argument("--camera", metavar="PRESET",
-                        help="intrinsics preset (" + ", ".join(sorted(PRESETS)) + "); overrides "
-                        "the folder's camera.txt, with a warning where they differ")
+    camera.add_argument("--camera", metavar="PRESET|FILE",
+                        help="intrinsics preset (" + ", ".join(sorted(PRESETS)) + ") or a camera "
+                        "file (a camera.txt, an OpenCV calibration YAML with its distortion); "
+                        "overrides the folder's camera.txt, with a warning where they differ")
     camera.add_argument("--intrinsics", metavar="FX,FY,CX,CY",
                         help="the camera's intrinsics in pixels (a negative FY: a camera whose "
                         "y axis points up, as ICL-NUIM's); overrides camera.txt like --camera")

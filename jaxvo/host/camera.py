@@ -9,22 +9,31 @@ from typing import NamedTuple
 import numpy as np
 
 from jaxvo.errors import InputError
+from jaxvo.host.distortion import DISTORTION_MODELS, Distortion, undistort
 
 
 class Intrinsics(NamedTuple):
-    """Pinhole intrinsics in pixels and the depth scale in raw units per metre."""
+    """Pinhole intrinsics in pixels, the depth scale in raw units per metre and the lens's
+    distortion (None: the images are taken as pinhole). The device side reads
+    ``fx fy cx cy`` only: the host undoes the distortion before any point crosses."""
 
     fx: float
     fy: float
     cx: float
     cy: float
     depth_scale: float = 5000.0
+    distortion: Distortion | None = None
 
     @property
     def focal(self) -> float:
         """The mean focal length, pixels: metres per pixel at depth z is z / focal (a
         negative ``fy``, a camera whose y axis points up, counts by its size)."""
         return 0.5 * (abs(float(self.fx)) + abs(float(self.fy)))
+
+    def __array__(self, dtype=None, copy=None) -> np.ndarray:
+        """``np.asarray(K)``: the five numbers fx, fy, cx, cy, depth_scale, as before the lens
+        joined them (code that compares or stores a camera as an array keeps working)."""
+        return np.array(self[:5], dtype=dtype or np.float64)
 
     def matrix(self) -> np.ndarray:
         """The 3x3 camera matrix K."""
@@ -42,6 +51,67 @@ PRESETS: dict[str, Intrinsics] = {
     "bonn": Intrinsics(542.822841, 542.576870, 315.593520, 237.756098, 5000.0),
     "ros_default": Intrinsics(525.0, 525.0, 319.5, 239.5, 5000.0),
 }
+
+
+# Other names of these models: librealsense's and OpenCV's calibration files' words
+_MODEL_NAMES = {"brown_conrady": "plumb_bob", "opencv": "plumb_bob", "radtan": "plumb_bob"}
+
+# TUM RGB-D's own calibration of the fr1 / fr2 colour cameras (vision.in.tum.de, "intrinsic
+# camera calibration"), OpenCV's k1 k2 p1 p2 k3; fr3's images were undistorted by the
+# recording driver (its coefficients are 0). The presets tum_fr1 / tum_fr2 leave them out,
+# as TUM's own tools do (the depth is registered to the driver's pinhole image);
+# tum_fr1_lens / tum_fr2_lens apply them to the tracked points, as ORB-SLAM3 does.
+TUM_DISTORTION = {
+    "tum_fr1": Distortion("plumb_bob", (0.262383, -0.953104, -0.005358, 0.002628, 1.163314)),
+    "tum_fr2": Distortion("plumb_bob", (0.231222, -0.784899, -0.003257, -0.000105, 0.917205)),
+}
+PRESETS.update({f"{name}_lens": PRESETS[name]._replace(distortion=d)
+                for name, d in TUM_DISTORTION.items()})
+
+
+def distortion(model: str, coeffs, *, where: str = "distortion") -> Distortion | None:
+    """The :class:`Distortion` of a model name and its coefficients, or None where every
+    coefficient is 0 (a pinhole camera: its points are taken as they are, bit for bit).
+
+    Args:
+      model: a name of :data:`DISTORTION_MODELS` (case, spaces and hyphens aside, as
+        librealsense writes "Inverse Brown Conrady"), or ``brown_conrady`` / ``opencv``
+        (plumb_bob); ``none`` with all-zero coefficients.
+      coeffs: the coefficients in the model's order; plumb_bob takes ``k1 k2 p1 p2`` too
+        (``k3`` 0), as OpenCV does.
+      where: what to name in the message (the file, the topic).
+    Raises:
+      InputError: an unknown model, a coefficient count the model does not take, or a
+        coefficient that is not a finite number.
+    """
+    name = re.sub(r"[\s-]+", "_", str(model).strip().lower())
+    name = _MODEL_NAMES.get(name, name)
+    try:
+        values = [float(c) for c in coeffs]
+    except (TypeError, ValueError):
+        raise InputError(f"{where}: distortion coefficients must be numbers, got "
+                         f"{list(coeffs)!r}") from None
+    if not all(np.isfinite(values)):
+        raise InputError(f"{where}: distortion coefficients must be finite, got {values}")
+    if not any(values) and (name in DISTORTION_MODELS or name in ("none", "")):
+        return None
+    if name not in DISTORTION_MODELS:
+        raise InputError(f"{where}: jaxvo does not undo {model!r} distortion; it takes "
+                         f"{', '.join(DISTORTION_MODELS)} (or images already undistorted)")
+    names = DISTORTION_MODELS[name]
+    if name == "plumb_bob" and len(values) == 4:
+        values.append(0.0)
+    if len(values) != len(names):
+        raise InputError(f"{where}: {name} distortion takes {len(names)} coefficients "
+                         f"({' '.join(names)}), got {len(values)}")
+    return Distortion(name, tuple(values))
+
+
+def describe_distortion(K: Intrinsics) -> str:
+    """What a run does with the lens, in words, for its summary."""
+    if K.distortion is None:
+        return "images taken as pinhole (no distortion given)"
+    return f"distortion: {K.distortion.describe()} (undone at the tracked points)"
 
 
 def preset(name: str) -> Intrinsics:
@@ -87,10 +157,19 @@ def read_camera_file(path: str | Path) -> Intrinsics:
     except (OSError, UnicodeDecodeError) as exc:
         why = getattr(exc, "strerror", None) or "not a text file"
         raise InputError(f"{path}: cannot read ({why})") from None
+    if path.suffix.lower() in OPENCV_SUFFIXES:
+        return read_opencv_calibration(path)
     values: dict[str, float] = {}
+    lens = None
     for lineno, raw in enumerate(text.splitlines(), start=1):
         line = raw.split("#", 1)[0].strip()
         if not line:
+            continue
+        words = line.replace(":", " ", 1).replace("=", " ", 1).split()
+        if words[0] == "distortion":
+            if lens is not None:
+                raise InputError(f"{path}:{lineno}: distortion given twice")
+            lens = _distortion_line(words[1:], where=f"{path}:{lineno}")
             continue
         m = _CAMERA_LINE.fullmatch(line)
         if m is None:
@@ -98,7 +177,8 @@ def read_camera_file(path: str | Path) -> Intrinsics:
         key, value = m.groups()
         if key not in CAMERA_KEYS:
             raise InputError(
-                f"{path}:{lineno}: unknown key {key!r}; the keys are {', '.join(CAMERA_KEYS)}"
+                f"{path}:{lineno}: unknown key {key!r}; the keys are {', '.join(CAMERA_KEYS)} "
+                "and a line 'distortion [MODEL] k1 k2 p1 p2 k3'"
             )
         if key in values:
             raise InputError(f"{path}:{lineno}: {key} given twice")
@@ -110,9 +190,85 @@ def read_camera_file(path: str | Path) -> Intrinsics:
     if missing:
         raise InputError(f"{path}: missing {', '.join(missing)}")
     K = Intrinsics(values["fx"], values["fy"], values["cx"], values["cy"],
-                   values.get("depth_scale", 5000.0))
+                   values.get("depth_scale", 5000.0), lens)
     check_intrinsics(K, where=str(path))
     return K
+
+
+def _distortion_line(words: list[str], *, where: str) -> Distortion | None:
+    """A camera.txt's ``distortion [MODEL] c1 c2 ...``: without a model, 4 or 5 numbers are
+    OpenCV's ``k1 k2 p1 p2 [k3]`` (plumb_bob), 8 its rational model."""
+    model = None
+    if words and not re.fullmatch(r"[-+.\deE]+", words[0]):
+        model, words = words[0], words[1:]
+    if model is None:
+        model = "rational_polynomial" if len(words) == 8 else "plumb_bob"
+    try:
+        coeffs = [float(w) for w in words]
+    except ValueError:
+        raise InputError(f"{where}: expected 'distortion [MODEL] k1 k2 p1 p2 k3', got "
+                         f"{' '.join(words)!r}") from None
+    return distortion(model, coeffs, where=where)
+
+
+# cv::FileStorage's formats, read by cv2.FileStorage
+OPENCV_SUFFIXES = (".yaml", ".yml", ".xml")
+
+
+def read_opencv_calibration(path: str | Path, *, depth_scale: float = 5000.0) -> Intrinsics:
+    """Read an OpenCV calibration file (``cv::FileStorage`` YAML or XML, as
+    ``calibrateCamera`` samples and ROS's camera_calibration write it): ``camera_matrix``
+    and ``distortion_coefficients`` (OpenCV's order: 4 or 5 plumb_bob, 8 the rational
+    model), an optional ``distortion_model`` (ROS's names) and ``depth_scale``.
+
+    Raises:
+      InputError: naming the file for a file cv2 cannot parse, a missing or malformed
+        camera matrix, coefficients no model takes, or values no camera has.
+    """
+    import cv2  # only for this format: camera.py loads without OpenCV
+
+    path = Path(path)
+    try:
+        fs = cv2.FileStorage(str(path), cv2.FILE_STORAGE_READ)
+    except cv2.error as exc:
+        why = (str(exc).strip() or "not a cv::FileStorage file").splitlines()[-1]
+        raise InputError(f"{path}: cannot read as an OpenCV calibration ({why})") from None
+    if not fs.isOpened():
+        raise InputError(f"{path}: cannot read as an OpenCV calibration")
+    try:
+        K = _opencv_matrix(fs.getNode("camera_matrix"))
+        if K is None or K.size != 9:
+            raise InputError(f"{path}: no 3x3 camera_matrix")
+        D = _opencv_matrix(fs.getNode("distortion_coefficients"))
+        model_node = fs.getNode("distortion_model")
+        model = model_node.string() if model_node.isString() else ""
+        scale_node = fs.getNode("depth_scale")
+        scale = scale_node.real() if scale_node.isReal() or scale_node.isInt() else depth_scale
+    finally:
+        fs.release()
+    coeffs = [] if D is None else D.ravel().tolist()
+    if not model:
+        model = "rational_polynomial" if len(coeffs) == 8 else "plumb_bob"
+    try:
+        camera = as_intrinsics(K.reshape(3, 3), where=str(path))
+    except ValueError as exc:
+        raise InputError(str(exc)) from None
+    camera = Intrinsics(*(float(v) for v in camera[:4]), float(scale),
+                        distortion(model, coeffs, where=str(path)))
+    check_intrinsics(camera, where=str(path))
+    return camera
+
+
+def _opencv_matrix(node) -> np.ndarray | None:
+    """A FileStorage node's numbers: an ``!!opencv-matrix`` or ROS's ``{rows, cols, data}``."""
+    if node.empty():
+        return None
+    if node.isMap() and not node.getNode("data").empty():
+        node = node.getNode("data")
+    if node.isSeq():
+        return np.array([node.at(i).real() for i in range(node.size())], np.float64)
+    mat = node.mat()
+    return None if mat is None else np.asarray(mat, np.float64).ravel()
 
 
 def read_calibration_file(path: str | Path) -> Intrinsics:
@@ -164,11 +320,11 @@ def as_intrinsics(camera, *, where: str = "intrinsics") -> Intrinsics:
     expected = (f"{where} must be an Intrinsics, a preset name, (fx, fy, cx, cy[, "
                 "depth_scale]) in pixels, a dict of those keys or a 3x3 camera matrix")
     if isinstance(camera, dict):
-        unknown = set(camera) - set(Intrinsics._fields)
+        unknown = set(camera) - set(Intrinsics._fields[:5])
         missing = [k for k in Intrinsics._fields[:4] if k not in camera]
         if unknown or missing:
             raise ValueError(f"{expected}; got keys {sorted(camera)}")
-        camera = [camera[k] for k in Intrinsics._fields if k in camera]
+        camera = [camera[k] for k in Intrinsics._fields[:5] if k in camera]
     try:
         a = np.asarray(camera, np.float64)
     except (TypeError, ValueError):
@@ -195,6 +351,25 @@ def camera_info_intrinsics(msg, depth_scale: float) -> Intrinsics | str:
     if not (np.all(np.isfinite(K)) and K[0] > 0 and K[4] > 0):
         return f"its K has fx {K[0]:g}, fy {K[4]:g} (no calibration)"
     return Intrinsics(float(K[0]), float(K[4]), float(K[2]), float(K[5]), float(depth_scale))
+
+
+def camera_info_distortion(msg, *, where: str) -> tuple[Distortion | None, str | None]:
+    """The lens distortion of a ROS ``sensor_msgs/CameraInfo`` (``distortion_model`` and
+    ROS 1 ``D`` / ROS 2 ``d``; librealsense's recordings name its models) and a warning
+    for a model jaxvo does not undo (a fisheye's: its images are then taken as pinhole).
+
+    Raises:
+      InputError: coefficients a model jaxvo undoes does not take (:func:`distortion`).
+    """
+    D = np.asarray(msg.D if hasattr(msg, "D") else msg.d, np.float64).ravel()
+    model = str(getattr(msg, "distortion_model", "") or "")
+    name = re.sub(r"[\s-]+", "_", model.strip().lower())
+    if (_MODEL_NAMES.get(name, name) not in DISTORTION_MODELS and name not in ("none", "")
+            and np.any(D != 0)):
+        return None, (f"{where}: {model} distortion ({', '.join(f'{v:g}' for v in D)}) is "
+                      f"not undone; jaxvo undoes {', '.join(DISTORTION_MODELS)} and takes "
+                      "these images as pinhole")
+    return distortion(model or "plumb_bob", D, where=where), None
 
 
 # Median depth of a frame, metres, outside which no RGB-D sensor reads (host.io's
@@ -268,7 +443,7 @@ def check_intrinsics(
       where: what to name in the message (the file, or the preset).
       width, height: the image size, pixels, when known.
     """
-    for name, value in zip(Intrinsics._fields, K):
+    for name, value in zip(Intrinsics._fields[:5], K[:5]):
         if not np.isfinite(value):
             raise InputError(f"{where}: {name} is {value}, not a finite number")
     if K.fx <= 0:
@@ -303,6 +478,9 @@ def write_camera_file(path: str | Path, K: Intrinsics, *, comment: str = "") -> 
     lines = [f"# {comment}"] if comment else []
     lines += [f"fx {K.fx:.6g}", f"fy {K.fy:.6g}", f"cx {K.cx:.6g}", f"cy {K.cy:.6g}"]
     lines.append(f"depth_scale {K.depth_scale:.6g}")
+    if K.distortion is not None:
+        lines.append(" ".join(["distortion", K.distortion.model]
+                              + [f"{v:.9g}" for v in K.distortion.coeffs]))
     from jaxvo.host.outputs import write_text  # host.outputs imports nothing of this module
 
     write_text(path, "\n".join(lines) + "\n")
@@ -343,7 +521,16 @@ def depth_metres(depth: np.ndarray, K: Intrinsics) -> np.ndarray:
 
 
 def backproject(uv: np.ndarray, z: np.ndarray, K: Intrinsics) -> np.ndarray:
-    """Pixels ``(..., 2)`` (x right, y down) with depth ``(...)`` metres -> ``(..., 3)`` points."""
+    """Pixels ``(..., 2)`` (x right, y down) with depth ``(...)`` metres -> ``(..., 3)`` points.
+
+    With ``K.distortion`` each pixel is first undistorted to the ray it was seen along
+    (:func:`jaxvo.host.distortion.undistort`), the depth being the reading at the pixel
+    itself (a registered depth image holds each colour pixel's depth where that pixel is).
+    """
+    if K.distortion is not None:
+        xn = undistort(uv, K)
+        return (np.concatenate([xn, np.ones_like(xn[..., :1])], axis=-1)
+                * np.asarray(z, np.float64)[..., None])
     x = (uv[..., 0] - K.cx) / K.fx * z
     y = (uv[..., 1] - K.cy) / K.fy * z
     return np.stack([x, y, z], axis=-1)

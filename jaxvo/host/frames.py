@@ -9,12 +9,13 @@ import it; it imports none of them, so no reader imports another.
 from __future__ import annotations
 
 import re
+from pathlib import Path
 from typing import NamedTuple
 
 import numpy as np
 
 from jaxvo.errors import InputError
-from jaxvo.host.camera import Intrinsics, preset
+from jaxvo.host.camera import PRESETS, Intrinsics, preset, read_camera_file
 
 
 class Frame(NamedTuple):
@@ -46,12 +47,15 @@ def check_frame_size(where: str, image: np.ndarray, height: int, width: int) -> 
 
 
 def given_camera(camera) -> tuple[Intrinsics, str] | None:
-    """The intrinsics a caller gave (an :class:`Intrinsics`, or a preset name) and where they
-    came from, in words; None when ``camera`` is None."""
+    """The intrinsics a caller gave (an :class:`Intrinsics`, a preset name, or a camera file:
+    a ``camera.txt`` or an OpenCV calibration YAML, :func:`~jaxvo.host.camera.read_camera_file`)
+    and where they came from, in words; None when ``camera`` is None."""
     if isinstance(camera, Intrinsics):
         return camera, "given"
     if camera is None:
         return None
+    if str(camera) not in PRESETS and Path(camera).is_file():  # a camera.txt, an OpenCV YAML
+        return read_camera_file(camera), str(camera)
     try:
         return preset(camera), f"preset {camera}"
     except ValueError as exc:

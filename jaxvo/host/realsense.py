@@ -34,7 +34,8 @@ from typing import NamedTuple
 import numpy as np
 
 from jaxvo.errors import InputError
-from jaxvo.host.camera import Intrinsics, camera_info_intrinsics
+from jaxvo.host.camera import Intrinsics, camera_info_distortion, camera_info_intrinsics
+from jaxvo.host.distortion import distort
 
 # /device_<d>/sensor_<s>/<Stream>_<i>/image/data
 STREAM_TOPIC = re.compile(r"^(/device_\d+/sensor_(\d+))/([A-Za-z]+)_(\d+)/image/data$")
@@ -133,13 +134,8 @@ def _camera(reader, path: Path, prefix: str, what: str) -> tuple[Intrinsics, tup
     if not (info.width > 0 and info.height > 0):
         raise InputError(f"{path} {topic}: the {what} camera info gives an image of "
                          f"{info.width}x{info.height}")
-    D = np.asarray(info.D if hasattr(info, "D") else info.d, np.float64)
-    notes = []
-    if D.size and np.any(D != 0):
-        notes.append(f"{path} {topic}: {info.distortion_model} distortion "
-                     f"({', '.join(f'{v:g}' for v in D)}) is not undone; jaxvo takes the "
-                     f"{what} images as pinhole")
-    return K, (int(info.height), int(info.width)), notes
+    lens, note = camera_info_distortion(info, where=f"{path} {topic}")
+    return K._replace(distortion=lens), (int(info.height), int(info.width)), [note] if note else []
 
 
 def _extrinsics(reader, path: Path, prefix: str) -> dict[int, np.ndarray]:
@@ -280,7 +276,9 @@ def register_depth(depth: np.ndarray, K_depth: Intrinsics, K_colour: Intrinsics,
 
     Args:
       depth: (h, w) float32 metres in the depth camera, 0 = no reading.
-      K_depth, K_colour: the two cameras (pixel centres at integer coordinates).
+      K_depth, K_colour: the two cameras (pixel centres at integer coordinates); the
+        colour camera's distortion places each reading at the pixel its lens puts it, as
+        librealsense's align does (the depth camera's, rectified on the D400s, is not read).
       T_colour_depth: (4, 4) depth camera points -> colour camera points, metres.
       height, width: the colour image's size.
     Returns:
@@ -300,6 +298,9 @@ def register_depth(depth: np.ndarray, K_depth: Intrinsics, K_colour: Intrinsics,
         """Colour pixels (x, y) and depth of the depth pixels' points offset by (du, dv)."""
         px, py, pz = (centre[i] + z * (du * step_u[i] + dv * step_v[i]) for i in range(3))
         zs = np.maximum(pz, 1e-9)
+        if K_colour.distortion is not None:  # where the colour lens puts the point
+            uv = distort(np.stack([px / zs, py / zs], axis=-1), K_colour)
+            return uv[:, 0], uv[:, 1], pz
         return K_colour.fx * px / zs + K_colour.cx, K_colour.fy * py / zs + K_colour.cy, pz
 
     x0, y0, _ = to_colour(-0.5, -0.5)

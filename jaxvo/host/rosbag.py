@@ -33,6 +33,7 @@ import numpy as np
 from jaxvo.errors import InputError
 from jaxvo.host.camera import (
     Intrinsics,
+    camera_info_distortion,
     camera_info_intrinsics,
     check_intrinsics,
     depth_metres,
@@ -337,10 +338,13 @@ class BagSequence:
         if conns:
             with self._lock:
                 for c, _, raw in self._reader.messages(connections=conns[:1]):
-                    K = camera_info_intrinsics(self._reader.deserialize(raw, c.msgtype),
-                                               ROS_DEPTH_UNITS_PER_METRE)
+                    info = self._reader.deserialize(raw, c.msgtype)
+                    K = camera_info_intrinsics(info, ROS_DEPTH_UNITS_PER_METRE)
                     break
         if isinstance(K, Intrinsics):
+            lens, note = camera_info_distortion(info, where=f"{self.path} {info_topic}")
+            K = K._replace(distortion=lens)
+            self.warnings += [note] if note else []
             if guess is not None and preset(guess)[:4] != K[:4]:
                 self.warnings.append(
                     f"{self.path} {info_topic}: fx {K.fx:g} fy {K.fy:g} cx {K.cx:g} cy "

@@ -25,7 +25,7 @@ from pathlib import Path
 import numpy as np
 
 from jaxvo.errors import InputError
-from jaxvo.host.camera import write_camera_file
+from jaxvo.host.camera import Distortion, write_camera_file
 from jaxvo.host.io import TumSequence
 from jaxvo.synth.scenario import SCENARIOS, ObjectSpec, Scenario, SensorOptions
 from jaxvo.synth.sequence import (
@@ -56,7 +56,7 @@ def _scenario(scenario: str | Scenario) -> Scenario:
 
 def make_sequence(scenario: str | Scenario = "handheld_slow", *, frames: int = DEFAULT_FRAMES,
                   seed: int = 0, options: SensorOptions | None = None,
-                  fps: float = DEFAULT_FPS) -> SyntheticSequence:
+                  fps: float = DEFAULT_FPS, lens: Distortion | None = None) -> SyntheticSequence:
     """A fully synthetic sequence of a preset (a name in ``SCENARIOS``) or a ``Scenario``.
 
     Args:
@@ -65,6 +65,9 @@ def make_sequence(scenario: str | Scenario = "handheld_slow", *, frames: int = D
       seed: seeds textures, furniture jitter, paths and sensor noise.
       options: sensor effects (default :class:`SensorOptions`: noise, holes, range on).
       fps: frame rate, Hz.
+      lens: render the images through this lens distortion (each frame's pinhole render
+        remapped, as a calibrated camera's raw images are); the sequence's ``intrinsics``
+        carry it. None: pinhole images.
 
     Raises:
       InputError: unknown scenario, no frames, an object that does not fit in the room,
@@ -76,7 +79,7 @@ def make_sequence(scenario: str | Scenario = "handheld_slow", *, frames: int = D
     if not fps > 0:
         raise InputError(f"fps must be positive, got {fps}")
     return SyntheticSequence(spec, frames=int(frames), seed=seed,
-                             options=options or SensorOptions(), fps=fps)
+                             options=options or SensorOptions(), fps=fps, lens=lens)
 
 
 def composite_sequence(sequence: str | Path | TumSequence,
@@ -193,8 +196,9 @@ def write_sequence(seq: SyntheticSequence, out_dir: str | Path, *,
             for t, T, qi in zip(traj.timestamps, traj.poses, q):
                 lines.append(f"{t:.6f} {k} " + " ".join(f"{v:.9f}" for v in (*T[:3, 3], *qi)))
         write_text(tmp / "objects.txt", "\n".join(lines) + "\n")
+        what = "pinhole intrinsics" if seq.intrinsics.distortion is None else "intrinsics and lens distortion"
         write_camera_file(tmp / "camera.txt", seq.intrinsics,
-                          comment=f"{seq.name}: pinhole intrinsics, pixels; depth units per metre")
+                          comment=f"{seq.name}: {what}, pixels; depth units per metre")
     return out
 
 

@@ -17,7 +17,7 @@ import cv2
 import numpy as np
 
 from jaxvo.errors import InputError, check_seed
-from jaxvo.host.camera import PRESETS
+from jaxvo.host.camera import PRESETS, Distortion, Intrinsics
 from jaxvo.host.io import Frame, TumSequence
 from jaxvo.synth.scenario import ObjectSpec, Scenario, SensorOptions
 from jaxvo.trajectory import Trajectory
@@ -252,6 +252,41 @@ def _inside(T_w_b: np.ndarray, half: np.ndarray, point: np.ndarray, margin: floa
 # --------------------------------------------------------------------------- sequences
 
 
+# Where the depth of a surface, remapped through a lens, takes the bilinear blend of its
+# pinhole neighbours rather than the nearest one: when the two agree to this fraction (one
+# surface); across an edge the nearest reading keeps the edge sharp.
+_SAME_SURFACE = 0.02
+
+
+def _lens_maps(K: Intrinsics, lens: Distortion, height: int, width: int):
+    """(map_x, map_y) (H, W) float32: the pinhole pixel each pixel of the image seen
+    through ``lens`` shows (``cv2.remap``'s maps)."""
+    from jaxvo.host.distortion import undistort
+
+    v, u = np.mgrid[0:height, 0:width].astype(np.float64)
+    xn = undistort(np.stack([u, v], axis=-1), K._replace(distortion=lens))
+    return ((K.fx * xn[..., 0] + K.cx).astype(np.float32),
+            (K.fy * xn[..., 1] + K.cy).astype(np.float32))
+
+
+def _through_lens(maps, texels, shade, depth, label):
+    """A pinhole render's colour, shade, depth and labels as the lens shows them: colour
+    bilinear; depth bilinear on one surface, else the nearest reading; shade and labels
+    nearest. Pixels whose ray leaves the pinhole view see nothing (depth inf)."""
+    map_x, map_y = maps
+    near, lin = cv2.INTER_NEAREST, cv2.INTER_LINEAR
+    depth = np.asarray(depth, np.float32)
+    z_near = cv2.remap(depth, map_x, map_y, near, borderValue=float("inf"))
+    with np.errstate(invalid="ignore"):
+        z_lin = cv2.remap(depth, map_x, map_y, lin, borderValue=float("inf"))
+        z = np.where(np.abs(z_lin - z_near) <= _SAME_SURFACE * z_near, z_lin, z_near)
+    return (cv2.remap(texels, map_x, map_y, lin),
+            cv2.remap(np.asarray(shade, np.float32), map_x, map_y, near),
+            z.astype(np.float32),
+            cv2.remap(np.asarray(label, np.int32).astype(np.float32), map_x, map_y,
+                      near).astype(np.int32))
+
+
 @dataclass
 class RealBackground:
     """A real sequence to composite into: frames, ground-truth pose per frame."""
@@ -275,7 +310,8 @@ class SyntheticSequence:
 
     def __init__(self, scenario: Scenario, *, frames: int, seed: int,
                  options: SensorOptions, fps: float,
-                 background: RealBackground | None = None, name: str | None = None) -> None:
+                 background: RealBackground | None = None, name: str | None = None,
+                 lens: Distortion | None = None) -> None:
         self.scenario = scenario
         self.seed = check_seed(seed)
         self.options = options
@@ -291,6 +327,12 @@ class SyntheticSequence:
             self.height, self.width = background.seq.height, background.seq.width
             self.timestamps = background.seq.timestamps[background.index].astype(np.float64)
 
+        self._lens = None if lens is None else _lens_maps(self.intrinsics, lens, self.height,
+                                                          self.width)
+        if lens is not None:
+            if background is not None:
+                raise InputError("a composite keeps its real images' lens: no distortion")
+            self.intrinsics = self.intrinsics._replace(distortion=lens)
         self._atlas = make_atlas(self.seed)
         self._follow_anchors: dict[float, np.ndarray] = {}  # composites: follow -> anchors
         rng = np.random.default_rng([self.seed, 2])
@@ -499,6 +541,8 @@ class SyntheticSequence:
             intr=(float(K.fx), float(K.fy), float(K.cx), float(K.cy)),
             n_tex=_N_TEX, tile=_TILE, cols=_COLS, grid=self._grid)
         texels = cv2.remap(self._atlas, np.asarray(map_x), np.asarray(map_y), cv2.INTER_LINEAR)
+        if self._lens is not None:
+            return _through_lens(self._lens, texels, shade, depth, label)
         return texels, shade, depth, label
 
     def render(self, index: int, *, objects: bool = True) -> Frame:
