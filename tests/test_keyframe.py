@@ -74,6 +74,17 @@ def test_keyframe_points_are_the_keyframe_points_in_the_previous_camera():
     np.testing.assert_allclose(np.asarray(pts.dst)[:, keep], p_cur.T[:, keep], atol=1e-6)
 
 
+def _first_keyframe(seed: int, x: float, static):
+    """A fresh window whose first pair taught it random points ``p0`` (n, 3), the camera
+    ``T`` then ``x`` metres along x: ``(state, p0, T)``."""
+    n = GRID[0] * GRID[1]
+    p0 = np.random.default_rng(seed).uniform([-1, -1, 1], [1, 1, 4], (n, 3)).astype(np.float32)
+    T = np.eye(4, dtype=np.float32)
+    T[0, 3] = x
+    st = init_keyframe(np.eye(4), cfg=UNIT_CFG, grid=GRID)
+    return (*_update(st, _kf_flow(n, 2, pts_kf=p0, valid=np.ones(n, bool)), T, static), p0, T)
+
+
 def _update(state, kf, T, static, ok=True):
     n = len(static)
     none = frame_points(jnp.zeros((n, 3)), jnp.zeros((n, 3)), jnp.zeros(n, bool), Params(),
@@ -91,13 +102,8 @@ def test_update_keyframe_takes_a_keyframe_only_when_told():
     keyframe's points); with it the current frame becomes the latest keyframe with its own
     points and its readings of the window's points, the oldest slot leaving."""
     n = GRID[0] * GRID[1]
-    rng = np.random.default_rng(1)
-    p0 = rng.uniform([-1, -1, 1], [1, 1, 4], (n, 3)).astype(np.float32)
-    T = np.eye(4, dtype=np.float32)
-    T[0, 3] = 1.0
-    st = init_keyframe(np.eye(4), cfg=UNIT_CFG, grid=GRID)
     static = np.arange(n) % 2 == 0
-    same, out = _update(st, _kf_flow(n, 2, pts_kf=p0, valid=np.ones(n, bool)), T, static)
+    same, out, p0, T = _first_keyframe(1, 1.0, static)
     np.testing.assert_array_equal(np.asarray(same.T_w_kf[-1]), np.eye(4))
     np.testing.assert_array_equal(np.asarray(out.T_w_c), T)  # no keyframe: the pose stays
     np.testing.assert_array_equal(np.asarray(same.point[-1]), p0)
@@ -128,13 +134,8 @@ def test_a_keyframe_taken_where_the_ego_motion_was_not_measured_keeps_nothing():
     window's: its cells' evidence says nothing of the world, and its readings would tie
     the window's poses to the object. Its pose is the carried one, unrefined."""
     n = GRID[0] * GRID[1]
-    rng = np.random.default_rng(2)
-    p0 = rng.uniform([-1, -1, 1], [1, 1, 4], (n, 3)).astype(np.float32)
-    T = np.eye(4, dtype=np.float32)
-    T[0, 3] = 0.5
-    st = init_keyframe(np.eye(4), cfg=UNIT_CFG, grid=GRID)
     static = np.ones(n, bool)
-    first, _ = _update(st, _kf_flow(n, 2, pts_kf=p0, valid=np.ones(n, bool)), T, static)
+    first, _, p0, T = _first_keyframe(2, 0.5, static)
     seen = np.ones((2, n), bool)
     kf = _kf_flow(n, 2, renew=np.bool_(True), new_kf=p0 + np.float32(0.1),
                   win_cur=np.stack([p0, p0 + np.float32(0.3)]), win_valid=seen)
