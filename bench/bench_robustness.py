@@ -60,9 +60,9 @@ CFG = Config()
 
 def _flow_key(cfg: Config) -> str:
     """A short hash of what the host flow depends on: the Config fields it reads and the
-    code that makes the frames and tracks them (``jaxvo.study.runner``'s flow cache key)."""
+    version of what the flow computes (``jaxvo.study.runner``'s flow cache key)."""
     fields = {k: getattr(cfg, k) for k in study.flow_fields()}
-    return hashlib.sha1(json.dumps([fields, study.code_hash()], sort_keys=True)
+    return hashlib.sha1(json.dumps([fields, study.FLOW_FORMAT], sort_keys=True)
                         .encode()).hexdigest()[:10]
 
 

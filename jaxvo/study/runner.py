@@ -38,12 +38,13 @@ from jaxvo.errors import InputError
 from jaxvo.host.outputs import write_text
 from jaxvo.status import Status
 from jaxvo.study.data import (
+    FLOW_FORMAT,
     SequenceData,
-    code_hash,
     flow_fields,
     open_study_sequence,
     sequence_data,
     sequence_key,
+    sequence_identity,
     sequence_pairs,
 )
 from jaxvo.study.devices import (
@@ -76,13 +77,13 @@ from jaxvo.study.spec import (
 from jaxvo.trajectory import Trajectory
 
 __all__ = [
-    "CPU_BATCH", "DEFAULT_METRICS", "MAX_ACCELERATOR_BATCH", "MEMORY_SHARE", "METRICS",
-    "ROW_FIELDS", "RUNS_FILE", "Run", "SequenceData", "SequenceSpec", "StudyResult", "StudySpec",
+    "CPU_BATCH", "DEFAULT_METRICS", "FLOW_FORMAT", "MAX_ACCELERATOR_BATCH", "MEMORY_SHARE",
+    "METRICS", "ROW_FIELDS", "RUNS_FILE", "Run", "SequenceData", "SequenceSpec", "StudyResult", "StudySpec",
     "accelerator_batch", "batched_params", "bytes_per_config", "call_batch", "check_study",
-    "code_hash", "compiled_program", "config_fields", "finished_rows", "flow_fields",
+    "compiled_program", "config_fields", "finished_rows", "flow_fields",
     "free_memory", "group_config", "init_distributed", "load_spec", "open_study_sequence",
     "parse_spec", "read_runs", "run_call", "run_id", "run_spec", "score_run",
-    "sequence_data", "sequence_key", "spec_runs", "study_devices",
+    "sequence_data", "sequence_identity", "sequence_key", "spec_runs", "study_devices",
 ]
 
 RUNS_FILE = "runs.jsonl"
