@@ -166,7 +166,8 @@ class StudyResult(NamedTuple):
 def run_spec(spec: StudySpec, out_dir: str | Path, *, resume: bool = False,
              flow_cache: str | Path | None = None, batch: int | None = None,
              progress: Callable[[int, int], None] | None = None,
-             log: Callable[[str], None] | None = None) -> StudyResult:
+             log: Callable[[str], None] | None = None,
+             stop: Callable[[], None] | None = None) -> StudyResult:
     """Run every (sequence, configuration, seed) of ``spec`` not yet in ``out_dir``.
 
     Every process of a multi-process study calls this with the same spec (after
@@ -183,6 +184,9 @@ def run_spec(spec: StudySpec, out_dir: str | Path, *, resume: bool = False,
         :func:`call_batch` sizes each program's calls from the device and the study).
       progress: called as ``progress(config_frames_done, config_frames_total)``.
       log: called with a line on each sequence's flow.
+      stop: called between frames of the flow and between calls, where stopping keeps
+        what finished (:func:`jaxvo.cli.main.interrupt_at_safe_points`'s request: it
+        raises ``KeyboardInterrupt`` after a Ctrl-C); None: never.
 
     Returns:
       :class:`StudyResult`; the rows are those of the first process (others get none).
@@ -213,7 +217,8 @@ def run_spec(spec: StudySpec, out_dir: str | Path, *, resume: bool = False,
     if progress is not None:
         progress(0, tally.total)
     for (q, cfg), ks in groups.items():
-        data = _group_data(spec.sequences[q], cfg, cache, tally, first=first, log=log)
+        data = _group_data(spec.sequences[q], cfg, cache, tally, first=first, log=log,
+                           stop=stop)
         t0 = time.perf_counter()
         group_batch = call_batch(data, cfg, [spec.configs[runs[k].config] for k in ks],
                                  requested=requested, devices=devices)
@@ -235,6 +240,8 @@ def run_spec(spec: StudySpec, out_dir: str | Path, *, resume: bool = False,
                                                      tally.last_seconds))
             if progress is not None:
                 progress(tally.frames, tally.total)
+            if stop is not None:
+                stop()  # this call's runs are in runs.jsonl
     rows = finished_rows(spec, out) if first else []
     return StudyResult(rows, len(runs), tally.ran, tally.frames, tally.seconds,
                        tally.first_frames, tally.first_seconds, tally.flow_seconds,
@@ -298,13 +305,15 @@ def _start(spec: StudySpec, out: Path, cache: Path, ids: list[str], *, resume: b
 
 
 def _group_data(s: SequenceSpec, cfg: Config, cache: Path, tally: _Tally, *, first: bool,
-                log: Callable[[str], None] | None) -> SequenceData:
+                log: Callable[[str], None] | None,
+                stop: Callable[[], None] | None = None) -> SequenceData:
     """A sequence's flow under ``cfg`` on every process (read or computed by the first)."""
     data = problem = None
     if first:
         t0 = time.perf_counter()
         try:
-            data, cached = sequence_data(s, cfg, cache)
+            data, cached = sequence_data(s, cfg, cache, progress=None if stop is None else (
+                lambda done, total: stop()))
         except InputError as exc:  # told to every process, which all stop
             problem = exc
         else:
