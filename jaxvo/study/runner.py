@@ -43,8 +43,8 @@ from jaxvo.study.data import (
     flow_fields,
     open_study_sequence,
     sequence_data,
-    sequence_key,
     sequence_identity,
+    sequence_key,
     sequence_pairs,
 )
 from jaxvo.study.devices import (
@@ -208,12 +208,7 @@ def run_spec(spec: StudySpec, out_dir: str | Path, *, resume: bool = False,
     pairs = {q: sequence_pairs(spec.sequences[q]) for q, _ in groups} if first else {}
     tally = _Tally(total=sum(len(ks) * pairs[q] for (q, _), ks in groups.items()) if first else 0)
     if first and log is not None:  # before the first flow and compile, which take minutes
-        left = sum(len(ks) for ks in groups.values())
-        log(f"{left} of {len(runs)} runs to do ({len(spec.sequences)} sequences x "
-            f"{len(spec.configs)} configurations x {len(spec.seeds)} seeds), "
-            f"{tally.total} configuration-frames over {len(devices)} device(s); up to "
-            f"{len(groups)} compile(s), one per sequence and Config, each in its first call "
-            "(seconds to minutes); then the progress line gives the time left")
+        log(_plan_line(spec, groups, tally.total, runs=len(runs), devices=len(devices)))
     if progress is not None:
         progress(0, tally.total)
     for (q, cfg), ks in groups.items():
@@ -246,6 +241,16 @@ def run_spec(spec: StudySpec, out_dir: str | Path, *, resume: bool = False,
     return StudyResult(rows, len(runs), tally.ran, tally.frames, tally.seconds,
                        tally.first_frames, tally.first_seconds, tally.flow_seconds,
                        len(devices), jax.process_count(), tuple(sorted(tally.batches)))
+
+
+def _plan_line(spec: StudySpec, groups: dict, total: int, *, runs: int, devices: int) -> str:
+    """What a study is about to do, said before its first flow and compile."""
+    left = sum(len(ks) for ks in groups.values())
+    return (f"{left} of {runs} runs to do ({len(spec.sequences)} sequences x "
+            f"{len(spec.configs)} configurations x {len(spec.seeds)} seeds), "
+            f"{total} configuration-frames over {devices} device(s); up to "
+            f"{len(groups)} compile(s), one per sequence and Config, each in its first call "
+            "(seconds to minutes); then the progress line gives the time left")
 
 
 @dataclasses.dataclass
