@@ -303,6 +303,15 @@ def test_the_flow_cache_key_follows_the_flow_options_and_format(monkeypatch):
     monkeypatch.setattr(data, "FLOW_FORMAT", data.FLOW_FORMAT + 1)
     study.sequence_key.cache_clear()
     assert study.sequence_key(s, Config()) != key
+    # a scene's scenario is part of the sequence's identity, by value
+    import dataclasses
+
+    from jaxvo.synth import scenario
+
+    faster = dataclasses.replace(scenario.SCENARIOS["static"], camera_speed=0.5)
+    monkeypatch.setitem(scenario.SCENARIOS, "static", faster)
+    study.sequence_key.cache_clear()
+    assert study.sequence_key(s, Config()) != key
 
 
 def test_changed_frames_under_the_same_lists_run_again(tmp_path):
@@ -323,8 +332,7 @@ def test_changed_frames_under_the_same_lists_run_again(tmp_path):
     for png in sorted((folder / "depth").iterdir())[4:]:  # the far half 1.5 times farther
         raw = cv2.imread(str(png), cv2.IMREAD_UNCHANGED).astype(np.float64)
         assert cv2.imwrite(str(png), np.round(raw * 1.5).astype(np.uint16))
-    study.sequence_key.cache_clear()  # memoised within a process; a new study computes it
-    res = study.run_spec(spec, out, resume=True, flow_cache=flows)
+    res = study.run_spec(spec, out, resume=True, flow_cache=flows)  # in the same process
     assert res.ran == 1 and len(list(flows.iterdir())) == 2
     fresh = study.run_spec(spec, tmp_path / "fresh", flow_cache=tmp_path / "flows2").rows[0]
     assert res.rows[0]["digest"] == fresh["digest"] != before["digest"]

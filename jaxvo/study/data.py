@@ -99,8 +99,8 @@ FLOW_FORMAT = 1
 
 
 def sequence_identity(s: SequenceSpec) -> dict:
-    """What makes a sequence's frames the ones they are: its spec (but the label) and, for
-    one read from files, the files it reads: a folder's lists by content and the camera,
+    """What makes a sequence's frames the ones they are: its spec (but the label), a
+    synthetic scene's scenario by value and, for one read from files, the files it reads: a folder's lists by content and the camera,
     ground truth and images of the frames used by size and modification time (a depth
     image rewritten under the same lists is another sequence); a bag's files by size and
     modification time (too large to hash)."""
@@ -108,7 +108,11 @@ def sequence_identity(s: SequenceSpec) -> dict:
 
     ident: dict = s._asdict()
     ident.pop("label")
-    if s.path is None:  # rendered from its scene, seed and length alone
+    if s.scene is not None:  # what the scene is made of (its objects, paths, sensor), by value
+        from jaxvo.synth.scenario import SCENARIOS
+
+        ident["scenario"] = repr(SCENARIOS[s.scene])
+    if s.path is None:  # rendered from its scenario, seed and length alone
         return ident
     path = Path(s.path)
     if is_bag(path):

@@ -195,6 +195,7 @@ def run_spec(spec: StudySpec, out_dir: str | Path, *, resume: bool = False,
 
     out = Path(out_dir)
     first = jax.process_index() == 0
+    sequence_key.cache_clear()  # a sequence's files may have changed since the last study
     cache = Path(flow_cache) if flow_cache is not None else out / "flows"
     requested = batch or spec.batch
     runs, ids = spec_runs(spec)
