@@ -56,10 +56,10 @@ def _refused(capsys, script: str, *argv: str) -> str:
 
 @pytest.mark.parametrize("argv, says", [
     # each value passes alone; the pair cannot run
-    (["--config", "depth_min=5", "depth_max=1"], "argument --config: Config.depth_max 1.0 "
-                                                 "must be beyond Config.depth_min 5.0"),
-    (["--config", "num_hypotheses=100000000"], "argument --config: a run with "
-                                               "num_hypotheses=100000000 needs about"),
+    (["--config", "depth_min=5", "depth_max=1"], ("argument --config: Config.depth_max 1.0 "
+                                                 "must be beyond Config.depth_min 5.0")),
+    (["--config", "num_hypotheses=100000000"], ("argument --config: a run with "
+                                               "num_hypotheses=100000000 needs about")),
     (["--config", "cell=1000"], "argument --config: Config.cell 1000 leaves fewer than 2 x 2"),
     (["--skip", "200", "--frames", "100"], "argument --skip: 200 leaves no frame to time"),
     (["--frames", "1"], "argument --frames: must be at least 2"),
@@ -83,8 +83,8 @@ def test_a_missing_data_root_names_jaxvo_data(capsys, monkeypatch, tmp_path):
     ("bench_robustness", ["--set", "lam"], "argument --set: 'lam': want NAME=VALUE"),
     ("bench_robustness", ["--only", "NO_SUCH_CASE", "--set", "lam=2"],
      "argument --only: no case 'NO_SUCH_CASE'"),
-    ("bench_seeds", ["--only", "static_dev_evry1"], "argument --only: no case "
-                                                    "'static_dev_evry1'"),
+    ("bench_seeds", ["--only", "static_dev_evry1"], ("argument --only: no case "
+                                                    "'static_dev_evry1'")),
 ])
 def test_bad_options_are_one_line_before_any_work(capsys, tmp_path, script, argv, says):
     """Each did work first (30 s, then a ValueError), or ran nothing and exited 0 with empty

@@ -61,11 +61,10 @@ def add_arguments(p: argparse.ArgumentParser) -> None:
 def run(args: argparse.Namespace, prepared=None) -> int:
     import time
 
+    from jaxvo.cli.main import interrupt_at_safe_points, quiet_interrupts_at_exit
     from jaxvo.host.progress import Progress
     from jaxvo.study import runner as study
     from jaxvo.study.report import write_report
-
-    from jaxvo.cli.main import interrupt_at_safe_points, quiet_interrupts_at_exit
 
     spec, first = _start(args, prepared or prepare(args))
     quiet_interrupts_at_exit()  # JAX is loaded: its clean-up at exit is no place for a traceback
