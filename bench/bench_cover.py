@@ -203,7 +203,7 @@ def main(argv=None) -> int:
                     "with the camera itself (150 frames)")
     add_run_options(ap)
     args = ap.parse_args(argv)
-    check_options(ap, args, cases=[name for name, _ in cover_cases(1)])
+    check_options(ap, args, cases=[name for name, _ in cover_cases(1, args.family)])
     params = params_from(args.set)
     cfg = config_from(args.config) if args.config else CFG
     groups = []
