@@ -84,6 +84,7 @@ from _common import (
     machine,
     markdown_table,
 )
+from _options import check_options, count
 from bench_robustness import CFG, frames_hash, peers_alone, prepare
 from bench_seeds import reference_case, run_seeds
 from splits import HALF, Case, cases, runnable, static_case
@@ -932,7 +933,7 @@ def report(rows: list[dict], meta: dict) -> str:
 def main(argv=None) -> int:
     ap = argparse.ArgumentParser(description=__doc__.split("\n\n")[0])
     ap.add_argument("--only", nargs="*", help="case names")
-    ap.add_argument("--seeds", type=int, default=5)
+    ap.add_argument("--seeds", type=count(1), default=5)
     ap.add_argument("--cache", type=Path, default=Path("results/cache"),
                     help="the flow cache (bench_robustness.prepare)")
     ap.add_argument("--runs", type=Path, default=Path("results/budget_runs"),
@@ -941,6 +942,7 @@ def main(argv=None) -> int:
                     help="ORB-SLAM3 runs per case; the run of median ATE is budgeted")
     ap.add_argument("--out", type=Path, default=Path("results"))
     args = ap.parse_args(argv)
+    check_options(ap, args, cases=[c.name for c in budget_cases()])
     todo = [c for c in budget_cases() if not args.only or c.name in args.only]
     todo, skipped = runnable(todo)
     load_start = load_average()

@@ -36,8 +36,9 @@ import numpy as np
 
 sys.path.insert(0, str(Path(__file__).resolve().parent))
 from _common import SEVEN_SCENES, first_pose, groundtruth, log, machine_line, markdown_table
+from _options import check_options, config_from, count, params_from
 from bench_robustness import CFG, peers_alone, prepare
-from bench_seeds import add_run_options, config_from, params_from, run_seeds, spread
+from bench_seeds import add_run_options, run_seeds, spread
 from splits import Case
 
 from jaxvo.config import Params
@@ -195,13 +196,14 @@ def table(groups: list[dict], seeds: int) -> str:
 
 def main(argv=None) -> int:
     ap = argparse.ArgumentParser(description=__doc__.split("\n\n")[0])
-    ap.add_argument("--seeds", type=int, default=10)
+    ap.add_argument("--seeds", type=count(1), default=10)
     ap.add_argument("--only", nargs="*", help="group names (e.g. comp_heavy_cover_50_dev)")
     ap.add_argument("--family", choices=sorted(FAMILIES), default="heavy",
                     help="heavy: the heavy-cover presets (60 frames); carried: a box carried "
                     "with the camera itself (150 frames)")
     add_run_options(ap)
     args = ap.parse_args(argv)
+    check_options(ap, args, cases=[name for name, _ in cover_cases(1, args.family)])
     params = params_from(args.set)
     cfg = config_from(args.config) if args.config else CFG
     groups = []

@@ -29,6 +29,7 @@ import numpy as np
 
 sys.path.insert(0, str(Path(__file__).resolve().parent))
 from _common import SEVEN_SCENES, log, machine_line, markdown_table
+from _options import check_options, count
 from bench_robustness import prepare
 from bench_seeds import score_case
 from splits import Case, cases, runnable
@@ -76,13 +77,14 @@ def main(argv=None) -> int:
     ap = argparse.ArgumentParser(description=__doc__.split("\n\n")[0])
     ap.add_argument("--split", choices=("dev", "val", "all"), default="all")
     ap.add_argument("--only", nargs="*", help="case names")
-    ap.add_argument("--seeds", type=int, default=5)
+    ap.add_argument("--seeds", type=count(1), default=5)
     ap.add_argument("--cache", type=Path, default=Path("results/cache"))
     ap.add_argument("--out", type=Path, default=Path("results"))
-    ap.add_argument("--timing-frames", type=int, default=150)
+    ap.add_argument("--timing-frames", type=count(0), default=150)
     args = ap.parse_args(argv)
     splits = ("dev", "val") if args.split == "all" else (args.split,)
     todo = [_all_frames(k) for k in (1, 2, 4)] + [c for c in cases() if c.split in splits]
+    check_options(ap, args, cases=[c.name for c in todo])
     todo = [c for c in todo if not args.only or c.name in args.only]
     todo, skipped = runnable(todo)
     rows: dict[str, dict] = {}

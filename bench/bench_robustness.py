@@ -35,6 +35,7 @@ import numpy as np
 sys.path.insert(0, str(Path(__file__).resolve().parent))
 import orbslam3_peer
 from _common import first_pose, groundtruth, log, machine, markdown_table
+from _options import check_options, params_from, params_setting
 from splits import Case, cases, runnable
 
 import jaxvo.host.keyframes
@@ -60,9 +61,9 @@ CFG = Config()
 
 def _flow_key(cfg: Config) -> str:
     """A short hash of what the host flow depends on: the Config fields it reads and the
-    code that makes the frames and tracks them (``jaxvo.study.runner``'s flow cache key)."""
+    version of what the flow computes (``jaxvo.study.runner``'s flow cache key)."""
     fields = {k: getattr(cfg, k) for k in study.flow_fields()}
-    return hashlib.sha1(json.dumps([fields, study.code_hash()], sort_keys=True)
+    return hashlib.sha1(json.dumps([fields, study.FLOW_FORMAT], sort_keys=True)
                         .encode()).hexdigest()[:10]
 
 
@@ -333,11 +334,13 @@ def main(argv=None) -> int:
     ap.add_argument("--only", nargs="*", help="case names")
     ap.add_argument("--plugin", action="store_true", help="also each peer with jaxvo's masks")
     ap.add_argument("--seed", type=int, default=0)
-    ap.add_argument("--set", nargs="*", default=[], metavar="NAME=VALUE",
+    ap.add_argument("--set", nargs="*", default=[], metavar="NAME=VALUE", type=params_setting,
                     help="Params values to run with (a study of one configuration)")
     ap.add_argument("--cache", type=Path, default=Path("results/cache"))
     ap.add_argument("--out", type=Path, default=Path("results"))
     args = ap.parse_args(argv)
+    check_options(ap, args, cases=[c.name for c in cases()])
+    params = params_from(args.set)
 
     todo = [c for c in cases() if (args.split == "all" or c.split == args.split)
             and (not args.only or c.name in args.only)]
@@ -347,8 +350,6 @@ def main(argv=None) -> int:
         log(f"{name}: skipped ({why})")
     for case in todo:
         data = prepare(case, args.cache, CFG)
-        params = Params()._replace(**{k: float(v) for k, v in
-                                      (a.split("=", 1) for a in args.set)})
         traj, outs, final_ids, seconds = run_jaxvo(data, params, CFG, args.seed)
         row = score(case, data, traj, outs, final_ids, args.cache, CFG)
         row["jaxvo_seconds"] = seconds

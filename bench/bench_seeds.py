@@ -19,7 +19,6 @@ Run: ``.venv/bin/python bench/bench_seeds.py [--split dev|val|all] [--only CASE 
 from __future__ import annotations
 
 import argparse
-import dataclasses
 import datetime
 import functools
 import json
@@ -34,6 +33,7 @@ import numpy as np
 sys.path.insert(0, str(Path(__file__).resolve().parent))
 import orbslam3_peer
 from _common import first_pose, groundtruth, log, machine_line, markdown_table
+from _options import check_options, config_from, config_setting, count, params_from, params_setting
 from bench_people import without_people
 from bench_robustness import CFG, peers_alone, prepare
 from people_masks import people_masks
@@ -43,14 +43,11 @@ from jaxvo.config import (
     Config,
     Params,
     StepOptions,
-    check_config,
-    check_params,
     grid_shape,
     params_as_arrays,
 )
 from jaxvo.core.inputs import GridFlow, KeyframeFlow
 from jaxvo.core.pipeline import frame_key, init_pipeline, step
-from jaxvo.errors import InputError
 from jaxvo.evaluation.metrics import SegmentationScores
 from jaxvo.evaluation.scores import trajectory_scores
 from jaxvo.host.io import data_root
@@ -96,50 +93,6 @@ def run_seeds(flows: dict, T0, params: Params, cfg: Config, seeds: int, first_se
     return trajs, outs
 
 
-def _setting(defaults, text: str) -> tuple[str, object]:
-    """``NAME=VALUE`` as ``(name, value)``, the value read as the type of ``defaults``'s
-    field (a bool from 1/true/yes/on or 0/false/no/off); ``ValueError`` in one line for an
-    unknown name or a value of the wrong type."""
-    name, sep, value = text.partition("=")
-    fields = defaults._fields if isinstance(defaults, tuple) else [
-        f.name for f in dataclasses.fields(defaults)]
-    if not sep or name not in fields:
-        raise ValueError(f"{text!r}: want NAME=VALUE, NAME one of {', '.join(fields)}")
-    kind = type(getattr(defaults, name))
-    if kind is bool:
-        if value.lower() not in ("1", "true", "yes", "on", "0", "false", "no", "off"):
-            raise ValueError(f"{text!r}: {name} is true or false")
-        return name, value.lower() in ("1", "true", "yes", "on")
-    try:
-        return name, kind(value)
-    except ValueError:
-        want = {int: "an integer", float: "a number"}.get(kind, kind.__name__)
-        raise ValueError(f"{text!r}: {name} must be {want}") from None
-
-
-def config_from(pairs: list[str]) -> Config:
-    """``Config`` with ``NAME=VALUE`` pairs set, each value read as its field's type."""
-    return dataclasses.replace(Config(), **dict(_setting(Config(), a) for a in pairs))
-
-
-def config_setting(text: str) -> str:
-    """An argparse ``type`` for a ``--config NAME=VALUE``: checked, kept as given."""
-    try:
-        check_config(dataclasses.replace(Config(), **dict([_setting(Config(), text)])))
-    except (ValueError, InputError) as e:
-        raise argparse.ArgumentTypeError(str(e)) from None
-    return text
-
-
-def params_setting(text: str) -> str:
-    """An argparse ``type`` for a ``--set NAME=VALUE`` (a Params value): checked, kept."""
-    try:
-        check_params(Params()._replace(**dict([_setting(Params(), text)])))
-    except (ValueError, InputError) as e:
-        raise argparse.ArgumentTypeError(str(e)) from None
-    return text
-
-
 def add_run_options(ap: argparse.ArgumentParser) -> None:
     """The options of a seeded accuracy run that this script and ``bench_cover.py`` share:
     ``--set`` (Params), ``--config`` (Config), ``--cache``, ``--out`` and ``--title``."""
@@ -150,11 +103,6 @@ def add_run_options(ap: argparse.ArgumentParser) -> None:
     ap.add_argument("--cache", type=Path, default=Path("results/cache"))
     ap.add_argument("--out", type=Path, default=Path("results"))
     ap.add_argument("--title", default="", help="a line saying what this run is")
-
-
-def params_from(pairs: list[str]) -> Params:
-    """``Params`` with ``NAME=VALUE`` pairs set (floats)."""
-    return Params()._replace(**{k: float(v) for k, v in (_setting(Params(), a) for a in pairs)})
 
 
 def reference_case(case: Case) -> Case:
@@ -242,9 +190,10 @@ def main(argv=None) -> int:
     ap = argparse.ArgumentParser(description=__doc__.split("\n\n")[0])
     ap.add_argument("--split", choices=("dev", "val", "fresh", "all"), default="val")
     ap.add_argument("--only", nargs="*", help="case names")
-    ap.add_argument("--seeds", type=int, default=5)
+    ap.add_argument("--seeds", type=count(1), default=5)
     add_run_options(ap)
     args = ap.parse_args(argv)
+    check_options(ap, args, cases=[c.name for c in cases()])
     params = params_from(args.set)
     cfg = config_from(args.config)
     todo = [c for c in cases() if c.split in (("dev", "val") if args.split == "all"

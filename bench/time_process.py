@@ -11,7 +11,7 @@ the compiled step, are reported apart.
 Usage: ``python bench/time_process.py [--frames 120] [--step 1] [--skip 10]
 [--config NAME=VALUE ...]``; prints one JSON line: ``{"code": ..., "config": ..., "first_s":
 ..., "median_ms": ..., "p90_ms": ..., "frames": ...}``. ``--config`` sets ``Config`` fields
-(``bench_seeds.config_from``), for a setting's cost on the same code.
+(``_options.config_from``), for a setting's cost on the same code.
 """
 
 from __future__ import annotations
@@ -26,7 +26,7 @@ import numpy as np
 
 sys.path.insert(0, str(Path(__file__).resolve().parent))
 from _common import SEVEN_SCENES, load_average
-from bench_seeds import config_from, config_setting
+from _options import check_options, config_from, config_setting, count
 
 import jaxvo
 from jaxvo.host.io import InMemorySequence, data_root, open_sequence
@@ -35,14 +35,20 @@ from jaxvo.odometry import Odometry
 
 def main(argv=None) -> int:
     ap = argparse.ArgumentParser(description=__doc__.split("\n\n")[0])
-    ap.add_argument("--frames", type=int, default=120)
-    ap.add_argument("--step", type=int, default=1)
-    ap.add_argument("--skip", type=int, default=10, help="first calls left out of the steady figures")
+    ap.add_argument("--frames", type=count(2), default=120)
+    ap.add_argument("--step", type=count(1), default=1)
+    ap.add_argument("--skip", type=count(0), default=10,
+                    help="first calls left out of the steady figures")
     ap.add_argument("--config", nargs="*", default=[], metavar="NAME=VALUE",
                     type=config_setting, help="Config values to run with (e.g. lk_window=13)")
     args = ap.parse_args(argv)
-    seq = InMemorySequence(open_sequence(data_root() / SEVEN_SCENES), frames=args.frames,
-                           step=args.step)
+    # the settings at 7-Scenes' 640 x 480 frames, with the run's memory
+    check_options(ap, args, data=[SEVEN_SCENES], image=(480, 640))
+    real = open_sequence(data_root() / SEVEN_SCENES)
+    read = min(args.frames, len(range(0, len(real), args.step)))
+    if not args.skip < read:
+        ap.error(f"argument --skip: {args.skip} leaves no frame to time of the {read} read")
+    seq = InMemorySequence(real, frames=args.frames, step=args.step)
     odo = Odometry(seq.intrinsics, cfg=config_from(args.config), seed=0)
     times = []
     for frame in seq:

@@ -44,9 +44,30 @@ _MODULE_OF = {name: module for module, names in _EXPORTS.items() for name in nam
 
 __all__ = sorted(_MODULE_OF)  # noqa: PLE0605 (built from _EXPORTS: one list to keep)
 
+# names the top level once held and gave up to their subpackage: still importable from
+# here, with a DeprecationWarning saying where they live, so that a script using them goes
+# on; they are no current API (not in __all__ nor dir)
+_MOVED: dict[str, str] = {
+    "setup_compile_cache": "jaxvo.host.compile_cache",
+    "RerunLogger": "jaxvo.host.recording",
+    "fuse_maps": "jaxvo.host.mapping",
+    "matched_poses": "jaxvo.host.mapping",
+    "write_ply": "jaxvo.host.mapping",
+}
+
 
 def __getattr__(name: str) -> Any:
     module = _MODULE_OF.get(name)
+    if module is None and name in _MOVED:
+        import sys
+        import warnings
+
+        # `from jaxvo import x` asks twice, importlib's hasattr first: the user's line warns
+        if not sys._getframe(1).f_code.co_filename.startswith("<frozen importlib"):
+            warnings.warn(f"jaxvo.{name} moved to {_MOVED[name]}.{name}; import it from there "
+                          f"(from {_MOVED[name]} import {name})", DeprecationWarning,
+                          stacklevel=2)
+        return getattr(importlib.import_module(_MOVED[name]), name)  # not kept: each use warns
     if module is None:
         raise AttributeError(f"module 'jaxvo' has no attribute {name!r} (the top level holds "
                              "the names a user types; the others live in their subpackage, "

@@ -16,7 +16,7 @@ from __future__ import annotations
 
 import time
 import warnings
-from collections.abc import Callable
+from collections.abc import Callable, Mapping
 from pathlib import Path
 from typing import NamedTuple
 
@@ -84,7 +84,8 @@ class Odometry:
         preset name, ``(fx, fy, cx, cy[, depth_scale])``, a dict of those keys or a 3x3
         camera matrix (depth_scale 5000); its ``depth_scale`` converts ``uint16`` depth to
         metres.
-      cfg: settings (the host's flow reads ``cfg.flow``, the compiled step ``cfg.step``).
+      cfg: settings, a Config or a mapping of its fields (the host's flow reads
+        ``cfg.flow``, the compiled step ``cfg.step``).
       params: numeric settings (default :class:`Params`).
       seed: PRNG seed of the hypothesis sampling.
       T_w_c0: (4, 4) camera-to-world pose of the first frame; None: the identity (the
@@ -105,7 +106,7 @@ class Odometry:
         self,
         intrinsics: Intrinsics | tuple | dict | np.ndarray | str,
         *,
-        cfg: Config = Config(),
+        cfg: Config | Mapping[str, object] = Config(),
         params: Params | None = None,
         seed: int = 0,
         T_w_c0: np.ndarray | None = None,
@@ -115,6 +116,7 @@ class Odometry:
         checked: bool = False,
     ):
         intrinsics = as_intrinsics(intrinsics)
+        cfg = as_config(cfg)
         if not checked:
             check_intrinsics(intrinsics, where="intrinsics")
             check_config(cfg)
@@ -458,7 +460,7 @@ def scan_flows(flows, keyframes, T_w_c0, *, cfg: Config, grid: tuple[int, int], 
 def run_sequence(
     seq,
     *,
-    cfg: Config = Config(),
+    cfg: Config | Mapping[str, object] = Config(),
     params: Params | None = None,
     seed: int = 0,
     start_pose: str | np.ndarray = "gt",
@@ -472,7 +474,7 @@ def run_sequence(
     Args:
       seq: a sequence per docs/architecture.md (:func:`jaxvo.open_sequence`,
         :func:`jaxvo.make_sequence`), or the path of a TUM-layout folder.
-      cfg: static settings.
+      cfg: static settings, a Config or a mapping of its fields ({"cell": 16}).
       params: numeric settings (default :class:`Params`).
       seed: PRNG seed of the hypothesis sampling.
       start_pose: the first kept frame's pose: ``"gt"`` its ground-truth pose when the
@@ -488,6 +490,7 @@ def run_sequence(
       ValueError: ``seq`` is neither a sequence nor a folder path.
     """
     seq = _as_sequence(seq)
+    cfg = as_config(cfg)
     if len(seq) < 2:
         raise InputError(f"sequence {seq.name!r} has {len(seq)} frame(s); odometry needs 2 or more")
     check_config(cfg, height=seq.height, width=seq.width)
@@ -521,6 +524,21 @@ def run_sequence(
 def _shape_settings(cfg: Config) -> str:
     """The settings that size a run's memory, for messages."""
     return f"num_hypotheses {cfg.num_hypotheses}, cell {cfg.cell}"
+
+
+def as_config(cfg: Config | Mapping[str, object]) -> Config:
+    """``cfg`` as a :class:`Config`: a Config itself, or a mapping of its fields
+    (``{"cell": 16}``) made into one, so that its values meet the same checks.
+
+    Raises:
+      TypeError: neither, or a mapping with a name that is no field (one line).
+    """
+    if isinstance(cfg, Config):
+        return cfg
+    if isinstance(cfg, Mapping):
+        return Config(**{str(k): v for k, v in cfg.items()})
+    raise TypeError(f"cfg must be a jaxvo.Config or a mapping of its fields (cfg={{'cell': 16}}"
+                    f" or jaxvo.Config(cell=16)); got {type(cfg).__name__}")
 
 
 def _as_sequence(seq):

@@ -409,3 +409,41 @@ def test_a_trajectory_writer_reads_back_its_own_poses_whoever_replaced_the_file(
     got = w.written()
     np.testing.assert_array_equal(got.timestamps, [1.0])
     np.testing.assert_allclose(got.poses[0], T, atol=5e-10)  # printed to 1e-9 m
+
+
+# --- the depth scale check ------------------------------------------------------------
+
+
+@pytest.fixture(scope="module")
+def heavy_cover():
+    """Frames of ``heavy_cover_90``: a box filling about 90 % of the view at 0.7-0.8 m, the
+    room behind it to 3.5 m, at TUM's depth scale (5000 per metre), which is right."""
+    from jaxvo.synth.scenes import make_sequence
+
+    seq = make_sequence("heavy_cover_90", frames=31, seed=0)
+    return seq.intrinsics, [seq[i].depth for i in (0, 15, 30)]
+
+
+def test_a_near_object_filling_the_view_is_no_wrong_depth_scale(heavy_cover):
+    """Its median (0.74-0.78 m) lies nearer the typical 2 m at 1000 per metre (3.7-3.9 m),
+    and the run warned that the depth scale was probably wrong; the span the view reads
+    (0.7 to 3.2 m) says it is right."""
+    from jaxvo.host.io import check_depth_scale
+
+    K, depths = heavy_cover
+    for i, depth in enumerate(depths):
+        assert np.median(depth[depth > 0]) < 0.8  # metres: the box, not the room
+        assert check_depth_scale(depth, K, where=f"frame {i}") is None
+
+
+@pytest.mark.parametrize("factor, likelier", [(0.2, 1000), (5.0, 5000)])
+def test_a_wrong_depth_scale_still_warns_with_the_right_one(heavy_cover, factor, likelier):
+    """The same frames in millimetres read at 5000 per metre (every depth a fifth), or in
+    TUM's units read as millimetres (5 times): the whole span moves, and it is said."""
+    from jaxvo.host.io import check_depth_scale
+
+    K, depths = heavy_cover
+    K = K._replace(depth_scale=5000.0 if likelier == 1000 else 1000.0)
+    for depth in depths:
+        note = check_depth_scale(depth * factor, K, where="frame")
+        assert note is not None and f"depth_scale {likelier} is likelier" in note

@@ -179,6 +179,28 @@ def interrupt_at_safe_points(*, safe: bool = True) -> Iterator[StopRequest]:
             signal.signal(sig, handler)
 
 
+def quiet_interrupts_at_exit() -> None:
+    """From the interpreter's exit on, Ctrl-C or SIGTERM ends the process at once with
+    128 + the signal's number, quietly. JAX's own clean-up at exit (its backends and
+    caches released) takes a moment, and an interrupt landing there printed a
+    ``KeyboardInterrupt`` traceback after a finished command. Call it once JAX is loaded:
+    exit handlers run last registered first, so this one runs before JAX's."""
+    import atexit
+
+    atexit.unregister(_exit_quietly_on_signals)  # once, however often it is asked
+    atexit.register(_exit_quietly_on_signals)
+
+
+def _exit_quietly_on_signals() -> None:
+    def on_signal(signum, frame) -> None:
+        os._exit(128 + signum)
+
+    with contextlib.suppress(ValueError):  # not the main thread
+        for sig in (signal.SIGINT, signal.SIGTERM):
+            if signal.getsignal(sig) is not signal.SIG_IGN:
+                signal.signal(sig, on_signal)
+
+
 def _os_error(exc: OSError) -> str:
     """One line for an operating-system error: the file, then what went wrong."""
     what = exc.strerror or str(exc)

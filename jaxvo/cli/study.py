@@ -61,25 +61,31 @@ def add_arguments(p: argparse.ArgumentParser) -> None:
 def run(args: argparse.Namespace, prepared=None) -> int:
     import time
 
+    from jaxvo.cli.main import interrupt_at_safe_points, quiet_interrupts_at_exit
     from jaxvo.host.progress import Progress
     from jaxvo.study import runner as study
     from jaxvo.study.report import write_report
 
     spec, first = _start(args, prepared or prepare(args))
+    quiet_interrupts_at_exit()  # JAX is loaded: its clean-up at exit is no place for a traceback
     quiet = args.quiet or args.json or not first
     progress = Progress("jaxvo study", enabled=not quiet, unit="config-frames")
     start = time.perf_counter()
-    try:
-        res = study.run_spec(spec, args.out, resume=args.resume, flow_cache=args.flow_cache,
-                             batch=args.batch, progress=progress, log=progress.note)
-    except KeyboardInterrupt:
-        progress.close()
-        if first and (Path(args.out) / study.RUNS_FILE).is_file():
-            rows = study.finished_rows(spec, args.out)
-            write_report(spec, rows, args.out, plot=not args.no_plot)
-            print(f"jaxvo: {len(rows)} finished runs kept in {args.out}; continue with "
-                  "--resume", file=sys.stderr)
-        raise
+    # main()'s request, where main() runs the command: a Ctrl-C stops after the current call
+    with interrupt_at_safe_points() as stop:
+        try:
+            res = study.run_spec(spec, args.out, resume=args.resume,
+                                 flow_cache=args.flow_cache, batch=args.batch,
+                                 progress=progress, log=progress.note, stop=stop)
+            stop()  # a Ctrl-C in the last call: the study was interrupted all the same
+        except KeyboardInterrupt:
+            progress.close()
+            if first and (Path(args.out) / study.RUNS_FILE).is_file():
+                rows = study.finished_rows(spec, args.out)
+                write_report(spec, rows, args.out, plot=not args.no_plot)
+                print(f"jaxvo: interrupted: {len(rows)} finished runs kept in {args.out}; "
+                      "continue with --resume", file=sys.stderr)
+            raise
     progress.close()
     if not first:
         return 0

@@ -479,11 +479,17 @@ _DEPTH_HARD_M = DEPTH_HARD_M
 _DEPTH_SOFT_M = (0.5, 8.0)
 # The depth scales of the sensors' files: TUM, Bonn, ETH3D 5000 per metre; millimetres 1000.
 # A wrong one of these is the usual mistake, and it can stay inside the soft band (a room
-# 2-4 m deep in millimetres read at 5000 per metre: median 0.4-0.6 m). So the median is
-# also compared with the typical indoor median, the soft band's geometric centre (2 m):
-# when another common scale puts it nearer (in ratio), that scale is the likelier one.
+# 2-4 m deep in millimetres read at 5000 per metre: median 0.4-0.6 m). So where the view's
+# depths lie is also compared with the typical indoor depth, the soft band's geometric
+# centre (2 m): when another common scale puts it nearer (in ratio), that scale is the
+# likelier one. Where the depths lie is the middle, in ratio, of the span the view reads
+# (_SPAN_PERCENTILES), not the median: an object filling most of the view near the camera
+# moves the median to itself (0.78 m with 90 % of the image covered at 0.7-0.8 m), while
+# the span still reaches the room behind it (to 3.2 m), and a wrong scale moves the whole
+# span.
 _COMMON_SCALES = (5000.0, 1000.0)
 _TYPICAL_M = float(np.sqrt(_DEPTH_SOFT_M[0] * _DEPTH_SOFT_M[1]))
+_SPAN_PERCENTILES = (1.0, 99.0)
 
 
 class DepthScaleWarning(UserWarning):
@@ -503,8 +509,9 @@ def check_depth_scale(depth: np.ndarray, K, *, where: str, raw_units: bool = Tru
     Returns:
       a one-line warning when the frame has no depth reading at all (every value 0, NaN or
       infinite: every pair with it lacks depth), when the median lies outside 0.5 to 8 m,
-      or when another common depth scale (5000 or 1000 per metre) puts it nearer the typical
-      2 m; else None.
+      or when another common depth scale (5000 or 1000 per metre) puts the middle of the
+      depths the view spans (1st to 99th percentile, in ratio) nearer the typical 2 m; else
+      None.
     Raises:
       InputError: the median lies outside 0.1 to 15 m.
     """
@@ -516,8 +523,9 @@ def check_depth_scale(depth: np.ndarray, K, *, where: str, raw_units: bool = Tru
     likelier = []
     if raw_units:
         at = {s: med * K.depth_scale / s for s in _COMMON_SCALES if s != K.depth_scale}
-        likelier = [s for s, m in at.items()
-                    if abs(np.log(m / _TYPICAL_M)) < abs(np.log(med / _TYPICAL_M))]
+        centre = float(np.sqrt(np.prod(np.percentile(valid, _SPAN_PERCENTILES))))
+        likelier = [s for s in at if abs(np.log(centre * K.depth_scale / s / _TYPICAL_M))
+                    < abs(np.log(centre / _TYPICAL_M))]
         hint = (f"median depth is {med:.3g} m with depth_scale {K.depth_scale:g} ("
                 + ", ".join(f"{m:.3g} m at {s:g}" for s, m in at.items())
                 + "; TUM uses 5000 per metre, millimetre sensors 1000)")

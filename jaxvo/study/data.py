@@ -2,8 +2,8 @@
 
 Every sequence's grid flow (with ``Config.keyframes``, also its keyframe flow) is computed
 once (:func:`sequence_data`) and cached on disk as a ``.npz`` keyed by the sequence's
-identity, the flow's options (``Config.flow``) and the code that renders and tracks
-(:func:`sequence_key`), beside what its runs are scored against: the kept frames'
+identity (its frames' files included), the flow's options (``Config.flow``) and
+:data:`FLOW_FORMAT` (:func:`sequence_key`), beside what its runs are scored against: the kept frames'
 timestamps, the start pose, the ground truth and the moving masks at the grid.
 """
 
@@ -12,7 +12,6 @@ from __future__ import annotations
 import dataclasses
 import functools
 import hashlib
-import inspect
 import json
 import re
 from collections.abc import Callable
@@ -92,47 +91,53 @@ def flow_fields() -> tuple[str, ...]:
     return tuple(f.name for f in dataclasses.fields(FlowOptions))
 
 
-@functools.cache
-def code_hash() -> str:
-    """A hash of the code that makes frames and flow: a cache written by other code is
-    not reused."""
-    import jaxvo.host.depth
-    import jaxvo.host.flow
-    import jaxvo.host.frames
-    import jaxvo.host.io
-    import jaxvo.host.keyframes
-    import jaxvo.host.patches
-    import jaxvo.synth.render
-    import jaxvo.synth.scenario
-    import jaxvo.synth.scenes
-    import jaxvo.synth.sequence
+# The version of what the flow cache holds. Bump it by hand whenever what the flow computes
+# changes (the tracker, its checks, the depth refinement, the rendering of a synthetic scene)
+# or what sequence_data stores beside it: a cache written under another version is then
+# not read. A change to comments or layout leaves it, and the cache, as they are.
+FLOW_FORMAT = 1
 
-    h = hashlib.sha256()
-    for mod in (jaxvo.host.flow, jaxvo.host.depth, jaxvo.host.keyframes, jaxvo.host.patches,
-                jaxvo.host.frames, jaxvo.host.io, jaxvo.synth.render, jaxvo.synth.scenario,
-                jaxvo.synth.sequence, jaxvo.synth.scenes):
-        h.update(inspect.getsource(mod).encode())
-    h.update(inspect.getsource(sequence_data).encode())  # what it stores beside the flow
-    return h.hexdigest()[:16]
+
+def sequence_identity(s: SequenceSpec) -> dict:
+    """What makes a sequence's frames the ones they are: its spec (but the label), a
+    synthetic scene's scenario by value and, for one read from files, the files it reads: a folder's lists by content and the camera,
+    ground truth and images of the frames used by size and modification time (a depth
+    image rewritten under the same lists is another sequence); a bag's files by size and
+    modification time (too large to hash)."""
+    from jaxvo.host.rosbag import is_bag
+
+    ident: dict = s._asdict()
+    ident.pop("label")
+    if s.scene is not None:  # what the scene is made of (its objects, paths, sensor), by value
+        from jaxvo.synth.scenario import SCENARIOS
+
+        ident["scenario"] = repr(SCENARIOS[s.scene])
+    if s.path is None:  # rendered from its scenario, seed and length alone
+        return ident
+    path = Path(s.path)
+    if is_bag(path):
+        files = [path] if path.is_file() else sorted(path.iterdir())
+    else:
+        from jaxvo.host.io import open_sequence
+
+        lists = sorted(path.glob("*.txt"))
+        ident["lists"] = hashlib.sha256(b"".join(p.read_bytes() for p in lists)).hexdigest()
+        used = None if s.frames is None else (s.frames - 1) * s.step + 1
+        files = [f for f in open_sequence(path, camera=s.camera).files(used) if f.is_file()]
+    stats = [(f, f.stat()) for f in files]
+    ident["files"] = [(str(f.relative_to(path)) if f != path else f.name, st.st_size,
+                       st.st_mtime_ns) for f, st in stats]
+    return ident
 
 
 @functools.cache
 def sequence_key(s: SequenceSpec, cfg: Config) -> str:
-    """The flow cache's key of a sequence under ``cfg``: the sequence's identity (its spec,
-    the contents of a folder's frame lists, or a bag's file sizes and modification times),
-    the flow's Config fields and the code."""
-    ident = {**s._asdict(), "flow": dataclasses.asdict(cfg.flow),
-             "code": code_hash()}
-    ident.pop("label")
-    from jaxvo.host.rosbag import is_bag
-
-    if s.path is not None and is_bag(s.path):  # too large to hash: its files' sizes and times
-        files = [Path(s.path)] if Path(s.path).is_file() else sorted(Path(s.path).iterdir())
-        ident["bag"] = [(f.name, f.stat().st_size, f.stat().st_mtime_ns) for f in files]
-    elif s.path is not None:
-        lists = sorted(p for p in Path(s.path).glob("*.txt"))
-        ident["lists"] = hashlib.sha256(b"".join(p.read_bytes() for p in lists)).hexdigest()
-    blob = json.dumps(ident, sort_keys=True).encode()
+    """The flow cache's key of a sequence under ``cfg``: the sequence's identity
+    (:func:`sequence_identity`), the flow's options (``Config.flow``, the only settings the
+    flow reads) and :data:`FLOW_FORMAT`; the source text of the code is no part of it."""
+    ident = {"sequence": sequence_identity(s), "flow": dataclasses.asdict(cfg.flow),
+             "format": FLOW_FORMAT}
+    blob = json.dumps(ident, sort_keys=True, default=str).encode()
     return hashlib.sha256(blob).hexdigest()[:16]
 
 

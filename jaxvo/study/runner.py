@@ -38,11 +38,12 @@ from jaxvo.errors import InputError
 from jaxvo.host.outputs import write_text
 from jaxvo.status import Status
 from jaxvo.study.data import (
+    FLOW_FORMAT,
     SequenceData,
-    code_hash,
     flow_fields,
     open_study_sequence,
     sequence_data,
+    sequence_identity,
     sequence_key,
     sequence_pairs,
 )
@@ -76,13 +77,13 @@ from jaxvo.study.spec import (
 from jaxvo.trajectory import Trajectory
 
 __all__ = [
-    "CPU_BATCH", "DEFAULT_METRICS", "MAX_ACCELERATOR_BATCH", "MEMORY_SHARE", "METRICS",
-    "ROW_FIELDS", "RUNS_FILE", "Run", "SequenceData", "SequenceSpec", "StudyResult", "StudySpec",
+    "CPU_BATCH", "DEFAULT_METRICS", "FLOW_FORMAT", "MAX_ACCELERATOR_BATCH", "MEMORY_SHARE",
+    "METRICS", "ROW_FIELDS", "RUNS_FILE", "Run", "SequenceData", "SequenceSpec", "StudyResult", "StudySpec",
     "accelerator_batch", "batched_params", "bytes_per_config", "call_batch", "check_study",
-    "code_hash", "compiled_program", "config_fields", "finished_rows", "flow_fields",
+    "compiled_program", "config_fields", "finished_rows", "flow_fields",
     "free_memory", "group_config", "init_distributed", "load_spec", "open_study_sequence",
     "parse_spec", "read_runs", "run_call", "run_id", "run_spec", "score_run",
-    "sequence_data", "sequence_key", "spec_runs", "study_devices",
+    "sequence_data", "sequence_identity", "sequence_key", "spec_runs", "study_devices",
 ]
 
 RUNS_FILE = "runs.jsonl"
@@ -165,7 +166,8 @@ class StudyResult(NamedTuple):
 def run_spec(spec: StudySpec, out_dir: str | Path, *, resume: bool = False,
              flow_cache: str | Path | None = None, batch: int | None = None,
              progress: Callable[[int, int], None] | None = None,
-             log: Callable[[str], None] | None = None) -> StudyResult:
+             log: Callable[[str], None] | None = None,
+             stop: Callable[[], None] | None = None) -> StudyResult:
     """Run every (sequence, configuration, seed) of ``spec`` not yet in ``out_dir``.
 
     Every process of a multi-process study calls this with the same spec (after
@@ -182,6 +184,9 @@ def run_spec(spec: StudySpec, out_dir: str | Path, *, resume: bool = False,
         :func:`call_batch` sizes each program's calls from the device and the study).
       progress: called as ``progress(config_frames_done, config_frames_total)``.
       log: called with a line on each sequence's flow.
+      stop: called between frames of the flow and between calls, where stopping keeps
+        what finished (:func:`jaxvo.cli.main.interrupt_at_safe_points`'s request: it
+        raises ``KeyboardInterrupt`` after a Ctrl-C); None: never.
 
     Returns:
       :class:`StudyResult`; the rows are those of the first process (others get none).
@@ -190,6 +195,7 @@ def run_spec(spec: StudySpec, out_dir: str | Path, *, resume: bool = False,
 
     out = Path(out_dir)
     first = jax.process_index() == 0
+    sequence_key.cache_clear()  # a sequence's files may have changed since the last study
     cache = Path(flow_cache) if flow_cache is not None else out / "flows"
     requested = batch or spec.batch
     runs, ids = spec_runs(spec)
@@ -203,16 +209,12 @@ def run_spec(spec: StudySpec, out_dir: str | Path, *, resume: bool = False,
     pairs = {q: sequence_pairs(spec.sequences[q]) for q, _ in groups} if first else {}
     tally = _Tally(total=sum(len(ks) * pairs[q] for (q, _), ks in groups.items()) if first else 0)
     if first and log is not None:  # before the first flow and compile, which take minutes
-        left = sum(len(ks) for ks in groups.values())
-        log(f"{left} of {len(runs)} runs to do ({len(spec.sequences)} sequences x "
-            f"{len(spec.configs)} configurations x {len(spec.seeds)} seeds), "
-            f"{tally.total} configuration-frames over {len(devices)} device(s); up to "
-            f"{len(groups)} compile(s), one per sequence and Config, each in its first call "
-            "(seconds to minutes); then the progress line gives the time left")
+        log(_plan_line(spec, groups, tally.total, runs=len(runs), devices=len(devices)))
     if progress is not None:
         progress(0, tally.total)
     for (q, cfg), ks in groups.items():
-        data = _group_data(spec.sequences[q], cfg, cache, tally, first=first, log=log)
+        data = _group_data(spec.sequences[q], cfg, cache, tally, first=first, log=log,
+                           stop=stop)
         t0 = time.perf_counter()
         group_batch = call_batch(data, cfg, [spec.configs[runs[k].config] for k in ks],
                                  requested=requested, devices=devices)
@@ -234,10 +236,22 @@ def run_spec(spec: StudySpec, out_dir: str | Path, *, resume: bool = False,
                                                      tally.last_seconds))
             if progress is not None:
                 progress(tally.frames, tally.total)
+            if stop is not None:
+                stop()  # this call's runs are in runs.jsonl
     rows = finished_rows(spec, out) if first else []
     return StudyResult(rows, len(runs), tally.ran, tally.frames, tally.seconds,
                        tally.first_frames, tally.first_seconds, tally.flow_seconds,
                        len(devices), jax.process_count(), tuple(sorted(tally.batches)))
+
+
+def _plan_line(spec: StudySpec, groups: dict, total: int, *, runs: int, devices: int) -> str:
+    """What a study is about to do, said before its first flow and compile."""
+    left = sum(len(ks) for ks in groups.values())
+    return (f"{left} of {runs} runs to do ({len(spec.sequences)} sequences x "
+            f"{len(spec.configs)} configurations x {len(spec.seeds)} seeds), "
+            f"{total} configuration-frames over {devices} device(s); up to "
+            f"{len(groups)} compile(s), one per sequence and Config, each in its first call "
+            "(seconds to minutes); then the progress line gives the time left")
 
 
 @dataclasses.dataclass
@@ -297,13 +311,15 @@ def _start(spec: StudySpec, out: Path, cache: Path, ids: list[str], *, resume: b
 
 
 def _group_data(s: SequenceSpec, cfg: Config, cache: Path, tally: _Tally, *, first: bool,
-                log: Callable[[str], None] | None) -> SequenceData:
+                log: Callable[[str], None] | None,
+                stop: Callable[[], None] | None = None) -> SequenceData:
     """A sequence's flow under ``cfg`` on every process (read or computed by the first)."""
     data = problem = None
     if first:
         t0 = time.perf_counter()
         try:
-            data, cached = sequence_data(s, cfg, cache)
+            data, cached = sequence_data(s, cfg, cache, progress=None if stop is None else (
+                lambda done, total: stop()))
         except InputError as exc:  # told to every process, which all stop
             problem = exc
         else:
