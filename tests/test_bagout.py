@@ -104,6 +104,7 @@ def test_a_run_writes_a_bag_that_independent_readers_read_back(folder, tmp_path,
     seq = open_sequence(folder)
     est = read_trajectory(traj)
     assert len(est) == N and summary["bag"] == str(bag)
+    assert sorted(p.name for p in bag.iterdir()) == ["metadata.yaml", "run_bag.mcap"]
     no_leftovers(bag)
     got = read_bag(bag)
     assert got["_types"] == {
@@ -405,6 +406,28 @@ def test_a_bag_that_cannot_be_finished_leaves_nothing(folder, tmp_path, capsys, 
 
 
 # --- the pieces -------------------------------------------------------------------------
+
+
+@pytest.mark.parametrize("storage, suffix", [("mcap", ".mcap"), ("sqlite3", ".db3")])
+def test_the_storage_file_is_named_after_the_bag_not_its_temporary_folder(
+        folder, tmp_path, storage, suffix):
+    """rosbags names the storage file after the folder it writes in: the bag is written in
+    a folder of the target's own name (inside a hidden one), so that the file is
+    ``run_bag/run_bag.mcap`` as docs/ros.md says, and metadata.yaml lists that name."""
+    from ruamel.yaml import YAML  # rosbags' own YAML library
+
+    bag = tmp_path / "run_bag"
+    with bagout.BagWriter(bag, open_sequence(folder), storage=storage) as writer:
+        writer.write_pose(0, np.eye(4))
+        writer.finish()
+    name = f"run_bag{suffix}"
+    assert sorted(p.name for p in bag.iterdir()) == sorted(["metadata.yaml", name])
+    info = YAML(typ="safe").load((bag / "metadata.yaml").read_text())[
+        "rosbag2_bagfile_information"]
+    assert info["relative_file_paths"] == [name]
+    assert [f["path"] for f in info["files"]] == [name]
+    assert len(read_bag(bag)[ODOMETRY_TOPIC]) == 1
+    no_leftovers(bag)
 
 
 def test_a_second_ctrl_c_leaves_no_bag_and_nothing_beside(folder, tmp_path):

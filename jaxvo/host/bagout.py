@@ -39,8 +39,9 @@ velocity, so the twist is zero with its covariance's element 0 at -1, "no estima
 (``sensor_msgs/msg/Imu``'s stated conventions, the ones ROS writes down).
 
 Whole or nothing, as every output of jaxvo (:class:`jaxvo.host.outputs.OutputFolder`): the
-bag is written in a hidden temporary folder beside the target and renamed onto it once
-finished; a failure, or an exception that leaves before :meth:`BagWriter.finish` (a second
+bag is written in a folder of the target's name inside a hidden temporary folder beside the
+target (so its storage file is ``NAME/NAME.mcap``, as ``rosbags`` names it after its folder)
+and renamed onto it once finished; a failure, or an exception that leaves before :meth:`BagWriter.finish` (a second
 Ctrl-C too), removes the temporary folder and leaves nothing at the target.
 """
 
