@@ -247,3 +247,43 @@ def test_the_demos_timed_scan_compiles_nothing(capsys, monkeypatch):
     row = json.loads(capsys.readouterr().out)["methods"]["jaxvo"]
     assert len(seconds) == 1 and _COMPILING["events"] == []  # no trace, no compile
     assert row["ms_per_frame"] > 0
+
+
+def test_sigterm_to_a_background_job_of_a_script_keeps_what_was_finished(seq_dir, tmp_path):
+    """A shell without job control (a script's ``jaxvo run ... &``) starts the job with
+    SIGINT ignored; jaxvo then took no signal at all, and the script's ``kill`` (SIGTERM)
+    left no trajectory and no bag, only hidden temporary files. SIGTERM is taken on its
+    own: the run stops after the current frame, exit 143, the trajectory and the bag whole
+    with the frames computed, nothing beside them."""
+    import signal
+    import subprocess
+    import sys
+
+    from rosbags.highlevel import AnyReader
+    from test_recording import _looped, _wait_for_a_pose
+
+    from jaxvo.host.bagout import ODOMETRY_TOPIC
+
+    long = _looped(seq_dir, tmp_path / "long", 80)  # long enough to be signalled mid-run
+    out = tmp_path / "out"
+    out.mkdir()
+    jaxvo = [sys.executable, "-c", "import sys; from jaxvo.cli.main import main; "
+             "sys.exit(main())", "run", str(long), "--out", str(out / "t.txt"),
+             "--out-bag", str(out / "bag"), "-q"]
+    # SIGINT ignored, then jaxvo in the same process (as `sh -c '... &'` starts it); no
+    # preexec_fn, which forks this multithreaded (JAX) process
+    proc = subprocess.Popen(
+        [sys.executable, "-c", "import os, signal, sys; signal.signal(signal.SIGINT, "
+         "signal.SIG_IGN); os.execv(sys.executable, sys.argv[1:])", *jaxvo],
+        stdout=subprocess.PIPE, stderr=subprocess.PIPE, text=True)
+    _wait_for_a_pose(out, proc)
+    proc.send_signal(signal.SIGTERM)
+    _, err = proc.communicate(timeout=120)
+    assert proc.returncode == 143, err[-2000:]
+    assert "Traceback" not in err, err[-2000:]
+    poses = len(read_trajectory(out / "t.txt"))
+    assert 1 <= poses < 80
+    with AnyReader([out / "bag"]) as reader:
+        odometry = [c for c in reader.connections if c.topic == ODOMETRY_TOPIC]
+        assert len(list(reader.messages(connections=odometry))) == poses
+    assert sorted(p.name for p in out.iterdir()) == ["bag", "t.txt"]
