@@ -182,9 +182,10 @@ def test_interrupted_run_keeps_every_pose_computed(seq_dir, tmp_path, capsys, mo
 def test_an_image_that_cannot_be_written_mid_run_is_one_line_and_exit_2(
         seq_dir, tmp_path, capsys, monkeypatch):
     """Masks are written on a background thread: a write that fails there (a full disk)
-    still ends the run with one line naming the file. A failed run replaces no file: the
-    earlier trajectory stays as it was (an interrupted one keeps its poses: the test above),
-    and the folder keeps the masks written whole before the failure."""
+    still ends the run with one line naming the file. The run stops at the next frame, as
+    after Ctrl-C: the trajectory (on a disk that may be healthy) keeps the poses computed,
+    where it was discarded with the masks, and the folder keeps the masks written whole
+    before the failure."""
     import jaxvo.host.outputs
 
     real_write = jaxvo.host.outputs.write_image
@@ -206,7 +207,7 @@ def test_an_image_that_cannot_be_written_mid_run_is_one_line_and_exit_2(
     assert ".png" in err[0]
     # the run stops at the next frame after the failure, or at the end; no mask after the
     # failed one is written, and nothing is left half-written beside them
-    assert traj.read_text() == "# an earlier run\n"
+    assert 2 <= len(read_trajectory(traj)) <= 8  # the poses up to the failed mask's
     assert sorted(p.name for p in tmp_path.iterdir()) == ["m", "traj.txt"]
     assert len(list((tmp_path / "m").glob("*.png"))) == 2
     assert not list((tmp_path / "m").glob(".*"))

@@ -217,6 +217,35 @@ def test_a_tmpfs_that_fills_mid_recording_names_the_file(tmp_path):
     assert done.stdout.strip() == "True True b'earlier' ['r.rrd']", done.stderr[-2000:]
 
 
+def test_a_recording_that_fails_mid_run_keeps_the_trajectory(seq_dir, tmp_path, capsys,
+                                                             monkeypatch):
+    """A recording that fails during the frames (its disk full) discarded the trajectory,
+    on a disk that may be healthy, with it. Now the run stops at the next frame as after
+    Ctrl-C: one line naming the recording, exit 2, the trajectory with the poses computed,
+    the earlier recording as it was."""
+    _rerun()
+    from jaxvo.host import recording
+
+    traj, rrd = tmp_path / "t.txt", tmp_path / "r.rrd"
+    rrd.write_bytes(b"an earlier recording")
+    real = recording.RerunLogger._log_frame
+    calls = {"n": 0}
+
+    def log_frame(self, *args):
+        calls["n"] += 1
+        if calls["n"] == 2:
+            raise OSError(28, "No space left on device", str(rrd))
+        real(self, *args)
+
+    monkeypatch.setattr(recording.RerunLogger, "_log_frame", log_frame)
+    code = main(["run", str(seq_dir), "--out", str(traj), "--rerun-save", str(rrd), "-q"])
+    err = capsys.readouterr().err
+    assert code == 2 and err == f"jaxvo: error: {rrd}: No space left on device\n", err
+    assert 2 <= len(read_trajectory(traj)) <= FRAMES
+    assert rrd.read_bytes() == b"an earlier recording"
+    assert sorted(p.name for p in tmp_path.iterdir()) == ["r.rrd", "t.txt"]
+
+
 def test_a_disk_that_fills_at_the_end_of_the_recording_is_said_and_the_process_ends(
         tmp_path):
     """A disk that fills late in a recording (a 1200 KiB tmpfs in a user namespace, where

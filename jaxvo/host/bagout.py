@@ -49,6 +49,8 @@ from __future__ import annotations
 
 import contextlib
 import dataclasses
+import errno
+import os
 from pathlib import Path
 from typing import NamedTuple, Self
 
@@ -68,6 +70,8 @@ MAP_TOPIC = "/jaxvo/static_map"
 WORLD_FRAME = "odom"
 CAMERA_FRAME = "camera_optical_frame"
 STORAGES = ("mcap", "sqlite3")
+# the storage file's suffix, as rosbags names it after the bag's folder
+_SUFFIX = {"mcap": ".mcap", "sqlite3": ".db3"}
 # the message definitions written: ROS 2 Jazzy's (rosbag2 metadata version 9 is Jazzy's)
 _STORE = "ros2_jazzy"
 _BAG_VERSION = 9
@@ -219,6 +223,9 @@ class BagWriter:
         if storage not in STORAGES:
             raise InputError(f"bag storage {storage!r}: one of {', '.join(STORAGES)}")
         self.target = Path(target)
+        # the storage file as the user finds it, what a failure names
+        self.storage_file = self.target / f"{self.target.name}{_SUFFIX[storage]}"
+        self.error: OSError | None = None  # the first failure on the bag's thread
         self.frames = frames or Frames()
         self.overlay_cell = overlay_cell
         self.stamps_ns, self.record_ns = frame_times(seq)
@@ -236,28 +243,57 @@ class BagWriter:
         self._dry = False  # serialise, do not write (_open)
         self.finished = False
         self._thread = BackgroundWriter(limit=_QUEUE)
-        self._thread.submit(self._open, seq.height, seq.width)
+        self._submit(self._open, seq.height, seq.width)
+
+    def _submit(self, fn, *args) -> None:
+        """``fn(*args)`` on the bag's thread, a failure named (:meth:`_named`)."""
+        self._thread.submit(self._named, fn, *args)
+
+    def _named(self, fn, *args) -> None:
+        """``fn(*args)``; a failure of the bag's files (a full disk: rosbags' and SQLite's
+        errors name no file, or the temporary folder's) as an ``OSError`` naming the bag's
+        file where the user will find it, kept so that :meth:`finish` never puts in place
+        a bag that failed."""
+        import sqlite3
+
+        try:
+            fn(*args)
+        except OSError as exc:
+            where = self.storage_file
+            if exc.filename:
+                try:
+                    where = self.target / Path(exc.filename).relative_to(self._out.temporary)
+                except ValueError:  # another file (the input bag read): as it is
+                    self.error = exc
+                    raise
+            self.error = OSError(exc.errno, exc.strerror or str(exc), str(where))
+            raise self.error from None
+        except sqlite3.Error as exc:  # "database or disk is full"
+            full = "full" in str(exc)
+            self.error = OSError(errno.ENOSPC if full else errno.EIO, os.strerror(
+                errno.ENOSPC) if full else f"SQLite: {exc}", str(self.storage_file))
+            raise self.error from None
 
     def write_pose(self, index: int, T_w_c: np.ndarray) -> None:
         """Frame ``index``'s pose (camera to world, (4, 4)) as odometry and as tf."""
-        self._thread.submit(self._write_pose, index, np.array(T_w_c, np.float64))
+        self._submit(self._write_pose, index, np.array(T_w_c, np.float64))
 
     def write_mask(self, frame, mask: np.ndarray, output=None) -> None:
         """A frame's dynamic mask ((H, W) uint8, 255 = moving, as ``--dynamic-masks`` writes
         it) and the camera it is registered to; with ``overlay_cell``, the frame tinted by
         the identifiers of ``output`` (its pair's ``StepOutput``; None: no overlay)."""
-        self._thread.submit(self._write_mask, frame, mask, output)
+        self._submit(self._write_mask, frame, mask, output)
 
     def write_frame(self, frame) -> None:
         """With ``with_input`` from a folder: the frame's colour, depth and camera on TUM's
         bag topics (what ``jaxvo run`` reads from a bag by default); else nothing."""
         if self.input_frames:
-            self._thread.submit(self._write_frame, frame)
+            self._submit(self._write_frame, frame)
 
     def write_map(self, pmap, index: int) -> None:
         """The static map (:class:`jaxvo.host.mapping.PointMap`, world frame) as one
         ``PointCloud2`` (x y z float32 and PCL's packed ``rgb``), at frame ``index``'s time."""
-        self._thread.submit(self._write_map, pmap, index)
+        self._submit(self._write_map, pmap, index)
 
     # -- messages ----------------------------------------------------------------------
 
@@ -435,8 +471,10 @@ class BagWriter:
         """Every message written, the input bag copied (``with_input``), the bag closed and
         renamed into place; the summary's part (``bag``, ``bag_messages``,
         ``bag_input_messages``, ``bag_topics``)."""
-        self._thread.submit(self._close)
+        self._submit(self._close)
         self._thread.close()  # waits; raises what failed on the bag's thread
+        if self.error is not None:  # raised before, by a write_* on another thread
+            raise self.error
         self._out.commit()
         self.finished = True
         return self._summary
