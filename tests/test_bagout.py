@@ -313,6 +313,26 @@ def test_targets_refused_before_any_work(folder, tmp_path, capsys):
     assert not (tmp_path / "b").exists()
 
 
+def test_an_input_bag_that_holds_jaxvos_topics_is_refused_with_input(folder, tmp_path,
+                                                                       capsys):
+    """A run's bag (written --with-input) given again --with-input: its odometry and /tf
+    were copied beside the new run's, 12 odometry messages on one topic at 6 stamps, and
+    nothing said. Refused in one line, naming the topic, before any work; without
+    --with-input the bag is read as any other."""
+    first = tmp_path / "first"
+    code, _, err = cli(capsys, "run", folder, "--out", tmp_path / "t1.txt", "--out-bag",
+                       first, "--with-input", "-q")
+    assert code == 0, err
+    code, _, err = cli(capsys, "run", first, "--out", tmp_path / "t2.txt", "--out-bag",
+                       tmp_path / "second", "--with-input", "-q")
+    one_line_error(code, err, f"--with-input: {first} already holds {ODOMETRY_TOPIC}")
+    assert not (tmp_path / "t2.txt").exists() and not (tmp_path / "second").exists()
+    code, _, err = cli(capsys, "run", first, "--out", tmp_path / "t2.txt", "--out-bag",
+                       tmp_path / "second", "-q")
+    assert code == 0, err
+    assert len(read_bag(tmp_path / "second")[ODOMETRY_TOPIC]) == N
+
+
 def test_an_unwritable_folder_is_one_line(folder, tmp_path, capsys):
     import os
 

@@ -169,6 +169,33 @@ def check_bag_target(path: str | Path, *, what: str = "--out-bag") -> Path:
     return p
 
 
+# the topics jaxvo writes and no sensor does: an input that holds one is a jaxvo run's bag
+_OWN_TOPICS = (ODOMETRY_TOPIC, MASK_TOPIC, INFO_TOPIC, OVERLAY_TOPIC, MAP_TOPIC)
+
+
+def check_bag_input(options: BagOptions, seq) -> None:
+    """With ``--with-input``, an input bag that already holds jaxvo's topics (a run's bag
+    given again) refused before any work: copied beside this run's messages, two runs'
+    odometry, masks and ``/tf`` edges would share one topic at the same stamps.
+
+    Raises:
+      InputError: naming the input and the first of jaxvo's topics it holds.
+    """
+    from jaxvo.host.rosbag import is_bag, open_reader
+
+    path = getattr(seq, "path", "")
+    if not (options.folder and options.with_input and is_bag(path)):
+        return
+    with contextlib.closing(open_reader(Path(path))) as reader:
+        topics = {c.topic for c in reader.connections}
+    held = [t for t in _OWN_TOPICS if t in topics]
+    if held:
+        raise InputError(f"--with-input: {path} already holds {held[0]} (a jaxvo run's bag?); "
+                         "copied with this run's, two runs' odometry and /tf would share "
+                         "their topics; give the bag the first run read, or leave out "
+                         "--with-input")
+
+
 def frame_times(seq) -> tuple[np.ndarray, np.ndarray]:
     """Each frame's header stamp and record time, int64 nanoseconds (N,) each.
 
