@@ -483,10 +483,15 @@ def test_the_storage_file_is_named_after_the_bag_not_its_temporary_folder(
     from ruamel.yaml import YAML  # rosbags' own YAML library
 
     bag = tmp_path / "run_bag"
+    name = f"run_bag{suffix}"
     with bagout.BagWriter(bag, open_sequence(folder), storage=storage) as writer:
         writer.write_pose(0, np.eye(4))
+        # what a failure names: the bag's files where the user finds them, another as is
+        assert writer._where(None) == bag / name
+        assert writer._where(str(writer._out.temporary / "metadata.yaml")) == (
+            bag / "metadata.yaml")
+        assert writer._where(str(folder / "rgb.txt")) is None
         writer.finish()
-    name = f"run_bag{suffix}"
     assert sorted(p.name for p in bag.iterdir()) == sorted(["metadata.yaml", name])
     info = YAML(typ="safe").load((bag / "metadata.yaml").read_text())[
         "rosbag2_bagfile_information"]

@@ -41,8 +41,9 @@ velocity, so the twist is zero with its covariance's element 0 at -1, "no estima
 Whole or nothing, as every output of jaxvo (:class:`jaxvo.host.outputs.OutputFolder`): the
 bag is written in a folder of the target's name inside a hidden temporary folder beside the
 target (so its storage file is ``NAME/NAME.mcap``, as ``rosbags`` names it after its folder)
-and renamed onto it once finished; a failure, or an exception that leaves before :meth:`BagWriter.finish` (a second
-Ctrl-C too), removes the temporary folder and leaves nothing at the target.
+and renamed onto it once finished; a failure, or an exception that leaves before
+:meth:`BagWriter.finish` (a second Ctrl-C too), removes the temporary folder and leaves
+nothing at the target. A failure names the bag's file as the user finds it.
 """
 
 from __future__ import annotations
@@ -286,20 +287,26 @@ class BagWriter:
         try:
             fn(*args)
         except OSError as exc:
-            where = self.storage_file
-            if exc.filename:
-                try:
-                    where = self.target / Path(exc.filename).relative_to(self._out.temporary)
-                except ValueError:  # another file (the input bag read): as it is
-                    self.error = exc
-                    raise
-            self.error = OSError(exc.errno, exc.strerror or str(exc), str(where))
+            where = self._where(exc.filename)
+            self.error = exc if where is None else OSError(exc.errno, exc.strerror or str(exc),
+                                                           str(where))
             raise self.error from None
         except sqlite3.Error as exc:  # "database or disk is full"
             full = "full" in str(exc)
             self.error = OSError(errno.ENOSPC if full else errno.EIO, os.strerror(
                 errno.ENOSPC) if full else f"SQLite: {exc}", str(self.storage_file))
             raise self.error from None
+
+    def _where(self, filename) -> Path | None:
+        """The file an error names, as the user will find it: the storage file where it
+        names none, the place in the target of one in the temporary folder, None for
+        another file (the input bag read: named as it is)."""
+        if not filename:
+            return self.storage_file
+        try:
+            return self.target / Path(filename).relative_to(self._out.temporary)
+        except ValueError:
+            return None
 
     def write_pose(self, index: int, T_w_c: np.ndarray) -> None:
         """Frame ``index``'s pose (camera to world, (4, 4)) as odometry and as tf."""
