@@ -39,13 +39,7 @@ import numpy as np
 from jaxvo.config import Config, check_config
 from jaxvo.errors import InputError, check_seed
 from jaxvo.errors import warn as warn_user
-from jaxvo.host.bagout import (
-    BagOptions,
-    check_bag_input,
-    check_bag_options,
-    check_bag_target,
-    open_bag,
-)
+from jaxvo.host.bagout import BagOptions, check_bag_options, check_bag_target, open_bag
 from jaxvo.host.camera import Intrinsics, check_depth_scale_value
 from jaxvo.host.mapping import MapOptions, make_maps, map_outputs
 
@@ -149,6 +143,8 @@ def _outputs(o: RunOptions, seq, n: int) -> tuple[Path | str, dict[str, Path]]:
     check_outputs(seq.files(), files=files,
                   folders={**{k: Path(v) for k, v in given.items()}, **bag})
     if o.bag.folder:
+        from jaxvo.host.bagout import check_bag_input
+
         check_bag_target(o.bag.folder)
         check_bag_input(o.bag, seq)
     for what, path in files.items():
