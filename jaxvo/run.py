@@ -15,7 +15,9 @@ truth. The run's summary is a dict, which :func:`summary_lines` puts in words, a
 Each check runs once a run: :func:`prepare_run` checks the settings against the image size
 and the memory they need, :func:`record_run` the first frame's depth, and the odometry is
 told so (``Odometry(checked=True)``). Every file appears whole or not at all
-(:mod:`jaxvo.host.outputs`).
+(:mod:`jaxvo.host.outputs`); an output other than the trajectory that fails (a full disk)
+stops the run as Ctrl-C does, the trajectory kept, and is then raised
+(:class:`OutputFailures`).
 """
 
 from __future__ import annotations
@@ -141,7 +143,10 @@ def _outputs(o: RunOptions, seq, n: int) -> tuple[Path | str, dict[str, Path]]:
     check_outputs(seq.files(), files=files,
                   folders={**{k: Path(v) for k, v in given.items()}, **bag})
     if o.bag.folder:
+        from jaxvo.host.bagout import check_bag_input
+
         check_bag_target(o.bag.folder)
+        check_bag_input(o.bag, seq)
     for what, path in files.items():
         output_file(path, what=what)
     if o.rerun or o.rerun_save:
@@ -203,9 +208,10 @@ def record_run(run: PreparedRun, *, stop=None,
                                       max_diff=o.max_diff, required=bool(o.start_pose))
     odo = Odometry(seq.intrinsics, cfg=o.cfg, seed=o.seed, T_w_c0=T_w_c0, checked=True)
     progress = Progress("jaxvo run", n - 1, enabled=not o.quiet)
+    failures = OutputFailures()
     # the recording and the bag are whole once the run and its map are (the recording
     # closed last); an error discards both, and an earlier recording stays
-    with _logger(o, odo, gt) as logger, open_bag(o.bag, seq, cell=o.cfg.cell) as bag:
+    with _logger(o, odo, gt, failures) as logger, open_bag(o.bag, seq, cell=o.cfg.cell) as bag:
         # leaving this block, also by Ctrl-C, closes the reader, writes every image queued,
         # then puts the trajectory file in place (whole, with every pose computed)
         with (TrajectoryWriter(out, comment=run_header(o.sequence, seq)) as writer,
@@ -213,10 +219,13 @@ def record_run(run: PreparedRun, *, stop=None,
               contextlib.closing(reads),
               announce_compile("the per-frame step", stream=None if o.quiet else sys.stderr)
               as compiling):
-            rec = Recorder(o.cfg, writer, images, folders, keep_dynamic=bool(o.map), bag=bag)
+            rec = Recorder(o.cfg, writer, images, folders, keep_dynamic=bool(o.map), bag=bag,
+                           failures=failures)
             rec.process(odo, itertools.chain(early, ((i, fut.result) for i, fut in reads)),
                         stop, progress)
+            failures.call(images.close)  # the last images and bag messages written
         progress.close()
+        failures.raise_kept()  # the trajectory in place: now the failure
         summary = _summary(o, seq, n, start, rec, compiling, warnings, out)
         # a Ctrl-C after the last frame: no map; the bag finished with every frame, as the
         # trajectory was put in place with every pose; then the run says it was interrupted
@@ -232,17 +241,57 @@ def record_run(run: PreparedRun, *, stop=None,
     return summary
 
 
-def _logger(o: RunOptions, odo, gt):
+def _logger(o: RunOptions, odo, gt, failures: OutputFailures):
     """The run's Rerun logger attached to ``odo`` (a context that closes it), or a context
-    holding None."""
+    holding None; a failure of its frames' logging goes to ``failures``."""
     if not (o.rerun or o.rerun_save):
         return contextlib.nullcontext(None)
     from jaxvo.host.recording import RerunLogger
 
     logger = RerunLogger(save=o.rerun_save, spawn=o.rerun, what="--rerun-save")
-    odo.attach(logger)
+    odo.attach(_Logging(logger, failures))
     logger.log_groundtruth(gt)
     return logger
+
+
+class OutputFailures:
+    """The first failure of an output other than the trajectory (the masks, overlays, bag,
+    recording: a full disk there), kept instead of raised where it happens: the run then
+    stops at the next frame as after Ctrl-C, the trajectory (on a disk that may be healthy)
+    is put in place with the poses computed, and the failure is raised
+    (:meth:`raise_kept`), naming its file. The outputs not finished (the bag, the
+    recording, the map) are not written."""
+
+    def __init__(self) -> None:
+        self.error: OSError | None = None
+
+    def call(self, fn, *args) -> None:
+        """``fn(*args)``, its ``OSError`` kept; nothing once one failed."""
+        if self.error is not None:
+            return
+        try:
+            fn(*args)
+        except OSError as exc:
+            self.error = exc
+
+    def raise_kept(self) -> None:
+        """Raise the failure kept, if any."""
+        if self.error is not None:
+            raise self.error
+
+
+class _Logging:
+    """The run's logger as the odometry calls it, a failure kept in ``failures`` (raised
+    inside the odometry, it would lose the frame's result)."""
+
+    def __init__(self, logger, failures: OutputFailures) -> None:
+        self.logger, self.failures = logger, failures
+
+    def setup(self, intrinsics, cell: int) -> None:
+        self.logger.setup(intrinsics, cell)
+
+    def log_frame(self, r, *images) -> None:
+        self.failures.call(self.logger.log_frame, r, *images)
 
 
 class Recorder:
@@ -257,14 +306,17 @@ class Recorder:
       folders: ``--masks``, ``--dynamic-masks``, ``--overlays`` -> the folder written.
       keep_dynamic: keep each frame's dynamic cells for the map (:attr:`dynamic`).
       bag: the :class:`~jaxvo.host.bagout.BagWriter`, or None.
+      failures: where a failure on the writer thread is kept (:class:`OutputFailures`);
+        the run stops at the next frame after one.
     """
 
     def __init__(self, cfg: Config, writer, images, folders: dict[str, Path], *,
-                 keep_dynamic: bool = False, bag=None):
+                 keep_dynamic: bool = False, bag=None, failures: OutputFailures | None = None):
         from jaxvo.host.plugin import LabelAnchor  # OpenCV's masks: not before the run
 
         self.cfg, self.writer, self.images, self.folders = cfg, writer, images, folders
         self.bag = bag  # written on the writer thread, as the images
+        self.failures = failures if failures is not None else OutputFailures()
         self.skipped: Counter[str] = Counter()
         self.dropped: Counter[str] = Counter()
         self.times: list[float] = []
@@ -287,6 +339,8 @@ class Recorder:
             submitted = 0
             for i, read in frames:
                 stop()  # Ctrl-C is taken here, between frames, never inside a compile
+                if self.failures.error is not None:  # an output failed: stop as Ctrl-C does
+                    break
                 t0 = time.perf_counter()
                 self.seen += 1
                 try:
@@ -322,7 +376,7 @@ class Recorder:
         if self.dynamic is not None:
             self.dynamic[frame.index] = output.dynamic
         if "--dynamic-masks" in self.folders or self.bag is not None:
-            self.images.submit(self.write_images, frame, None, output.dynamic)
+            self.submit(self.write_images, frame, None, output.dynamic)
 
     def record(self, r) -> None:
         """One finished frame: its pose now (a line, flushed: a second Ctrl-C, which ends
@@ -331,13 +385,13 @@ class Recorder:
 
         frame = self.recent.pop(r.index)
         if self.bag is not None and self.bag.input_frames:
-            self.images.submit(self.bag.write_frame, frame)
+            self.submit(self.bag.write_frame, frame)
         if r.dropped is not None:
             self.dropped[r.dropped] += 1
             return
         self.writer.write(r.timestamp, r.T_w_c)
         if self.bag is not None:
-            self.images.submit(self.bag.write_pose, frame.index, r.T_w_c)
+            self.submit(self.bag.write_pose, frame.index, r.T_w_c)
         self.written += 1
         image = self.labels.push(frame, r.output)
         if image is None:
@@ -352,7 +406,11 @@ class Recorder:
         if self.dynamic is not None:
             self.dynamic[image.index] = r.output.dynamic
         if self.folders or self.bag is not None:
-            self.images.submit(self.write_images, image, r, r.output.dynamic)
+            self.submit(self.write_images, image, r, r.output.dynamic)
+
+    def submit(self, fn, *args) -> None:
+        """``fn(*args)`` on the writer thread; a failure there kept (:attr:`failures`)."""
+        self.failures.call(self.images.submit, fn, *args)
 
     def write_images(self, frame, r, moving) -> None:
         """The images of a pair whose labels lie on ``frame``'s image, named by its time as

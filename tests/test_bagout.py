@@ -104,6 +104,7 @@ def test_a_run_writes_a_bag_that_independent_readers_read_back(folder, tmp_path,
     seq = open_sequence(folder)
     est = read_trajectory(traj)
     assert len(est) == N and summary["bag"] == str(bag)
+    assert sorted(p.name for p in bag.iterdir()) == ["metadata.yaml", "run_bag.mcap"]
     no_leftovers(bag)
     got = read_bag(bag)
     assert got["_types"] == {
@@ -312,6 +313,26 @@ def test_targets_refused_before_any_work(folder, tmp_path, capsys):
     assert not (tmp_path / "b").exists()
 
 
+def test_an_input_bag_that_holds_jaxvos_topics_is_refused_with_input(folder, tmp_path,
+                                                                       capsys):
+    """A run's bag (written --with-input) given again --with-input: its odometry and /tf
+    were copied beside the new run's, 12 odometry messages on one topic at 6 stamps, and
+    nothing said. Refused in one line, naming the topic, before any work; without
+    --with-input the bag is read as any other."""
+    first = tmp_path / "first"
+    code, _, err = cli(capsys, "run", folder, "--out", tmp_path / "t1.txt", "--out-bag",
+                       first, "--with-input", "-q")
+    assert code == 0, err
+    code, _, err = cli(capsys, "run", first, "--out", tmp_path / "t2.txt", "--out-bag",
+                       tmp_path / "second", "--with-input", "-q")
+    one_line_error(code, err, f"--with-input: {first} already holds {ODOMETRY_TOPIC}")
+    assert not (tmp_path / "t2.txt").exists() and not (tmp_path / "second").exists()
+    code, _, err = cli(capsys, "run", first, "--out", tmp_path / "t2.txt", "--out-bag",
+                       tmp_path / "second", "-q")
+    assert code == 0, err
+    assert len(read_bag(tmp_path / "second")[ODOMETRY_TOPIC]) == N
+
+
 def test_an_unwritable_folder_is_one_line(folder, tmp_path, capsys):
     import os
 
@@ -376,13 +397,19 @@ def test_ctrl_c_after_the_frames_finishes_the_bag_as_the_trajectory(folder, tmp_
     no_leftovers(bag)
 
 
-@pytest.mark.parametrize("fail_in, error", [
-    ("write_mask", OSError(28, "No space left on device", "bag.mcap")),  # the run's thread
-    ("_write_mask", OSError(28, "No space left on device", "bag.mcap")),  # the bag's thread
-    ("finish", KeyboardInterrupt()),  # Ctrl-C after the frames, while the bag is finished
+@pytest.mark.parametrize("fail_in, error, named", [
+    # the run's thread, the error naming its file
+    ("write_mask", OSError(28, "No space left on device", "bag.mcap"), "bag.mcap"),
+    # the bag's thread, as rosbags' MCAP writer fails on a full disk: no file named
+    ("_write_mask", OSError(28, "No space left on device"), "bag/bag.mcap"),
+    ("finish", KeyboardInterrupt(), None),  # Ctrl-C after the frames, while it is finished
 ], ids=["disk-full", "disk-full-on-the-bag-thread", "ctrl-c-at-the-end"])
 def test_a_bag_that_cannot_be_finished_leaves_nothing(folder, tmp_path, capsys, monkeypatch,
-                                                      fail_in, error):
+                                                      fail_in, error, named):
+    """A bag that fails (a full disk) said 'No space left on device' naming no file, and
+    the run's trajectory, on a disk that may be healthy, was discarded with it. Now the
+    bag's file is named, the run stops at the next frame and the trajectory keeps the poses
+    computed; the bag is not written."""
     calls = {"n": 0}
     real = getattr(bagout.BagWriter, fail_in)
 
@@ -397,14 +424,81 @@ def test_a_bag_that_cannot_be_finished_leaves_nothing(folder, tmp_path, capsys, 
     code, _, err = cli(capsys, "run", folder, "--out", tmp_path / "t.txt", "--out-bag", bag,
                        "-q")
     if isinstance(error, OSError):
-        one_line_error(code, err, "bag.mcap: No space left on device")
+        one_line_error(code, err, f"{tmp_path / named if '/' in named else named}: No space "
+                       "left on device")
     else:
         assert code == 130 and "interrupted" in err
+    assert 1 <= len(read_trajectory(tmp_path / "t.txt")) <= N
     assert not bag.exists()
     no_leftovers(bag)
 
 
+@pytest.mark.parametrize("storage", ["mcap", "sqlite3"])
+def test_a_full_disk_under_the_bag_names_its_file_and_keeps_the_trajectory(
+        folder, tmp_path, storage):
+    """A real full disk (a 300 KiB tmpfs in a user namespace, where the kernel allows one)
+    under --out-bag, the trajectory on a healthy disk: one line naming the bag's file (MCAP
+    fails during the frames, SQLite when the bag is closed), exit 2, the trajectory whole
+    with the poses computed, nothing left on the full disk."""
+    import os
+    import shlex
+    import signal
+    import subprocess
+    import sys
+
+    mount, traj = tmp_path / "small", tmp_path / "t.txt"
+    mount.mkdir()
+    run = [sys.executable, "-c", "import sys; from jaxvo.cli.main import main; "
+           "sys.exit(main())", "run", str(folder), "--out", str(traj), "--out-bag",
+           str(mount / "bag"), "--bag-storage", storage, "-q"]
+    shell = (f"mount -t tmpfs -o size=300k tmpfs {mount} && {shlex.join(run)}; echo $?; "
+             f"ls -A {mount}")
+    proc = subprocess.Popen(["unshare", "-rm", "sh", "-c", shell], stdout=subprocess.PIPE,
+                            stderr=subprocess.PIPE, text=True, start_new_session=True)
+    try:
+        out, err = proc.communicate(timeout=300)
+    except subprocess.TimeoutExpired:
+        os.killpg(proc.pid, signal.SIGKILL)
+        proc.communicate()
+        pytest.fail("the run never ended")
+    if "jaxvo" not in err and "mount" in err:
+        pytest.skip(f"no tmpfs in a user namespace here: {err.strip()[:200]}")
+    suffix = ".mcap" if storage == "mcap" else ".db3"
+    assert out == "2\n", (out, err[-2000:])  # the exit status, and nothing on the disk
+    assert err.startswith(f"jaxvo: error: {mount / 'bag' / ('bag' + suffix)}: No space left "
+                          "on device") and err.count("\n") == 1, err[-2000:]
+    assert 1 <= len(read_trajectory(traj)) <= N
+    assert sorted(p.name for p in tmp_path.iterdir()) == ["small", "t.txt"]
+
+
 # --- the pieces -------------------------------------------------------------------------
+
+
+@pytest.mark.parametrize("storage, suffix", [("mcap", ".mcap"), ("sqlite3", ".db3")])
+def test_the_storage_file_is_named_after_the_bag_not_its_temporary_folder(
+        folder, tmp_path, storage, suffix):
+    """rosbags names the storage file after the folder it writes in: the bag is written in
+    a folder of the target's own name (inside a hidden one), so that the file is
+    ``run_bag/run_bag.mcap`` as docs/ros.md says, and metadata.yaml lists that name."""
+    from ruamel.yaml import YAML  # rosbags' own YAML library
+
+    bag = tmp_path / "run_bag"
+    name = f"run_bag{suffix}"
+    with bagout.BagWriter(bag, open_sequence(folder), storage=storage) as writer:
+        writer.write_pose(0, np.eye(4))
+        # what a failure names: the bag's files where the user finds them, another as is
+        assert writer._where(None) == bag / name
+        assert writer._where(str(writer._out.temporary / "metadata.yaml")) == (
+            bag / "metadata.yaml")
+        assert writer._where(str(folder / "rgb.txt")) is None
+        writer.finish()
+    assert sorted(p.name for p in bag.iterdir()) == sorted(["metadata.yaml", name])
+    info = YAML(typ="safe").load((bag / "metadata.yaml").read_text())[
+        "rosbag2_bagfile_information"]
+    assert info["relative_file_paths"] == [name]
+    assert [f["path"] for f in info["files"]] == [name]
+    assert len(read_bag(bag)[ODOMETRY_TOPIC]) == 1
+    no_leftovers(bag)
 
 
 def test_a_second_ctrl_c_leaves_no_bag_and_nothing_beside(folder, tmp_path):

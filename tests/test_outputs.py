@@ -178,12 +178,15 @@ def test_a_folder_appears_whole_or_not_at_all(tmp_path):
 
 def test_a_folder_a_library_makes_takes_an_empty_target_and_leaves_nothing_beside(tmp_path):
     """make_folder=False: the library makes the folder at the temporary path (rosbags'
-    writer refuses one that exists); a target made empty beforehand (by a script) is taken;
-    a discard before the library made anything leaves nothing either."""
+    writer refuses one that exists), named as the target inside a hidden holder; a target
+    made empty beforehand (by a script) is taken; a discard before the library made
+    anything leaves nothing either."""
     target = tmp_path / "bag"
     target.mkdir()
     with OutputFolder(target, make_folder=False) as folder:
-        assert not folder.temporary.exists()
+        # the target's own name (a library may name its files after the folder), hidden
+        assert not folder.temporary.exists() and folder.temporary.name == "bag"
+        assert folder.temporary.parent.parent == tmp_path
         folder.temporary.mkdir()  # as rosbags' Writer.open does
         (folder.temporary / "metadata.yaml").write_text("x")
     assert (target / "metadata.yaml").read_text() == "x" and leftovers(tmp_path) == []

@@ -217,6 +217,85 @@ def test_a_tmpfs_that_fills_mid_recording_names_the_file(tmp_path):
     assert done.stdout.strip() == "True True b'earlier' ['r.rrd']", done.stderr[-2000:]
 
 
+def test_a_recording_that_fails_mid_run_keeps_the_trajectory(seq_dir, tmp_path, capsys,
+                                                             monkeypatch):
+    """A recording that fails during the frames (its disk full) discarded the trajectory,
+    on a disk that may be healthy, with it. Now the run stops at the next frame as after
+    Ctrl-C: one line naming the recording, exit 2, the trajectory with the poses computed,
+    the earlier recording as it was."""
+    _rerun()
+    from jaxvo.host import recording
+
+    traj, rrd = tmp_path / "t.txt", tmp_path / "r.rrd"
+    rrd.write_bytes(b"an earlier recording")
+    real = recording.RerunLogger._log_frame
+    calls = {"n": 0}
+
+    def log_frame(self, *args):
+        calls["n"] += 1
+        if calls["n"] == 2:
+            raise OSError(28, "No space left on device", str(rrd))
+        real(self, *args)
+
+    monkeypatch.setattr(recording.RerunLogger, "_log_frame", log_frame)
+    code = main(["run", str(seq_dir), "--out", str(traj), "--rerun-save", str(rrd), "-q"])
+    err = capsys.readouterr().err
+    assert code == 2 and err == f"jaxvo: error: {rrd}: No space left on device\n", err
+    assert 2 <= len(read_trajectory(traj)) <= FRAMES
+    assert rrd.read_bytes() == b"an earlier recording"
+    assert sorted(p.name for p in tmp_path.iterdir()) == ["r.rrd", "t.txt"]
+
+
+def test_a_disk_that_fills_at_the_end_of_the_recording_is_said_and_the_process_ends(
+        tmp_path):
+    """A disk that fills late in a recording (a 1200 KiB tmpfs in a user namespace, where
+    the kernel allows one, under 5 frames of 1.9 MB) left Rerun's file writer stuck: close()
+    raised the OSError naming the file, but the process then waited for ever, in
+    RecordingStream.__del__ when the error was let go (``jaxvo run --rerun-save`` never
+    printed it), and in Rerun's flush at exit. Now the error is said and the process ends."""
+    import os
+
+    _rerun()
+    mount = tmp_path / "small"
+    mount.mkdir()
+    code = (
+        "import sys\n"
+        "from types import SimpleNamespace\n"
+        "import numpy as np\n"
+        "from jaxvo.host.camera import Intrinsics\n"
+        "from jaxvo.host.recording import RerunLogger\n"
+        f"path = {str(mount / 'r.rrd')!r}\n"
+        "rng = np.random.default_rng(0)\n"
+        "def run():\n"
+        "    with RerunLogger(save=path) as logger:\n"
+        "        logger.setup(Intrinsics(525.0, 525.0, 319.5, 239.5), 16)\n"
+        "        for i in range(5):\n"
+        "            r = SimpleNamespace(index=i, timestamp=i / 30, T_w_c=np.eye(4),\n"
+        "                                dropped=None, output=None)\n"
+        "            logger.log_frame(r, rng.integers(0, 255, (480, 640, 3), np.uint8),\n"
+        "                             rng.uniform(0.5, 4.0, (480, 640)).astype(np.float32))\n"
+        "try:\n"
+        "    run()\n"
+        "except OSError as exc:\n"
+        "    print(exc.errno, exc.filename == path, flush=True)\n"
+        "print('ended', flush=True)\n")
+    script = tmp_path / "fill.py"
+    script.write_text(code)
+    shell = f"mount -t tmpfs -o size=1200k tmpfs {mount} && exec {sys.executable} {script}"
+    proc = subprocess.Popen(["unshare", "-rm", "sh", "-c", shell], stdout=subprocess.PIPE,
+                            stderr=subprocess.PIPE, text=True, start_new_session=True,
+                            env={**os.environ, "RUST_LOG": "off"})
+    try:
+        out, err = proc.communicate(timeout=120)
+    except subprocess.TimeoutExpired:
+        os.killpg(proc.pid, signal.SIGKILL)
+        out, err = proc.communicate()
+        pytest.fail(f"the process never ended (Rerun's file writer stuck): {out!r}")
+    if proc.returncode != 0 and "mount" in err:
+        pytest.skip(f"no tmpfs in a user namespace here: {err.strip()[:200]}")
+    assert proc.returncode == 0 and out == "28 True\nended\n", (out, err[-2000:])
+
+
 def test_loggers_that_are_no_loggers_and_a_viewer_that_cannot_start(tmp_path, monkeypatch):
     _rerun()
     from jaxvo.host import recording

@@ -136,8 +136,11 @@ def interrupt_at_safe_points(*, safe: bool = True) -> Iterator[StopRequest]:
     as Python does. A second one ends the process at once with 128 + the signal's number,
     without the interpreter's clean-up that crashed: the outputs being written are settled
     first (:func:`jaxvo.host.outputs.abort_pending`: the trajectory, whole at every pose,
-    is kept; a file half-written is not). Off the main thread, or where SIGINT is ignored,
-    interrupts are left as they are. Nested, it yields the request already installed.
+    is kept; a file half-written is not). Off the main thread signals are left as they are;
+    a signal the process started with ignored stays ignored, each on its own: a shell
+    without job control starts a background job (``jaxvo run ... &`` in a script) with
+    SIGINT ignored, and its ``kill`` (SIGTERM) must still stop the run with what was
+    finished kept. Nested, it yields the request already installed.
     """
     global _CURRENT
     if _CURRENT is not None:
@@ -165,8 +168,8 @@ def interrupt_at_safe_points(*, safe: bool = True) -> Iterator[StopRequest]:
 
     previous = {}
     try:
-        if signal.getsignal(signal.SIGINT) is not signal.SIG_IGN:
-            for sig in (signal.SIGINT, signal.SIGTERM):
+        for sig in (signal.SIGINT, signal.SIGTERM):
+            if signal.getsignal(sig) is not signal.SIG_IGN:
                 previous[sig] = signal.signal(sig, on_signal)
     except ValueError:  # not the main thread
         previous = {}

@@ -39,15 +39,19 @@ velocity, so the twist is zero with its covariance's element 0 at -1, "no estima
 (``sensor_msgs/msg/Imu``'s stated conventions, the ones ROS writes down).
 
 Whole or nothing, as every output of jaxvo (:class:`jaxvo.host.outputs.OutputFolder`): the
-bag is written in a hidden temporary folder beside the target and renamed onto it once
-finished; a failure, or an exception that leaves before :meth:`BagWriter.finish` (a second
-Ctrl-C too), removes the temporary folder and leaves nothing at the target.
+bag is written in a folder of the target's name inside a hidden temporary folder beside the
+target (so its storage file is ``NAME/NAME.mcap``, as ``rosbags`` names it after its folder)
+and renamed onto it once finished; a failure, or an exception that leaves before
+:meth:`BagWriter.finish` (a second Ctrl-C too), removes the temporary folder and leaves
+nothing at the target. A failure names the bag's file as the user finds it.
 """
 
 from __future__ import annotations
 
 import contextlib
 import dataclasses
+import errno
+import os
 from pathlib import Path
 from typing import NamedTuple, Self
 
@@ -67,6 +71,8 @@ MAP_TOPIC = "/jaxvo/static_map"
 WORLD_FRAME = "odom"
 CAMERA_FRAME = "camera_optical_frame"
 STORAGES = ("mcap", "sqlite3")
+# the storage file's suffix, as rosbags names it after the bag's folder
+_SUFFIX = {"mcap": ".mcap", "sqlite3": ".db3"}
 # the message definitions written: ROS 2 Jazzy's (rosbag2 metadata version 9 is Jazzy's)
 _STORE = "ros2_jazzy"
 _BAG_VERSION = 9
@@ -164,6 +170,33 @@ def check_bag_target(path: str | Path, *, what: str = "--out-bag") -> Path:
     return p
 
 
+# the topics jaxvo writes and no sensor does: an input that holds one is a jaxvo run's bag
+_OWN_TOPICS = (ODOMETRY_TOPIC, MASK_TOPIC, INFO_TOPIC, OVERLAY_TOPIC, MAP_TOPIC)
+
+
+def check_bag_input(options: BagOptions, seq) -> None:
+    """With ``--with-input``, an input bag that already holds jaxvo's topics (a run's bag
+    given again) refused before any work: copied beside this run's messages, two runs'
+    odometry, masks and ``/tf`` edges would share one topic at the same stamps.
+
+    Raises:
+      InputError: naming the input and the first of jaxvo's topics it holds.
+    """
+    from jaxvo.host.rosbag import is_bag, open_reader
+
+    path = getattr(seq, "path", "")
+    if not (options.folder and options.with_input and is_bag(path)):
+        return
+    with contextlib.closing(open_reader(Path(path))) as reader:
+        topics = {c.topic for c in reader.connections}
+    held = [t for t in _OWN_TOPICS if t in topics]
+    if held:
+        raise InputError(f"--with-input: {path} already holds {held[0]} (a jaxvo run's bag?); "
+                         "copied with this run's, two runs' odometry and /tf would share "
+                         "their topics; give the bag the first run read, or leave out "
+                         "--with-input")
+
+
 def frame_times(seq) -> tuple[np.ndarray, np.ndarray]:
     """Each frame's header stamp and record time, int64 nanoseconds (N,) each.
 
@@ -218,6 +251,9 @@ class BagWriter:
         if storage not in STORAGES:
             raise InputError(f"bag storage {storage!r}: one of {', '.join(STORAGES)}")
         self.target = Path(target)
+        # the storage file as the user finds it, what a failure names
+        self.storage_file = self.target / f"{self.target.name}{_SUFFIX[storage]}"
+        self.error: OSError | None = None  # the first failure on the bag's thread
         self.frames = frames or Frames()
         self.overlay_cell = overlay_cell
         self.stamps_ns, self.record_ns = frame_times(seq)
@@ -235,28 +271,63 @@ class BagWriter:
         self._dry = False  # serialise, do not write (_open)
         self.finished = False
         self._thread = BackgroundWriter(limit=_QUEUE)
-        self._thread.submit(self._open, seq.height, seq.width)
+        self._submit(self._open, seq.height, seq.width)
+
+    def _submit(self, fn, *args) -> None:
+        """``fn(*args)`` on the bag's thread, a failure named (:meth:`_named`)."""
+        self._thread.submit(self._named, fn, *args)
+
+    def _named(self, fn, *args) -> None:
+        """``fn(*args)``; a failure of the bag's files (a full disk: rosbags' and SQLite's
+        errors name no file, or the temporary folder's) as an ``OSError`` naming the bag's
+        file where the user will find it, kept so that :meth:`finish` never puts in place
+        a bag that failed."""
+        import sqlite3
+
+        try:
+            fn(*args)
+        except OSError as exc:
+            where = self._where(exc.filename)
+            self.error = exc if where is None else OSError(exc.errno, exc.strerror or str(exc),
+                                                           str(where))
+            raise self.error from None
+        except sqlite3.Error as exc:  # "database or disk is full"
+            full = "full" in str(exc)
+            self.error = OSError(errno.ENOSPC if full else errno.EIO, os.strerror(
+                errno.ENOSPC) if full else f"SQLite: {exc}", str(self.storage_file))
+            raise self.error from None
+
+    def _where(self, filename) -> Path | None:
+        """The file an error names, as the user will find it: the storage file where it
+        names none, the place in the target of one in the temporary folder, None for
+        another file (the input bag read: named as it is)."""
+        if not filename:
+            return self.storage_file
+        try:
+            return self.target / Path(filename).relative_to(self._out.temporary)
+        except ValueError:
+            return None
 
     def write_pose(self, index: int, T_w_c: np.ndarray) -> None:
         """Frame ``index``'s pose (camera to world, (4, 4)) as odometry and as tf."""
-        self._thread.submit(self._write_pose, index, np.array(T_w_c, np.float64))
+        self._submit(self._write_pose, index, np.array(T_w_c, np.float64))
 
     def write_mask(self, frame, mask: np.ndarray, output=None) -> None:
         """A frame's dynamic mask ((H, W) uint8, 255 = moving, as ``--dynamic-masks`` writes
         it) and the camera it is registered to; with ``overlay_cell``, the frame tinted by
         the identifiers of ``output`` (its pair's ``StepOutput``; None: no overlay)."""
-        self._thread.submit(self._write_mask, frame, mask, output)
+        self._submit(self._write_mask, frame, mask, output)
 
     def write_frame(self, frame) -> None:
         """With ``with_input`` from a folder: the frame's colour, depth and camera on TUM's
         bag topics (what ``jaxvo run`` reads from a bag by default); else nothing."""
         if self.input_frames:
-            self._thread.submit(self._write_frame, frame)
+            self._submit(self._write_frame, frame)
 
     def write_map(self, pmap, index: int) -> None:
         """The static map (:class:`jaxvo.host.mapping.PointMap`, world frame) as one
         ``PointCloud2`` (x y z float32 and PCL's packed ``rgb``), at frame ``index``'s time."""
-        self._thread.submit(self._write_map, pmap, index)
+        self._submit(self._write_map, pmap, index)
 
     # -- messages ----------------------------------------------------------------------
 
@@ -434,8 +505,10 @@ class BagWriter:
         """Every message written, the input bag copied (``with_input``), the bag closed and
         renamed into place; the summary's part (``bag``, ``bag_messages``,
         ``bag_input_messages``, ``bag_topics``)."""
-        self._thread.submit(self._close)
+        self._submit(self._close)
         self._thread.close()  # waits; raises what failed on the bag's thread
+        if self.error is not None:  # raised before, by a write_* on another thread
+            raise self.error
         self._out.commit()
         self.finished = True
         return self._summary

@@ -530,7 +530,10 @@ class OutputFolder(_WholeOrNothing):
       make_folder: create :attr:`temporary` here; False leaves it to a library that makes
         the folder at a path it is given and refuses one that exists (``rosbags``' bag
         writer, :mod:`jaxvo.host.bagout`), as :class:`OutputFile`'s ``open_file`` leaves a
-        file to Rerun.
+        file to Rerun. Such a library may name its files after the folder (a bag's
+        ``NAME/NAME.mcap``), so :attr:`temporary` then carries the target's own name, inside
+        a hidden holder folder beside the target that :meth:`commit` and :meth:`discard`
+        remove.
     """
 
     keep_on_abort = False
@@ -544,12 +547,13 @@ class OutputFolder(_WholeOrNothing):
         if real.exists() and not (real.is_dir() and not any(real.iterdir())):
             raise InputError(f"{self.what} {self.path}: exists and is not an empty folder")
         token = f"{os.getpid()}-{secrets.token_hex(4)}"
-        self.temporary = real.parent / f".{real.name[:_NAME_KEEP]}{_TAG}{token}{_PART}"
-        if make_folder:
-            try:
-                os.mkdir(self.temporary)
-            except OSError as exc:
-                raise OSError(exc.errno, exc.strerror, str(self.path)) from None
+        # what is removed on discard: the temporary folder, or the holder around it
+        self._holder = real.parent / f".{real.name[:_NAME_KEEP]}{_TAG}{token}{_PART}"
+        self.temporary = self._holder if make_folder else self._holder / real.name
+        try:
+            os.mkdir(self._holder)
+        except OSError as exc:
+            raise OSError(exc.errno, exc.strerror, str(self.path)) from None
         _PENDING[id(self)] = self
 
     def commit(self) -> None:
@@ -567,6 +571,7 @@ class OutputFolder(_WholeOrNothing):
         except OSError as exc:
             self._remove()
             raise OSError(exc.errno, exc.strerror, str(self.path)) from None
+        self._remove()  # the holder, empty now (none where the folder was made here)
 
     def discard(self) -> None:
         """Remove the temporary folder: the target stays as it was. Idempotent."""
@@ -579,7 +584,7 @@ class OutputFolder(_WholeOrNothing):
     def _remove(self) -> None:
         import shutil
 
-        shutil.rmtree(self.temporary, ignore_errors=True)
+        shutil.rmtree(self._holder, ignore_errors=True)
 
 
 class _Named:

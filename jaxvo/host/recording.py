@@ -135,6 +135,7 @@ class RerunLogger:
         self._file = None
         self._closed = False
         self._warned_closed = False
+        self._failed = False  # the file could not be written: Rerun's stream is let go
         if save is not None:
             save = output_file(save, what=what)
             self._file = OutputFile(save, what=what, open_file=False)
@@ -179,6 +180,7 @@ class RerunLogger:
         said = str(exc).strip().splitlines()[0] if str(exc).strip() else type(exc).__name__
         if self._file is None:
             return OSError(errno.EIO, f"the Rerun viewer: {said}")
+        self._failed = True
         code = re.search(r"\(os error (\d+)\)", str(exc))
         number = int(code[1]) if code else (
             errno.ENOSPC if _disk_full(self._file.target.parent) else None)
@@ -330,6 +332,7 @@ class RerunLogger:
         except BaseException:
             if self._file is not None:
                 self._file.discard()
+            self._let_go()
             raise
         if self._file is not None:
             self._file.commit()
@@ -344,6 +347,23 @@ class RerunLogger:
             self._writer.close()
         if self._file is not None:
             self._file.discard()
+        self._let_go()
+
+    def _let_go(self) -> None:
+        """After the file failed: Rerun's stream left alone to the process's end. Its own
+        clean-up (a flush when the stream is collected, then a disconnect of the streams
+        no one holds, and a flush of every stream at exit) waited for ever on a file
+        writer stuck on a full disk, so that the process never ended and never said why.
+        Rerun's flush at exit goes too: it flushes every stream of the process, this one
+        included."""
+        if not self._failed:
+            return
+        rec = self.rec
+        # what RecordingStream.__del__ calls (rerun-sdk 0.41 keeps them on the instance)
+        rec._flush = lambda **kwargs: None
+        rec._disconnect_orphaned_recordings = lambda: None
+        _LET_GO.append(rec)  # never collected
+        self.rr.unregister_shutdown()
 
     def _flush(self) -> None:
         """Wait until Rerun has written everything logged. A file sink that stops growing
@@ -380,6 +400,8 @@ class RerunLogger:
             self.abandon()
 
 
+# the Rerun streams whose file failed, held to the process's end (RerunLogger._let_go)
+_LET_GO: list = []
 # The viewer is given this long to start listening (seconds); Rerun's own gRPC client waits
 # 7-11 s and then fails at the end of the run with a traceback
 VIEWER_WAIT = 10.0
