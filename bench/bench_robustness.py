@@ -19,7 +19,6 @@ Run: ``.venv/bin/python bench/bench_robustness.py [--split dev|val|all] [--only 
 from __future__ import annotations
 
 import argparse
-import dataclasses
 import datetime
 import hashlib
 import inspect
@@ -38,7 +37,7 @@ from _common import first_pose, groundtruth, log, machine, markdown_table
 from splits import Case, cases, runnable
 
 import jaxvo.host.keyframes
-from jaxvo.config import Config, Params, grid_shape, params_as_arrays
+from jaxvo.config import Config, Params, config_fields, grid_shape, params_as_arrays
 from jaxvo.core.inputs import GridFlow
 from jaxvo.core.pipeline import final_moving, init_pipeline, jit_step
 from jaxvo.evaluation.metrics import SegmentationScores
@@ -111,7 +110,7 @@ def flow_path(case: Case, cache: Path, cfg: Config) -> Path:
     when it holds the keyframe flow too (``cfg.keyframes``)."""
     if not cfg.keyframes:
         return cache / f"{case.name}__{_flow_key(cfg)}.npz"
-    fields = {f.name: getattr(cfg, f.name) for f in dataclasses.fields(cfg)
+    fields = {f.name: getattr(cfg, f.name) for f in config_fields().values()
               if f.name.startswith("keyframe")}
     kf = hashlib.sha1(json.dumps([fields, inspect.getsource(jaxvo.host.keyframes)],
                                  sort_keys=True).encode()).hexdigest()[:8]

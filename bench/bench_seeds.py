@@ -45,6 +45,7 @@ from jaxvo.config import (
     StepOptions,
     check_config,
     check_params,
+    config_fields,
     grid_shape,
     params_as_arrays,
 )
@@ -102,7 +103,7 @@ def _setting(defaults, text: str) -> tuple[str, object]:
     unknown name or a value of the wrong type."""
     name, sep, value = text.partition("=")
     fields = defaults._fields if isinstance(defaults, tuple) else [
-        f.name for f in dataclasses.fields(defaults)]
+        f.name for f in config_fields().values()]
     if not sep or name not in fields:
         raise ValueError(f"{text!r}: want NAME=VALUE, NAME one of {', '.join(fields)}")
     kind = type(getattr(defaults, name))

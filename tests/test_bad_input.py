@@ -183,9 +183,9 @@ def test_synth_and_demo_options_out_of_range(tmp_path, capsys, args, needles):
 
 
 def test_check_params_names_the_field_and_its_range():
-    from jaxvo.config import _PARAM_RANGES
+    from jaxvo.config import PARAM_SPANS
 
-    assert set(_PARAM_RANGES) == set(Params._fields)  # every field has its range
+    assert set(PARAM_SPANS) == set(Params._fields)  # every field has its range
     check_params(Params())  # the defaults pass, and so does a batch of good values
     check_params(Params(confidence=np.array([0.9, 0.99]), evidence_margin=np.zeros(2)))
     with pytest.raises(InputError, match=r"^Params.evidence_margin must be in \[0, inf\), got -1$"):

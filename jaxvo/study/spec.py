@@ -53,7 +53,7 @@ import json
 from pathlib import Path
 from typing import Any, NamedTuple
 
-from jaxvo.config import Config, Params, check_config, check_param
+from jaxvo.config import Config, Params, check_config, check_param, config_fields
 from jaxvo.errors import InputError
 
 # Columns of the results table: the scores of one run. ``moving_*`` need ground-truth
@@ -108,11 +108,6 @@ class StudySpec(NamedTuple):
     batch: int | None  # configurations per device and call (None: by backend)
     distributed: dict  # coordinator, num_processes, process_id as given
     source: str | None = None  # the spec's file (what the results must not overwrite)
-
-
-def config_fields() -> dict[str, dataclasses.Field]:
-    """``Config``'s fields by name (read at call time: the settings may change)."""
-    return {f.name: f for f in dataclasses.fields(Config)}
 
 
 def load_spec(path: str | Path, *, check_folders: bool = True) -> StudySpec:
@@ -377,7 +372,7 @@ def _parse_configs(data, bad):
     named |= {k for p in point_values for k in p}
     cfg_names = [f for f in config_fields() if f in named]
     settings = tuple(cfg_names + [f for f in Params._fields if f in named])
-    defaults = {**dataclasses.asdict(Config()), **Params()._asdict()}
+    defaults = {**Config().as_dict(), **Params()._asdict()}
     base = {k: fixed.get(k, defaults[k]) for k in settings}
 
     configs: list[dict] = []
