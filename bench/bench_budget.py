@@ -96,9 +96,10 @@ from jaxvo.evaluation.metrics import align_umeyama, ate
 from jaxvo.evaluation.scores import trajectory_scores
 from jaxvo.host.outputs import write_text
 from jaxvo.host.peers import OPEN3D_PEERS, OPENCV_PEERS, available_peers
-from jaxvo.host.transforms import invert_pose, relative_pose, rotation_angle
+from jaxvo.transforms import invert_pose, relative_pose, rotation_angle
 from jaxvo.status import Status
-from jaxvo.trajectory import Trajectory, pose_at, read_trajectory, write_trajectory
+from jaxvo.host.io import write_trajectory
+from jaxvo.trajectory import Trajectory, pose_at, read_trajectory
 
 DELTAS = (1, 10, 30)
 KEYFRAMES = Config(keyframes=True)

@@ -41,9 +41,8 @@ from jaxvo.config import Config, Params, config_fields, grid_shape, params_as_ar
 from jaxvo.core.inputs import GridFlow
 from jaxvo.core.pipeline import final_moving, init_pipeline, jit_step
 from jaxvo.evaluation.metrics import SegmentationScores
-from jaxvo.evaluation.scores import trajectory_scores
+from jaxvo.evaluation.scores import moving_at_grid, trajectory_scores
 from jaxvo.host.flow import sequence_flows
-from jaxvo.host.masks import moving_at_grid
 from jaxvo.host.outputs import write_text
 from jaxvo.host.peers import OPENCV_PEERS
 from jaxvo.host.plugin import iter_dynamic_masks
@@ -160,7 +159,7 @@ def moving_grid_truth(seq, k: int, cell: int) -> np.ndarray:
         pb = corners @ traj.poses[b][:3, :3].T + traj.poses[b][:3, 3]
         if np.max(np.linalg.norm(pa - pb, axis=1)) > _STOPPED:
             moving_ids.append(oid)
-    from jaxvo.host.masks import ids_at_grid
+    from jaxvo.evaluation.scores import ids_at_grid
 
     return np.isin(ids_at_grid(mask, cell), moving_ids)
 

@@ -59,7 +59,8 @@ from jaxvo.host.peers import OPEN3D_PEERS
 from jaxvo.host.plugin import dynamic_masks
 from jaxvo.status import Status
 from jaxvo.synth.scenes import SCENARIOS, composite_sequence, make_sequence
-from jaxvo.trajectory import Trajectory, write_trajectory
+from jaxvo.host.io import write_trajectory
+from jaxvo.trajectory import Trajectory
 
 JAXVO = "jaxvo"
 

@@ -120,7 +120,7 @@ def random_groundtruth():
     ``t0`` s (random-walk positions, small random rotations), drawn from ``rng``."""
     import numpy as np
 
-    from jaxvo.host.transforms import pose_from_tq
+    from jaxvo.transforms import pose_from_tq
     from jaxvo.trajectory import Trajectory
 
     def make(rng, n: int, t0: float):

@@ -38,7 +38,7 @@ from jaxvo.host.camera import Intrinsics
 from jaxvo.host.io import open_sequence
 from jaxvo.host.realsense import image_message
 from jaxvo.host.rosbag import TUM_TOPICS
-from jaxvo.host.transforms import rotation_to_quat
+from jaxvo.transforms import rotation_to_quat
 from jaxvo.synth.scenes import make_sequence, write_sequence
 from jaxvo.trajectory import read_trajectory
 

@@ -100,7 +100,8 @@ def test_a_run_of_another_sequence_is_refused_and_a_foreign_motion_warned(run_di
     with no word."""
     from jaxvo.host.io import open_sequence
     from jaxvo.run import run_header
-    from jaxvo.trajectory import Trajectory, write_trajectory
+    from jaxvo.host.io import write_trajectory
+    from jaxvo.trajectory import Trajectory
 
     d = run_dir
     other = open_sequence(d / "seq")

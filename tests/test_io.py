@@ -1,4 +1,4 @@
-"""Tests of jaxvo.host.io and jaxvo.host.transforms: trajectory files, association, TUM sequences."""
+"""Tests of jaxvo.host.io and jaxvo.transforms: trajectory files, association, TUM sequences."""
 
 from __future__ import annotations
 
@@ -11,14 +11,15 @@ import pytest
 from jaxvo.errors import InputError
 from jaxvo.host.camera import PRESETS, Intrinsics, write_camera_file
 from jaxvo.host.io import Frame, InMemorySequence, TumSequence, open_sequence, preset_from_name
-from jaxvo.host.transforms import (
+from jaxvo.transforms import (
     invert_pose,
     pose_from_tq,
     quat_to_rotation,
     rotation_angle,
     rotation_to_quat,
 )
-from jaxvo.trajectory import Trajectory, associate, read_trajectory, write_trajectory
+from jaxvo.host.io import write_trajectory
+from jaxvo.trajectory import Trajectory, associate, read_trajectory
 
 
 def random_quats(rng, n):

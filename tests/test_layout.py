@@ -48,6 +48,66 @@ def test_importing_the_traced_pipeline_loads_no_opencv():
 
 PACKAGE = Path(jaxvo.core.__file__).parent.parent
 
+# What both sides read and what scores a run: numpy only, nothing of the host (no OpenCV,
+# no file writing of its own), so that the arrows run from host/ to them and never back.
+NEUTRAL = ("jaxvo.trajectory", "jaxvo.transforms", "jaxvo.evaluation.metrics",
+           "jaxvo.evaluation.scores", "jaxvo.evaluation.evo_results")
+
+
+def _host_imports(path: Path) -> set[str]:
+    """What ``path`` imports (anywhere in it) of the host side: jaxvo.host or OpenCV."""
+    found = set()
+    for node in ast.walk(ast.parse(path.read_text())):
+        if isinstance(node, ast.Import):
+            names = [a.name for a in node.names]
+        elif isinstance(node, ast.ImportFrom) and node.module:
+            names = [node.module] + [f"{node.module}.{a.name}" for a in node.names]
+        else:
+            continue
+        found.update(n for n in names if n.split(".")[0] == "cv2"
+                     or n == "jaxvo.host" or n.startswith("jaxvo.host."))
+    return found
+
+
+def test_host_imports_are_found_at_any_depth():
+    assert _host_imports_of("def f():\n    from jaxvo import host\n") == {"jaxvo.host"}
+    assert _host_imports_of("import cv2\nfrom jaxvo.host.io import x\n") == {
+        "cv2", "jaxvo.host.io", "jaxvo.host.io.x"}
+    assert _host_imports_of("from jaxvo.transforms import x\nimport numpy\n") == set()
+
+
+def _host_imports_of(source: str) -> set[str]:
+    import tempfile
+
+    with tempfile.TemporaryDirectory() as folder:
+        path = Path(folder) / "m.py"
+        path.write_text(source)
+        return _host_imports(path)
+
+
+def test_the_trajectory_and_the_evaluation_import_nothing_of_the_host():
+    paths = [PACKAGE / "trajectory.py", PACKAGE / "transforms.py",
+             *sorted((PACKAGE / "evaluation").glob("*.py"))]
+    assert {_module_name(p) for p in paths} >= set(NEUTRAL)  # the walk sees them all
+    bad = {_module_name(p): sorted(_host_imports(p)) for p in paths if _host_imports(p)}
+    assert not bad, f"these import host code or OpenCV: {bad}"
+
+
+def test_scoring_a_run_loads_no_host_module_and_no_opencv():
+    code = ("import importlib, sys\n"
+            f"for m in {NEUTRAL!r}: importlib.import_module(m)\n"
+            "import numpy as np\n"
+            "from jaxvo.evaluation.scores import trajectory_scores, moving_at_grid\n"
+            "from jaxvo.trajectory import Trajectory, tum_lines\n"
+            "t = Trajectory(np.arange(5.0), np.tile(np.eye(4), (5, 1, 1)))\n"
+            "trajectory_scores(t, t); moving_at_grid(np.zeros((32, 32)), 16)\n"
+            "tum_lines(t.timestamps, t.poses)\n"
+            "host = sorted(m for m in sys.modules if m.startswith('jaxvo.host'))\n"
+            "assert not host and 'cv2' not in sys.modules, (host, 'cv2' in sys.modules)\n")
+    done = subprocess.run([sys.executable, "-c", code], capture_output=True, text=True,
+                          timeout=120, check=False)
+    assert done.returncode == 0, done.stderr[-2000:]
+
 
 def _module_name(path: Path) -> str:
     parts = list(path.relative_to(PACKAGE.parent).with_suffix("").parts)

@@ -17,7 +17,7 @@ from jaxvo.evaluation.metrics import (
     rpe,
     rpe_pairs,
 )
-from jaxvo.host.transforms import pose_from_tq
+from jaxvo.transforms import pose_from_tq
 from jaxvo.trajectory import Trajectory, read_trajectory
 
 

@@ -107,7 +107,7 @@ def run(args: argparse.Namespace, prepared=None) -> int:
     from jaxvo.host.peers import run_peer
     from jaxvo.host.progress import Progress
     from jaxvo.synth.scenes import make_sequence
-    from jaxvo.trajectory import write_trajectory
+    from jaxvo.host.io import write_trajectory
 
     cfg, peers, out = prepared or prepare(args)
     say = (lambda *a: None) if args.json else print
@@ -201,7 +201,7 @@ def _write_outputs(out, seq, res, cfg) -> None:
 
     from jaxvo.host.io import write_image
     from jaxvo.host.masks import overlay_panel
-    from jaxvo.trajectory import write_trajectory
+    from jaxvo.host.io import write_trajectory
 
     write_trajectory(out / "groundtruth.txt", seq.groundtruth)
     write_trajectory(out / "jaxvo.txt", res.trajectory)

@@ -24,7 +24,7 @@ from typing import NamedTuple
 import numpy as np
 
 from jaxvo.errors import InputError
-from jaxvo.host.transforms import relative_pose, rotation_angle
+from jaxvo.transforms import relative_pose, rotation_angle
 from jaxvo.trajectory import Trajectory, associate
 
 # Positions that spread less than this (metres, RMS about their centroid) carry no

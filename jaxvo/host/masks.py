@@ -48,19 +48,6 @@ def grid_to_pixels(values: np.ndarray, height: int, width: int, cell: int) -> np
     return np.pad(block, pad, mode="edge")
 
 
-def ids_at_grid(mask: np.ndarray, cell: int) -> np.ndarray:
-    """Ground-truth ``(H, W)`` object-id mask sampled at the grid cell centres -> ``(n,)``."""
-    rows, cols = mask.shape[0] // cell, mask.shape[1] // cell
-    ys = (np.arange(rows) * cell + cell // 2).astype(int)
-    xs = (np.arange(cols) * cell + cell // 2).astype(int)
-    return mask[np.ix_(ys, xs)].ravel()
-
-
-def moving_at_grid(mask: np.ndarray, cell: int) -> np.ndarray:
-    """Ground-truth ``(H, W)`` object-id mask sampled at the grid cell centres -> ``(n,)`` bool."""
-    return ids_at_grid(mask, cell) > 0
-
-
 def dynamic_pixels(moving: np.ndarray, height: int, width: int, cell: int, *, grow: int = 0):
     """Pixels to ignore for ego-motion: moving cells, grown by ``grow`` cells so that object
     borders between grid points are covered too.

@@ -163,7 +163,7 @@ def _extrinsics(reader, path: Path, prefix: str) -> dict[int, np.ndarray]:
             raise InputError(f"{path} {conn.topic}: the extrinsics are not a rigid motion "
                              f"(rotation {q.round(6).tolist()} of norm "
                              f"{np.linalg.norm(q):.6g}, translation {t.round(6).tolist()})")
-        from jaxvo.host.transforms import pose_from_tq
+        from jaxvo.transforms import pose_from_tq
 
         out[int(m.group(1))] = pose_from_tq(t, q)
     return out

@@ -78,7 +78,7 @@ class _Subset:
         return len(self._idx)
 
     def __getitem__(self, i: int):
-        from jaxvo.host.masks import moving_at_grid
+        from jaxvo.evaluation.scores import moving_at_grid
 
         frame = self._seq[int(self._idx[i])]
         if self.cell is not None:

@@ -26,7 +26,7 @@ import numpy as np
 
 from jaxvo.errors import InputError
 from jaxvo.host.camera import write_camera_file
-from jaxvo.host.io import TumSequence
+from jaxvo.host.io import TumSequence, write_trajectory
 from jaxvo.synth.scenario import SCENARIOS, ObjectSpec, Scenario, SensorOptions
 from jaxvo.synth.sequence import (
     DEPTH_SCALE,
@@ -35,7 +35,7 @@ from jaxvo.synth.sequence import (
     make_atlas,
     smooth_poses,
 )
-from jaxvo.trajectory import associate, write_trajectory
+from jaxvo.trajectory import associate
 
 DEFAULT_FRAMES = 90
 DEFAULT_FPS = 30.0
@@ -155,7 +155,7 @@ def write_sequence(seq: SyntheticSequence, out_dir: str | Path, *,
       OSError: a file cannot be written, naming it (a full disk).
     """
     from jaxvo.host.outputs import OutputFolder, write_image, write_text
-    from jaxvo.host.transforms import rotation_to_quat
+    from jaxvo.transforms import rotation_to_quat
 
     out = Path(out_dir)
     names = [f"{t:.6f}.png" for t in seq.timestamps]
