@@ -181,8 +181,8 @@ def _run_jaxvo(seq, cfg, seed: int, progress) -> _Ours:
 def _timed_scan(res, cfg, seed: int) -> float:
     """Seconds of a second run of the scan ``run_sequence`` compiled, called as it called
     it (:func:`jaxvo.odometry.scan_flows`), so that nothing compiles: called with other
-    argument types it compiled again, and the demo's table gave jaxvo 24.7 ms a frame
-    where about 7 were steady."""
+    argument types it compiled again, and the demo's table timed the compile instead of
+    the steady state (docs/report/host_decisions.md)."""
     import time
 
     import jax

@@ -71,7 +71,7 @@ def overlay(bgr: np.ndarray, ids: np.ndarray, cell: int, *, alpha: float = 0.45)
     h, w = bgr.shape[:2]
     ids = np.asarray(ids)
     # colour and weight per cell, then per pixel, in float32: per pixel in float64 this was
-    # half of the 38 ms a `jaxvo run --overlays` panel took
+    # half of the time a `jaxvo run --overlays` panel took
     a = np.where(ids >= 2, alpha, np.where(ids == 1, alpha * 0.35, 0.0)).astype(np.float32)
     tint = palette(ids).astype(np.float32) * a[:, None]
     a_px = grid_to_pixels(a, h, w, cell)[..., None]
@@ -81,7 +81,7 @@ def overlay(bgr: np.ndarray, ids: np.ndarray, cell: int, *, alpha: float = 0.45)
 
 def label_image(ids: np.ndarray, height: int, width: int, cell: int) -> np.ndarray:
     """Identifiers as a colour image (black = unknown)."""
-    return grid_to_pixels(palette(ids), height, width, cell)  # the palette per cell: 4x faster
+    return grid_to_pixels(palette(ids), height, width, cell)  # the palette per cell, then the pixels
 
 
 def overlay_panel(bgr: np.ndarray, out, cell: int, *, scale: float = 0.5) -> np.ndarray:

@@ -89,7 +89,7 @@ def composite_sequence(sequence: str | Path | TumSequence,
     average), so they stay in view while moving independently of the camera, and are
     z-buffered against the real depth (no reading counts as far). The camera trajectory is
     the real ground truth; object trajectories are exact. Only frames with a ground-truth
-    pose within 20 ms are used. Sensor effects apply to the inserted pixels only.
+    pose within 0.02 s are used. Sensor effects apply to the inserted pixels only.
 
     Args:
       sequence: a TUM-layout folder (with ``groundtruth.txt``, ``camera.txt``) or an open
