@@ -214,15 +214,26 @@ def _unknown_setting(name: str) -> TypeError:
                                      if near else "see jaxvo.Config's fields")))
 
 
+class _Settings(type):
+    """:class:`Config`'s class: a setting read off the class is its default
+    (``Config.keyframes``), as on a dataclass with the settings as fields."""
+
+    def __getattr__(cls, name: str):
+        spec = config_fields().get(name)
+        if spec is None:
+            raise AttributeError(f"type object 'Config' has no attribute {name!r}")
+        return spec.default
+
+
 @dataclasses.dataclass(frozen=True, init=False)
-class Config:
+class Config(metaclass=_Settings):
     """Every setting of the odometry that is no number a study sweeps: the host flow's
     :attr:`flow` and the step's :attr:`step` (static under ``jax.jit``).
 
     Built by setting name over the defaults (``Config(cell=8, keyframes=True)``) or from the
     two sides' options (``Config(flow=..., step=...)``, settings by name then replacing
-    theirs), and read by setting name (``cfg.cell``): see :func:`config_fields`. Hashable,
-    and equal when every setting is.
+    theirs), and read by setting name (``cfg.cell``; ``Config.cell``, the default): see
+    :func:`config_fields`. Hashable, and equal when every setting is.
     """
 
     flow: FlowOptions = FlowOptions()

@@ -37,6 +37,9 @@ def test_flat_keywords_set_the_side_that_reads_them_and_reads_find_it():
     assert not hasattr(cfg.step, "lk_window") and not hasattr(cfg.flow, "num_hypotheses")
     with pytest.raises(AttributeError, match="no attribute 'nothing'"):
         cfg.nothing  # noqa: B018
+    assert (Config.cell, Config.keyframes, Config.lk_window) == (16, False, 9)  # the defaults
+    with pytest.raises(AttributeError, match="no attribute 'nothing'"):
+        Config.nothing  # noqa: B018
     with pytest.raises(dataclasses.FrozenInstanceError):
         cfg.cell = 4
 
