@@ -10,17 +10,20 @@ import numpy as np
 import pytest
 
 from jaxvo.config import (
+    PARAM_SPANS,
     Config,
     FlowOptions,
+    Params,
     SharedOptions,
     Span,
     StepOptions,
     check_config,
+    check_params,
     config_fields,
     number,
     whole,
 )
-from jaxvo.errors import InputError
+from jaxvo.errors import InputError, check_seed
 
 
 def names(options: type) -> set[str]:
@@ -121,3 +124,53 @@ def test_a_span_says_and_holds_its_ends():
 def test_the_declaration_helpers_carry_what_the_checks_read():
     assert whole(3, 1, "frame").metadata == {"least": 1, "unit": "frame"}
     assert number(0.5, Span(0.0, True, 1.0, True)).default == 0.5
+
+
+# --- bad settings, as a user gives them (from the bad-input tests) ---------------------
+
+
+def test_check_params_names_the_field_and_its_range():
+    assert set(PARAM_SPANS) == set(Params._fields)  # every field has its range
+    check_params(Params())  # the defaults pass, and so does a batch of good values
+    check_params(Params(confidence=np.array([0.9, 0.99]), evidence_margin=np.zeros(2)))
+    with pytest.raises(InputError, match=r"^Params.evidence_margin must be in \[0, inf\), got -1$"):
+        check_params(Params(evidence_margin=-1.0))
+    with pytest.raises(InputError, match=r"^Params.confidence must be in \(0, 1\), got 1\.5$"):
+        check_params(Params(confidence=np.array([0.9, 1.5])))
+    with pytest.raises(InputError, match=r"^Params.max_age must be a finite number"):
+        check_params(Params(max_age=float("inf")))
+    with pytest.raises(InputError, match=r"^--conf must be a number, got 'high'$"):
+        check_params(Params(confidence="high"), names={"confidence": "--conf"})
+
+
+def test_check_config_and_check_seed_name_the_field():
+    with pytest.raises(InputError, match="Config.num_hypotheses must be at least 1"):
+        check_config(Config(num_hypotheses=0))
+    with pytest.raises(InputError, match="Config.cell must be a whole number"):
+        check_config(Config(cell=16.0))
+    check_config(Config(cell=np.int64(16)), height=480, width=640)  # NumPy integers pass
+    assert check_seed(np.uint32(7)) == 7
+    with pytest.raises(InputError, match="seed must be"):
+        check_seed(1.5)
+
+
+def test_config_names_the_replacement_and_checks_every_value():
+    """Config(window=5): TypeError 'unexpected keyword argument'; keyframe_overlap = nan and
+    keyframe_stride = 1000 ran, taking no keyframe or one point a keyframe."""
+    with pytest.raises(TypeError, match="keyframes=True.* refines a window over the latest"):
+        Config(window=5)
+    with pytest.raises(TypeError, match="did you mean cell"):
+        Config(cel=8)
+    for cfg, needle in ((Config(keyframe_overlap=float("nan")), ("keyframe_overlap must be a "
+                         r"number in \[0, 1\], got nan")),
+                        (Config(keyframes=True, keyframe_stride=1000),
+                         "keyframe_stride 1000 keeps 1 of the 30x40 grid's points"),
+                        (Config(fb_max=-1.0), r"fb_max must be a number in \(0, inf\)"),
+                        (Config(lk_levels=-1), "lk_levels must be at least 0"),
+                        (Config(keyframes="no"), "keyframes must be True or False"),
+                        (Config(depth_min=5.0, depth_max=1.0), "depth_max 1.0 must be beyond")):
+        with pytest.raises(InputError, match=needle):
+            check_config(cfg, height=480, width=640)
+    check_config(Config(keyframes=True), height=480, width=640)  # the defaults pass
+    with pytest.raises(InputError, match="the grid itself is too coarse"):
+        check_config(Config(keyframes=True, cell=200), height=480, width=640)

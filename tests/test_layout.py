@@ -271,6 +271,16 @@ def test_no_module_over_800_lines_and_no_function_over_80():
     assert not found, "\n".join(found)
 
 
+def test_no_test_file_over_800_lines():
+    """A newcomer maps a test file to what it tests: the bad-input cases, once all in one
+    file, are one file a door (tests/test_bad_input_*.py)."""
+    tests = sorted(Path(__file__).parent.glob("*.py"))
+    assert Path(__file__) in tests and len(tests) > 40
+    found = [f"{p.name}: {n} lines" for p in tests
+             if (n := p.read_text(encoding="utf-8").count("\n")) > MAX_FILE_LINES]
+    assert not found, "\n".join(found)
+
+
 def test_the_run_command_is_its_options_and_its_printing():
     """``jaxvo run``'s work lives in jaxvo/run.py, which a program calls as the command
     does; the command reads its options into :class:`~jaxvo.run.RunOptions` and prints
