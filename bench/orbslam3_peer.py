@@ -293,8 +293,8 @@ class OrbSlam3:
         Raises:
           RuntimeError: the child failed; the message carries its last log lines.
         """
-        from jaxvo.transforms import pose_from_tq
         from jaxvo.trajectory import Trajectory
+        from jaxvo.transforms import pose_from_tq
 
         try:
             pickle.dump(None, self._proc.stdin)

@@ -8,9 +8,9 @@ import numpy as np
 import pytest
 
 from jaxvo.cli.main import main
-from jaxvo.transforms import pose_from_tq
 from jaxvo.host.io import write_trajectory
 from jaxvo.trajectory import Trajectory
+from jaxvo.transforms import pose_from_tq
 
 
 @pytest.fixture

@@ -103,11 +103,10 @@ def prepare(args: argparse.Namespace):
 def run(args: argparse.Namespace, prepared=None) -> int:
     from jaxvo.cli.main import interrupt_at_safe_points
     from jaxvo.evaluation.scores import trajectory_scores
-    from jaxvo.host.io import InMemorySequence
+    from jaxvo.host.io import InMemorySequence, write_trajectory
     from jaxvo.host.peers import run_peer
     from jaxvo.host.progress import Progress
     from jaxvo.synth.scenes import make_sequence
-    from jaxvo.host.io import write_trajectory
 
     cfg, peers, out = prepared or prepare(args)
     say = (lambda *a: None) if args.json else print
@@ -199,9 +198,8 @@ def _write_outputs(out, seq, res, cfg) -> None:
     """The ground truth, jaxvo's trajectory and six overlays into ``out``."""
     import jax
 
-    from jaxvo.host.io import write_image
+    from jaxvo.host.io import write_image, write_trajectory
     from jaxvo.host.masks import overlay_panel
-    from jaxvo.host.io import write_trajectory
 
     write_trajectory(out / "groundtruth.txt", seq.groundtruth)
     write_trajectory(out / "jaxvo.txt", res.trajectory)
