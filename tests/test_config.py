@@ -70,6 +70,8 @@ def test_replace_equality_and_hashing_follow_the_settings():
     assert hash(Config(lk_window=5).step) == hash(Config().step)
     assert Config(max_ids=4).step != Config().step
     assert pickle.loads(pickle.dumps(moved)) == moved
+    assert Config(**moved.as_dict()) == moved  # by name, as a study spec builds it
+    assert Config(flow=moved.flow, step=moved.step) == moved
 
 
 def test_each_setting_is_declared_once_with_what_a_run_can_use():
