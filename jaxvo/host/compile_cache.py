@@ -359,10 +359,10 @@ def announce_compile(
     this thread inside the block goes on for ``after`` seconds: ``jaxvo: preparing the
     per-frame step (compiled once per machine and cached) ... compiled (first run with these
     settings on this machine) in 7.4 s``, or ``... loaded from the compile cache in 3.6 s``
-    where the persistent cache had it (a fraction of a second on a quiet machine, seconds on a busy
-    one; whether the cache has it is known only when the load ends). Nothing is said for a
-    program that is ready within ``after`` seconds, nor for the quick compiles of eager
-    operations.
+    where the persistent cache had it (a fraction of a second on a quiet machine, seconds
+    on a busy one; whether the cache has it is known only when the load ends). Nothing is
+    said for a program that is ready within ``after`` seconds, nor for the quick compiles
+    of eager operations.
 
     Args:
       what: what compiles, in words (``"the per-frame step"``).

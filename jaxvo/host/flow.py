@@ -31,8 +31,8 @@ Speed (LK per point and direction is most of the time per pair):
 * depth runs beside LK: the new frame's grid depth (needed by the next pair only) while this
   pair's forward LK runs, and the tracked points' depth while backward LK runs, on one
   helper thread (numpy and OpenCV's LK both release the GIL). On 2 cores that takes time
-  off every pair, with the same flow (docs/report/host_decisions.md). With ``cv2.setNumThreads(1)`` (or 0) the tracker
-  stays on the calling thread.
+  off every pair, with the same flow (docs/report/host_decisions.md). With
+  ``cv2.setNumThreads(1)`` (or 0) the tracker stays on the calling thread.
 
 OpenCV 5.0's Python binding still takes no pyramid from ``cv2.buildOpticalFlowPyramid``
 in ``cv2.calcOpticalFlowPyrLK`` (images only: opencv/opencv#4777), so each LK call

@@ -81,7 +81,7 @@ def overlay(bgr: np.ndarray, ids: np.ndarray, cell: int, *, alpha: float = 0.45)
 
 def label_image(ids: np.ndarray, height: int, width: int, cell: int) -> np.ndarray:
     """Identifiers as a colour image (black = unknown)."""
-    return grid_to_pixels(palette(ids), height, width, cell)  # the palette per cell, then the pixels
+    return grid_to_pixels(palette(ids), height, width, cell)  # the palette per cell: faster
 
 
 def overlay_panel(bgr: np.ndarray, out, cell: int, *, scale: float = 0.5) -> np.ndarray:

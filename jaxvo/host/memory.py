@@ -24,8 +24,8 @@ _STEP_PER_HYP_POINT = 2.6  # bytes per hypothesis and grid point (inlier sets)
 _STEP_PER_HYP2 = 16.0  # bytes per hypothesis squared (overlaps, distances)
 # The keyframe window (cfg.keyframes): each point of each of K keyframes is read by every
 # later one and the refinement's Jacobian blocks are per reading, so the step's buffers grow
-# as K^2 m (m points a keyframe). Measured on jit_step at several K (docs/report/host_decisions.md), times
-# the process's peak over the buffers, as above.
+# as K^2 m (m points a keyframe). Measured on jit_step at several K
+# (docs/report/host_decisions.md), times the process's peak over the buffers, as above.
 _STEP_PER_KF2_POINT = 560.0
 # Per frame pair kept for a whole-sequence scan or a study: its flow (flow_bytes: the grid
 # flow, and with keyframes the keyframe flow, as their types hold them) and the stacked

@@ -48,7 +48,8 @@ from jaxvo.host.prefetch import BackgroundWriter
 EXTRA = "pip install 'jaxvo[viz]'"
 # The images (colour, depth, identifiers) are logged at SCALE times their size, the colour
 # image as JPEG: raw at full size the recording grew large and the logging cost a 2-core
-# run a good share of its time (docs/report/host_decisions.md); at half size the grid's cells are still 8 px
+# run a good share of its time (docs/report/host_decisions.md); at half size the grid's
+# cells are still 8 px
 JPEG_QUALITY = 90
 SCALE = 0.5
 # the per-frame numbers, one series each of the entity ``stats`` (one log call a frame:
