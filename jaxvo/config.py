@@ -253,8 +253,9 @@ class Config(metaclass=_Settings):
             flow = dataclasses.replace(flow, **{k: v for k, v in settings.items() if k in _FLOW})
         if settings.keys() & _STEP:
             step = dataclasses.replace(step, **{k: v for k, v in settings.items() if k in _STEP})
-        for name in sorted(_SHARED):
-            if getattr(flow, name) != getattr(step, name):
+        for name in sorted(_SHARED):  # the same object passes (a NaN is for check_config)
+            if getattr(flow, name) is not getattr(step, name) and \
+                    getattr(flow, name) != getattr(step, name):
                 raise ValueError(f"Config's flow and step disagree on {name} ("
                                  f"{getattr(flow, name)!r} against {getattr(step, name)!r}): "
                                  f"set it once, Config({name}=...)")

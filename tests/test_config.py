@@ -56,6 +56,8 @@ def test_the_two_sides_compose_a_config_and_settings_by_name_replace_theirs():
         Config(flow=FlowOptions(cell=8))
     with pytest.raises(TypeError, match="takes a FlowOptions and a StepOptions"):
         Config(flow=step)
+    with pytest.raises(InputError, match="keyframe_window must be a whole number, got nan"):
+        check_config(Config(keyframe_window=float("nan")))  # one value on both sides
 
 
 def test_replace_equality_and_hashing_follow_the_settings():
