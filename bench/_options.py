@@ -14,7 +14,7 @@ import argparse
 import dataclasses
 from collections.abc import Callable, Iterable
 
-from jaxvo.config import Config, Params, check_config, check_params
+from jaxvo.config import Config, Params, check_config, check_params, config_fields
 from jaxvo.errors import InputError
 from jaxvo.host.io import data_root
 
@@ -40,7 +40,7 @@ def _setting(defaults, text: str) -> tuple[str, object]:
     unknown name or a value of the wrong type."""
     name, sep, value = text.partition("=")
     fields = defaults._fields if isinstance(defaults, tuple) else [
-        f.name for f in dataclasses.fields(defaults)]
+        f.name for f in config_fields().values()]
     if not sep or name not in fields:
         raise ValueError(f"{text!r}: want NAME=VALUE, NAME one of {', '.join(fields)}")
     kind = type(getattr(defaults, name))

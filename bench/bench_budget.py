@@ -95,11 +95,12 @@ from jaxvo.core.inputs import GridFlow
 from jaxvo.core.points import frame_points
 from jaxvo.evaluation.metrics import align_umeyama, ate
 from jaxvo.evaluation.scores import trajectory_scores
+from jaxvo.host.io import write_trajectory
 from jaxvo.host.outputs import write_text
 from jaxvo.host.peers import OPEN3D_PEERS, OPENCV_PEERS, available_peers
-from jaxvo.host.transforms import invert_pose, relative_pose, rotation_angle
 from jaxvo.status import Status
-from jaxvo.trajectory import Trajectory, pose_at, read_trajectory, write_trajectory
+from jaxvo.trajectory import Trajectory, pose_at, read_trajectory
+from jaxvo.transforms import invert_pose, relative_pose, rotation_angle
 
 DELTAS = (1, 10, 30)
 KEYFRAMES = Config(keyframes=True)

@@ -19,7 +19,6 @@ Run: ``.venv/bin/python bench/bench_keyframes.py [--split dev|val|all] [--seeds 
 from __future__ import annotations
 
 import argparse
-import dataclasses
 import json
 import sys
 import time
@@ -103,7 +102,7 @@ def main(argv=None) -> int:
                             args.timing_frames)
     args.out.mkdir(parents=True, exist_ok=True)
     (args.out / "keyframes.json").write_text(json.dumps(
-        {"seeds": args.seeds, "settings": {k: dataclasses.asdict(c) for k, c in SETTINGS.items()},
+        {"seeds": args.seeds, "settings": {k: c.as_dict() for k, c in SETTINGS.items()},
          "rows": rows, "process_ms": timing, "skipped": skipped}, indent=1))
     head = ["case"] + [f"{k} mm" for k in SETTINGS] + ["window / ORB-SLAM3", "ORB-SLAM3 mm",
                                                        "best OpenCV peer mm", "keyframes"]

@@ -19,7 +19,6 @@ Run: ``.venv/bin/python bench/bench_robustness.py [--split dev|val|all] [--only 
 from __future__ import annotations
 
 import argparse
-import dataclasses
 import datetime
 import hashlib
 import inspect
@@ -39,13 +38,12 @@ from _options import check_options, params_from, params_setting
 from splits import Case, cases, runnable
 
 import jaxvo.host.keyframes
-from jaxvo.config import Config, Params, grid_shape, params_as_arrays
+from jaxvo.config import Config, Params, config_fields, grid_shape, params_as_arrays
 from jaxvo.core.inputs import GridFlow
 from jaxvo.core.pipeline import final_moving, init_pipeline, jit_step
 from jaxvo.evaluation.metrics import SegmentationScores
-from jaxvo.evaluation.scores import trajectory_scores
+from jaxvo.evaluation.scores import moving_at_grid, trajectory_scores
 from jaxvo.host.flow import sequence_flows
-from jaxvo.host.masks import moving_at_grid
 from jaxvo.host.outputs import write_text
 from jaxvo.host.peers import OPENCV_PEERS
 from jaxvo.host.plugin import iter_dynamic_masks
@@ -112,7 +110,7 @@ def flow_path(case: Case, cache: Path, cfg: Config) -> Path:
     when it holds the keyframe flow too (``cfg.keyframes``)."""
     if not cfg.keyframes:
         return cache / f"{case.name}__{_flow_key(cfg)}.npz"
-    fields = {f.name: getattr(cfg, f.name) for f in dataclasses.fields(cfg)
+    fields = {f.name: getattr(cfg, f.name) for f in config_fields().values()
               if f.name.startswith("keyframe")}
     kf = hashlib.sha1(json.dumps([fields, inspect.getsource(jaxvo.host.keyframes)],
                                  sort_keys=True).encode()).hexdigest()[:8]
@@ -162,7 +160,7 @@ def moving_grid_truth(seq, k: int, cell: int) -> np.ndarray:
         pb = corners @ traj.poses[b][:3, :3].T + traj.poses[b][:3, 3]
         if np.max(np.linalg.norm(pa - pb, axis=1)) > _STOPPED:
             moving_ids.append(oid)
-    from jaxvo.host.masks import ids_at_grid
+    from jaxvo.evaluation.scores import ids_at_grid
 
     return np.isin(ids_at_grid(mask, cell), moving_ids)
 

@@ -293,8 +293,8 @@ class OrbSlam3:
         Raises:
           RuntimeError: the child failed; the message carries its last log lines.
         """
-        from jaxvo.host.transforms import pose_from_tq
         from jaxvo.trajectory import Trajectory
+        from jaxvo.transforms import pose_from_tq
 
         try:
             pickle.dump(None, self._proc.stdin)
@@ -439,7 +439,7 @@ def main(argv=None) -> int:
         print(f"orbslam3_peer: {why}", file=sys.stderr)
         return 2
     from jaxvo.host.io import open_sequence
-    from jaxvo.trajectory import write_trajectory
+    from jaxvo.host.io import write_trajectory
 
     seq = open_sequence(args.sequence)
     keep = None

@@ -21,7 +21,7 @@ import jax.numpy as jnp
 import numpy as np
 
 import jaxvo
-from jaxvo.config import _PARAM_RANGES, Params, grid_shape
+from jaxvo.config import PARAM_SPANS, Params, grid_shape
 from jaxvo.core.pipeline import batch_params, run_study
 from jaxvo.host.compile_cache import setup_compile_cache
 from jaxvo.host.flow import flows_for_sequence
@@ -34,7 +34,7 @@ def perturbed(field: str, value: float) -> list[float]:
     """``value`` halved and doubled, each moved inside ``field``'s range (a field at 0
     takes 0.1 and 0.2 of its range's top, or 1 and 2); a value that lands on ``value``
     again is left out."""
-    low, _, high, _ = _PARAM_RANGES[field]
+    low, _, high, _ = PARAM_SPANS[field]
     if value == 0:
         cands = [0.1, 0.2] if high is not None else [1.0, 2.0]
     else:

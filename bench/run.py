@@ -53,13 +53,13 @@ from jaxvo.core.spatial import segment
 from jaxvo.evaluation.metrics import SegmentationScores, ate
 from jaxvo.evaluation.scores import segmentation_scores, trajectory_scores
 from jaxvo.host.flow import GridFlowTracker
-from jaxvo.host.io import data_root, first_pose, open_sequence
+from jaxvo.host.io import data_root, first_pose, open_sequence, write_trajectory
 from jaxvo.host.masks import overlay_panel
 from jaxvo.host.peers import OPEN3D_PEERS
 from jaxvo.host.plugin import dynamic_masks
 from jaxvo.status import Status
 from jaxvo.synth.scenes import SCENARIOS, composite_sequence, make_sequence
-from jaxvo.trajectory import Trajectory, write_trajectory
+from jaxvo.trajectory import Trajectory
 
 JAXVO = "jaxvo"
 

@@ -1,18 +1,25 @@
 """Configuration of the whole pipeline.
 
-Two objects, following the house style:
+Following the house style, what a user sets is frozen dataclasses of plain Python values,
+one for each side that reads them, and :class:`Params` for the numbers a study sweeps:
 
-* :class:`Config` is a frozen dataclass of plain Python values: what a user sets, every
-  field with its default. Each side reads its own part of it: the host's grid flow
-  :attr:`Config.flow` (a :class:`FlowOptions`: the LK, depth and keyframe-tracking settings,
-  which also key a study's flow cache), the jitted step :attr:`Config.step` (a
-  :class:`StepOptions`, a static argument: everything that sets an array shape or a loop
-  trip count; changing it recompiles the step, changing a flow setting does not).
+* :class:`FlowOptions`: what the host's grid flow, depth refinement and keyframe tracker
+  read (they also key a study's flow cache).
+* :class:`StepOptions`: what the jitted per-frame step reads, its static argument (every
+  array shape and loop trip count); changing it recompiles the step, changing a flow
+  setting does not.
+* :class:`SharedOptions`: the few settings both sides read (the grid cell, the sample size,
+  the keyframe switches), declared once and held by both.
+* :class:`Config` composes the two (``cfg.flow``, ``cfg.step``) and is built and read by
+  setting name: ``Config(cell=8, keyframes=True)``, ``cfg.cell``,
+  ``dataclasses.replace(cfg, cell=8)``.
 * :class:`Params` is a ``NamedTuple`` of numeric values that a parameter study sweeps. Its
   fields may be Python floats or JAX arrays; ``jax.vmap`` can batch any of them without a
   recompile. :func:`default_params` gives the thesis's values.
 
-Units: metres, pixels, frames.
+Each setting is declared once, with its default and the values a run can use (:func:`whole`,
+:func:`number`; a bool is True or False); :func:`check_config` and :func:`check_param` read
+those. Units: metres, pixels, frames.
 """
 
 from __future__ import annotations
@@ -22,201 +29,250 @@ import operator
 from typing import NamedTuple
 
 
-@dataclasses.dataclass(frozen=True)
-class Config:
-    """Every setting of the odometry that is no number a study sweeps: the host flow's
-    (:attr:`flow`) and the step's (:attr:`step`, static under ``jax.jit``)."""
+class Span(NamedTuple):
+    """The values a number may take: ``low`` / ``high`` (None: no bound), each included or
+    not. NaN is outside every span."""
 
-    # --- grid-based optical flow (thesis section 2.2) ---
-    cell: int = 16  # grid cell size in pixels (thesis: 16 x 16)
-    # The thesis ran mexopencv's LK defaults (window 21, 3 levels); on a 2-core host those
-    # cost ~3x more per pair (fwd + bwd, 1200 points) for ~3 % more valid points.
-    lk_window: int = 9  # Lucas-Kanade window side, pixels
-    lk_levels: int = 2  # pyramid levels above the base image
+    low: float | None
+    low_in: bool
+    high: float | None
+    high_in: bool
+
+    def holds(self, v):
+        """Whether ``v`` (a float or a numpy array of them) lies inside, elementwise."""
+        ok = v == v  # NaN is outside
+        if self.low is not None:
+            ok = ok & ((v >= self.low) if self.low_in else (v > self.low))
+        if self.high is not None:
+            ok = ok & ((v <= self.high) if self.high_in else (v < self.high))
+        return ok
+
+    def __str__(self) -> str:
+        low = f"{'[' if self.low_in else '('}{self.low:g}, " if self.low is not None \
+            else "(-inf, "
+        high = f"{self.high:g}{']' if self.high_in else ')'}" if self.high is not None \
+            else "inf)"
+        return low + high
+
+
+ANY = Span(None, False, None, False)
+POSITIVE = Span(0.0, False, None, False)
+NON_NEGATIVE = Span(0.0, True, None, False)
+UNIT = Span(0.0, True, 1.0, True)  # a fraction, ends included
+
+
+def whole(default: int, least: int, unit: str):
+    """A whole-number setting: its default and least value (``unit`` names it in messages)."""
+    return dataclasses.field(default=default, metadata={"least": least, "unit": unit})
+
+
+def number(default: float, span: Span):
+    """A float setting: its default and the :class:`Span` of values a run can use."""
+    return dataclasses.field(default=default, metadata={"span": span})
+
+
+# Smallest grid cell checked by check_config, pixels: a 4-pixel grid already tracks 16
+# times the points of the thesis's 16-pixel one and costs about as much more per frame;
+# below it the points crowd inside one LK window and patch.
+MIN_CELL = 4
+
+
+@dataclasses.dataclass(frozen=True)
+class SharedOptions:
+    """What both sides read: the host flow and the step hold the same values."""
+
+    cell: int = whole(16, MIN_CELL, "pixels")  # grid cell size in pixels (thesis: 16 x 16)
+    # m, points per minimal sample; the host drops a pair with fewer valid vectors
+    sample_size: int = whole(4, 3, "points (a rigid fit needs 3)")
+    # frame-to-keyframe tracking (jaxvo.core.keyframe, our addition): the ego-motion also
+    # fits the keyframe's static grid points tracked into the current image
+    # (jaxvo.host.keyframes.KeyframeTracker), so that drift accrues per keyframe
+    keyframes: bool = False
+    # the keyframe's points are every keyframe_stride-th grid row and column: LK per point is
+    # most of the cost, and 2 scored as well as 1 on the development split
+    # (docs/report/keyframes.md)
+    keyframe_stride: int = whole(2, 1, "grid row and column")
+    # the local window: the latest keyframes whose poses and points are refined together
+    # each time a keyframe is taken (jaxvo.core.keyframe); 1: the latest keyframe alone; a
+    # longer window was no better on the development frames (docs/report/keyframes.md)
+    keyframe_window: int = whole(4, 1, "keyframe")
+
+
+@dataclasses.dataclass(frozen=True)
+class FlowOptions(SharedOptions):
+    """What the host's grid flow (:mod:`jaxvo.host.flow`, :mod:`jaxvo.host.depth`) and
+    keyframe tracker (:mod:`jaxvo.host.keyframes`) read: a study's flow cache is keyed by
+    them (thesis section 2.2)."""
+
+    # The thesis ran mexopencv's LK defaults (window 21, 3 levels); on a small host those
+    # cost several times more per pair for few more valid points (docs/report/pipeline.md).
+    lk_window: int = whole(9, 3, "pixels")  # Lucas-Kanade window side, pixels
+    lk_levels: int = whole(2, 0, "pyramid levels")  # pyramid levels above the base image
     # when the last pair's median track was longer than this, LK takes one level more
-    # (pixels). Fast hand-held motion (7-Scenes at every 4th frame, ~30 px a frame) kept
-    # 22 % fewer tracks with 2 levels than with 3 (296 against 378 a pair; ATE 24.8 against
-    # 19.9 mm); a third level always cost fixed_camera_2 1-4 frames of its 89 with the
-    # right number of motions (seeds 0-2) and 0.3-0.6 ms a pair
-    lk_fast_px: float = 8.0
-    patch: int = 7  # side of the patches compared by the similarity check, pixels
-    lk_iters: int = 10  # most Lucas-Kanade iterations per pyramid level
-    lk_eps: float = 0.03  # LK stops once an update is shorter than this, pixels
-    fb_max: float = 1.0  # largest forward-backward (bi-directional) error kept, pixels
-    min_similarity: float = 0.8  # smallest patch correlation coefficient kept (-1..1)
-    depth_min: float = 0.2  # nearest depth reading trusted, metres
-    depth_max: float = 10.0  # farthest depth reading trusted, metres
-    depth_jump: float = 0.05  # largest depth change within 3x3 pixels, fraction of the depth
-    fill_radius: int = 2  # holes are filled from the (2r+1)^2 neighbourhood, pixels
-    fill_min_valid: int = 6  # fewest valid neighbours (of (2r+1)^2 - 1) needed to fill a hole
+    # (pixels): fast hand-held motion keeps more tracks with a third level, which costs the
+    # slow sequences labels and time (docs/report/pipeline.md)
+    lk_fast_px: float = number(8.0, POSITIVE)
+    patch: int = whole(7, 3, "pixels")  # side of the patches the similarity check compares
+    lk_iters: int = whole(10, 1, "iteration")  # most Lucas-Kanade iterations per level
+    lk_eps: float = number(0.03, POSITIVE)  # LK stops once an update is shorter, pixels
+    fb_max: float = number(1.0, POSITIVE)  # largest forward-backward error kept, pixels
+    # smallest patch correlation coefficient kept
+    min_similarity: float = number(0.8, Span(-1.0, True, 1.0, True))
+    depth_min: float = number(0.2, NON_NEGATIVE)  # nearest depth reading trusted, metres
+    depth_max: float = number(10.0, POSITIVE)  # farthest depth reading trusted, metres
+    # largest depth change within 3x3 pixels, a fraction of the depth
+    depth_jump: float = number(0.05, POSITIVE)
+    fill_radius: int = whole(2, 0, "pixels")  # holes are filled from the (2r+1)^2 window
+    # fewest valid neighbours (of (2r+1)^2 - 1) needed to fill a hole
+    fill_min_valid: int = whole(6, 0, "neighbours")
     depth_smooth: bool = True  # also average valid depth over agreeing (2r+1)^2 windows
     # each cell's grid point at its most trackable pixel with depth (host.flow.textured_points)
     # instead of its centre, which on a wall or floor gives LK nothing to follow
     textured_points: bool = False
+    # a new keyframe is taken when fewer than this fraction of the keyframe's points that
+    # its first pair tracked are still tracked
+    keyframe_overlap: float = number(0.7, UNIT)
+
+
+@dataclasses.dataclass(frozen=True)
+class StepOptions(SharedOptions):
+    """What the jitted per-frame step (:mod:`jaxvo.core`) reads: its static argument
+    (shapes, trip counts, switches), so that a flow setting never recompiles it."""
 
     # --- spatial segmentation (thesis chapter 3, Algorithms 1 and 2) ---
     # H, the most hypotheses a frame pair may take: a cap. The search stops earlier, once
-    # the points are explained (Params.s_min) or too few are left unexplained, so 10, 20
-    # and 40 gave bit-identical runs in 35 of 36 cells of examples/thesis_parameters.toml
-    num_hypotheses: int = 20
-    sample_size: int = 4  # m, points per minimal sample
-    sample_radius: int = 3  # neighbourhood of the seed point, in grid cells
+    # the points are explained (Params.s_min) or too few are left unexplained, so a larger
+    # cap changes almost no run (docs/report/core_decisions.md)
+    num_hypotheses: int = whole(20, 1, "hypothesis")
+    sample_radius: int = whole(3, 1, "grid cell")  # neighbourhood of the seed, grid cells
     # candidate samples drawn (vmapped) per hypothesis step; on the synthetic scenes the
-    # first verified one is nearly always among the first 8 (16 gave identical results)
-    num_candidates: int = 8
+    # first verified one is nearly always among the first few
+    num_candidates: int = whole(8, 1, "candidate")
     # fixed trip count of the inlier refinement loop; the clusters are refined jointly on
-    # all points afterwards, so 2 trips score as 4 did (F within 0.01) at half the cost
-    refine_iters: int = 2
-    # refinement of each cluster's motion (Algorithm 2): 2 and 3 trips score the same on the
-    # synthetic scenes; 1 trip let fixed_camera_2 lose its background in one run
-    cluster_refine_iters: int = 2
-    max_segments: int = 8  # most distinct motions kept per frame
+    # all points afterwards, so few trips score as many do at a fraction of the cost
+    refine_iters: int = whole(2, 0, "iterations")
+    # refinement of each cluster's motion (Algorithm 2): one trip fewer let a fixed-camera
+    # scene lose its background (docs/report/core_decisions.md)
+    cluster_refine_iters: int = whole(2, 0, "iterations")
+    max_segments: int = whole(8, 1, "segment")  # most distinct motions kept per frame
 
     # --- temporal segmentation (thesis chapter 4, Algorithm 3) ---
-    max_ids: int = 8  # identifiers (m of section 4.1); identifier 1 is the static background
-    match_window: int = 5  # tMinSize: previous frames the label matching looks back over
+    # identifiers (m of section 4.1); identifier 1 is the static background
+    max_ids: int = whole(8, 1, "identifier")
+    # tMinSize: previous frames the label matching looks back over
+    match_window: int = whole(5, 1, "frame")
 
     # --- ego-motion ---
     # robust re-weighting iterations of the ego-motion, its support growing with the fit
-    # (egomotion.fit_egomotion; as many fits as the 1 + 5 before the support grew)
-    ego_iters: int = 6
+    # (egomotion.fit_egomotion)
+    ego_iters: int = whole(6, 0, "iterations")
     # Gauss-Newton steps on the image-plane and depth errors after the 3D fit
     # (egomotion.refine_reprojection; 0 turns it off)
-    ego_reprojection_iters: int = 3
+    ego_reprojection_iters: int = whole(3, 0, "iterations")
 
     # --- sensor noise (jaxvo.core.noise) ---
-    # calibrate the noise online (Params.noise_rate a frame, 0 leaves it as given). Off, the
-    # step does not compile the calibration (two masked quantiles a frame): it did not pay
-    # on the validation split (docs/report/robustness.md), and a study that sweeps
-    # noise_rate turns it on
+    # calibrate the noise online (Params.noise_rate a frame). Off, the step does not
+    # compile the calibration: it did not pay on the validation split
+    # (docs/report/robustness.md), and a study that sweeps noise_rate turns it on
     noise_calibration: bool = False
 
-    # --- frame-to-keyframe tracking (jaxvo.core.keyframe, our addition) ---
-    # the ego-motion also fits the keyframe's static grid points tracked into the current
-    # image (jaxvo.host.keyframes.KeyframeTracker), so that drift accrues per keyframe
-    keyframes: bool = False
-    # a new keyframe is taken when fewer than this fraction of the keyframe's points that
-    # its first pair tracked are still tracked
-    keyframe_overlap: float = 0.7
-    # the keyframe's points are every keyframe_stride-th grid row and column (LK per point
-    # is most of the cost; on the dev split 2 scored as well as 1 or better: ATE 15.06,
-    # 17.18, 19.91 mm against 15.82-16.86, 18.41-19.21, 19.91-20.41 mm at every 1st, 2nd, 4th frame)
-    keyframe_stride: int = 2
-    # the local window: the latest keyframes whose poses and points are refined together
-    # each time a keyframe is taken (jaxvo.core.keyframe); 1: the latest keyframe alone.
-    # 4: 6 (with more frequent keyframes) was no better on the development frames
-    keyframe_window: int = 4
-    # Levenberg-Marquardt iterations of the window's refinement; not tuned (10 gave the
-    # same ATE in the one check made, docs/report/keyframes.md has the window's figures)
-    keyframe_iters: int = 5
-
-    @property
-    def flow(self) -> FlowOptions:
-        """The settings the host's grid flow and keyframe tracker read."""
-        return _view(FlowOptions, self)
-
-    @property
-    def step(self) -> StepOptions:
-        """The settings the jitted step reads: its static argument."""
-        return _view(StepOptions, self)
-
-
-# Each side's options: the fields of Config that one side reads, without defaults of their
-# own (Config holds each default once; build them with Config(...).flow / .step). A field
-# both sides read (the grid cell, the keyframe window) is in both. Reading a field the
-# options lack is an AttributeError, so the lists cannot fall behind the code.
-
-
-@dataclasses.dataclass(frozen=True)
-class FlowOptions:
-    """What the host's grid flow (:mod:`jaxvo.host.flow`, :mod:`jaxvo.host.depth`) and
-    keyframe tracker (:mod:`jaxvo.host.keyframes`) read of a :class:`Config`: a study's flow
-    cache is keyed by them. See :class:`Config` for each field."""
-
-    cell: int
-    lk_window: int
-    lk_levels: int
-    lk_fast_px: float
-    patch: int
-    lk_iters: int
-    lk_eps: float
-    fb_max: float
-    min_similarity: float
-    depth_min: float
-    depth_max: float
-    depth_jump: float
-    fill_radius: int
-    fill_min_valid: int
-    depth_smooth: bool
-    textured_points: bool
-    sample_size: int  # a pair with fewer valid vectors than a sample needs is dropped
-    keyframes: bool
-    keyframe_overlap: float
-    keyframe_stride: int
-    keyframe_window: int
-
-
-@dataclasses.dataclass(frozen=True)
-class StepOptions:
-    """What the jitted per-frame step (:mod:`jaxvo.core`) reads of a :class:`Config`: its
-    static argument (shapes, trip counts, switches), so that a flow setting never
-    recompiles it. See :class:`Config` for each field."""
-
-    cell: int
-    num_hypotheses: int
-    sample_size: int
-    sample_radius: int
-    num_candidates: int
-    refine_iters: int
-    cluster_refine_iters: int
-    max_segments: int
-    max_ids: int
-    match_window: int
-    ego_iters: int
-    ego_reprojection_iters: int
-    noise_calibration: bool
-    keyframes: bool
-    keyframe_stride: int
-    keyframe_window: int
-    keyframe_iters: int
-
-
-def _view(options: type, cfg: Config):
-    """``options`` (:class:`FlowOptions` or :class:`StepOptions`) with ``cfg``'s values."""
-    return options(**{f.name: getattr(cfg, f.name) for f in dataclasses.fields(options)})
+    # Levenberg-Marquardt iterations of the keyframe window's refinement; not tuned
+    # (docs/report/keyframes.md)
+    keyframe_iters: int = whole(5, 0, "iterations")
 
 
 # Config fields that are gone, and what replaced them: Config(window=5) and a study's
 # `window = 5` are told this instead of Python's "unexpected keyword argument"
 REMOVED_CONFIG = {
-    "window": "the consecutive-frame window was removed (issue 21): Config(keyframes=True) "
+    "window": "the consecutive-frame window was removed: Config(keyframes=True) "
               "refines a window over the latest keyframes instead (Config.keyframe_window of "
               "them; --keyframes on the command line)",
 }
 
 
-def _checked_init(init):
-    """``Config.__init__`` saying, for a field it does not have, what replaced it
-    (:data:`REMOVED_CONFIG`) or which fields are near in name."""
-    import functools
-
-    @functools.wraps(init)
-    def __init__(self, *args, **kwargs):
-        known = {f.name for f in dataclasses.fields(Config)}
-        for name in kwargs:
-            if name not in known:
-                import difflib
-
-                near = difflib.get_close_matches(name, sorted(known), n=3)
-                raise TypeError(f"Config has no field {name!r}: " + (
-                    REMOVED_CONFIG.get(name) or ("did you mean " + " or ".join(near) + "?"
-                                                 if near else "see jaxvo.Config's fields")))
-        init(self, *args, **kwargs)
-
-    return __init__
+def config_fields() -> dict[str, dataclasses.Field]:
+    """Every setting of a :class:`Config` by name, each once: those both sides read, then
+    the flow's, then the step's."""
+    fields = {f.name: f for f in dataclasses.fields(FlowOptions)}
+    fields.update((f.name, f) for f in dataclasses.fields(StepOptions) if f.name not in fields)
+    return fields
 
 
-Config.__init__ = _checked_init(Config.__init__)
+_SHARED = frozenset(f.name for f in dataclasses.fields(SharedOptions))
+_FLOW = frozenset(f.name for f in dataclasses.fields(FlowOptions))
+_STEP = frozenset(f.name for f in dataclasses.fields(StepOptions))
+
+
+def _unknown_setting(name: str) -> TypeError:
+    """What ``Config(name=...)`` is told for a setting it lacks: what replaced it
+    (:data:`REMOVED_CONFIG`) or which settings are near in name."""
+    import difflib
+
+    near = difflib.get_close_matches(name, sorted(_FLOW | _STEP), n=3)
+    return TypeError(f"Config has no field {name!r}: " + (
+        REMOVED_CONFIG.get(name) or ("did you mean " + " or ".join(near) + "?"
+                                     if near else "see jaxvo.Config's fields")))
+
+
+class _Settings(type):
+    """:class:`Config`'s class: a setting read off the class is its default
+    (``Config.keyframes``), as on a dataclass with the settings as fields."""
+
+    def __getattr__(cls, name: str):
+        spec = config_fields().get(name)
+        if spec is None:
+            raise AttributeError(f"type object 'Config' has no attribute {name!r}")
+        return spec.default
+
+
+@dataclasses.dataclass(frozen=True, init=False)
+class Config(metaclass=_Settings):
+    """Every setting of the odometry that is no number a study sweeps: the host flow's
+    :attr:`flow` and the step's :attr:`step` (static under ``jax.jit``).
+
+    Built by setting name over the defaults (``Config(cell=8, keyframes=True)``) or from the
+    two sides' options (``Config(flow=..., step=...)``, settings by name then replacing
+    theirs), and read by setting name (``cfg.cell``; ``Config.cell``, the default): see
+    :func:`config_fields`. Hashable, and equal when every setting is.
+    """
+
+    flow: FlowOptions = FlowOptions()
+    step: StepOptions = StepOptions()
+
+    def __init__(self, flow: FlowOptions | None = None, step: StepOptions | None = None,
+                 **settings):
+        flow = FlowOptions() if flow is None else flow
+        step = StepOptions() if step is None else step
+        if not isinstance(flow, FlowOptions) or not isinstance(step, StepOptions):
+            raise TypeError(f"Config(flow=, step=) takes a FlowOptions and a StepOptions, got "
+                            f"{type(flow).__name__} and {type(step).__name__}")
+        for name in settings:
+            if name not in _FLOW and name not in _STEP:
+                raise _unknown_setting(name)
+        if settings.keys() & _FLOW:
+            flow = dataclasses.replace(flow, **{k: v for k, v in settings.items() if k in _FLOW})
+        if settings.keys() & _STEP:
+            step = dataclasses.replace(step, **{k: v for k, v in settings.items() if k in _STEP})
+        for name in sorted(_SHARED):  # the same object passes (a NaN is for check_config)
+            if getattr(flow, name) is not getattr(step, name) and \
+                    getattr(flow, name) != getattr(step, name):
+                raise ValueError(f"Config's flow and step disagree on {name} ("
+                                 f"{getattr(flow, name)!r} against {getattr(step, name)!r}): "
+                                 f"set it once, Config({name}=...)")
+        object.__setattr__(self, "flow", flow)
+        object.__setattr__(self, "step", step)
+
+    def __getattr__(self, name: str):
+        # only for what is not an attribute of its own: a setting, read from its side
+        if name in _FLOW:
+            return getattr(self.flow, name)
+        if name in _STEP:
+            return getattr(self.step, name)
+        raise AttributeError(f"'Config' object has no attribute {name!r}")
+
+    def as_dict(self) -> dict:
+        """Every setting by name, in :func:`config_fields`' order."""
+        return {name: getattr(self, name) for name in config_fields()}
 
 
 class Params(NamedTuple):
@@ -225,20 +281,20 @@ class Params(NamedTuple):
     What each field still changes is measured by ``bench/params_effect.py``
     (``docs/report/params_effect.md``: six built-in scenes, each field halved and doubled):
     ``confidence``, ``pixel_sigma``, ``cluster_min_samples`` and the evidence fields move
-    the moving-object F-measure (by 0.07-0.9), ``noise_rate`` and ``confidence`` the ATE;
-    ``lam``, ``delta``, ``cluster_eps`` and ``min_segment_points`` change labels in some
-    frames and F by 0.01-0.02; ``s_min``, ``min_match_corr``, ``max_age`` and
-    ``min_static_points`` change labels or statuses in some frames but no score;
-    ``id_retention`` changes nothing there (see its comment).
+    the moving-object F-measure, ``noise_rate`` and ``confidence`` the ATE; ``lam``,
+    ``delta``, ``cluster_eps`` and ``min_segment_points`` change labels in some frames and F
+    a little; ``s_min``, ``min_match_corr``, ``max_age`` and ``min_static_points`` change
+    labels or statuses in some frames but no score; ``id_retention`` changes nothing there
+    (see its comment).
     """
 
     # spatial segmentation
     lam: float = 1e3  # lambda of the entropy, thesis eq. (3.1), 1/m^2
     delta: float = 1e-2  # delta of the entropy, thesis eq. (3.1)
     # stop when the mean entropy falls below this (Algorithm 1, line 3). A fully explained
-    # point still has entropy 1 - exp(-delta) = 0.00995, so the rule can only fire above
-    # that floor; a slow object on a tenth of the image keeps the mean near 0.02 (0.05 here
-    # stopped the search before the object was sampled; 0.012 and 0.005 score the same).
+    # point still has entropy 1 - exp(-delta), so the rule can only fire above that floor;
+    # a slow object on a tenth of the image keeps the mean just above it, and a larger
+    # value stopped the search before the object was sampled (docs/report/core_decisions.md).
     # With noise the mean stays above it, so the search also ends once at most
     # min_segment_points valid points are inliers of no hypothesis; 0 runs all H trips
     s_min: float = 0.012
@@ -251,16 +307,13 @@ class Params(NamedTuple):
     cluster_min_samples: float = 1.0  # DBSCAN core-point threshold (count, incl. itself)
     min_segment_points: float = 12.0  # N_threshold of Algorithm 2, grid points
 
-    # sensor noise (jaxvo.core.noise): the values a sequence starts from, a little above the real
-    # development frames' noise measured against ground truth (7-Scenes frames 0-149: 0.75
-    # px across the ray, 0.9-1.3e-3 z^2 a depth reading along it; bench/calibrate_noise.py):
+    # sensor noise (jaxvo.core.noise): the values a sequence starts from, a little above the
+    # real development frames' noise measured against ground truth (bench/calibrate_noise.py):
     # a start below the noise splits the background into regional segments, a start above
     # it only merges slow motions for the first frames. With Config.noise_calibration the
     # pipeline calibrates both online from the background's residuals, moving log(value) by
-    # noise_rate a frame (without it, noise_rate has no effect). Off by default: at 0.2 it
-    # did not pay on the validation split
-    # (7-Scenes frames 150-299 ATE 33.2/32.0/24.4 mm at every 1st/2nd/4th frame against
-    # 24.3/24.5/25.8 off; TUM people covered 26.9 % against 48.8 %; docs/report/robustness.md)
+    # noise_rate a frame (without it, noise_rate has no effect). Off by default: it did not
+    # pay on the validation split (docs/report/robustness.md)
     pixel_sigma: float = 0.75  # tracker noise across the viewing ray, pixels per axis
     depth_coeff: float = 1.5e-3  # depth noise along the ray over z^2, a reading, 1/m
     noise_rate: float = 0.0
@@ -278,9 +331,8 @@ class Params(NamedTuple):
     # point that moves has residuals about evidence_effect times the noise; one frame
     # shifts the log-odds by at most evidence_step; the evidence decays by evidence_decay
     # a frame and stays within +-(logit(confidence) + evidence_margin); a cell is reported
-    # moving once its posterior exceeds `confidence`. The bound follows the confidence:
-    # a fixed bound of 6 (the same at 0.99) left nothing ever reported moving at
-    # confidence 0.999, whose log-odds is 6.9
+    # moving once its posterior exceeds `confidence`. The bound follows the confidence: a
+    # fixed bound left nothing ever reported moving at a confidence whose log-odds exceeds it
     evidence_effect: float = 3.0
     evidence_step: float = 3.0
     evidence_decay: float = 0.9
@@ -290,8 +342,8 @@ class Params(NamedTuple):
     # (jaxvo.core.robust.enough_points)
     min_static_points: float = 12.0  # fewer static points than this: the frame is skipped
 
-    # the background choice (jaxvo.core.background). Both were set at 0.1 when the choice
-    # was written and have not been swept since (params_effect.md predates them as fields):
+    # the background choice (jaxvo.core.background). Both were set when the choice was
+    # written and have not been swept since (params_effect.md predates them as fields):
     # an order of magnitude below the full weight, so that they break ties without deciding.
     # A point not yet established as background or as moving (new in view, or its
     # evidence faded) weighs this much in the background's support against one established
@@ -308,9 +360,38 @@ class Params(NamedTuple):
     same_place: float = 0.25
     # depth order (jaxvo.core.background.depth_order): the share of decisive neighbour pairs
     # across a boundary between two motions in which the static side lies behind, measured
-    # on the development composites (86-89 % of 4557 and 1404 such pairs, three_boxes and
-    # fixed_camera_2, frames 0-149); each net pair is worth logit(order_reliability)
+    # on the development composites (docs/report/background.md); each net pair is worth
+    # logit(order_reliability)
     order_reliability: float = 0.85
+
+
+# The values each Params field can take (a field not named: any finite number). Outside
+# them a run does not fail, it quietly reports nothing (confidence 1: an infinite moving
+# threshold) or NaN tests (confidence above 1).
+PARAM_SPANS = {
+    "lam": POSITIVE,
+    "delta": POSITIVE,
+    "s_min": NON_NEGATIVE,
+    "confidence": Span(0.0, False, 1.0, False),
+    "cluster_eps": UNIT,
+    "cluster_min_samples": Span(1.0, True, None, False),
+    "min_segment_points": NON_NEGATIVE,
+    "pixel_sigma": POSITIVE,
+    "depth_coeff": POSITIVE,
+    "noise_rate": UNIT,
+    "min_match_corr": Span(-1.0, True, 1.0, True),
+    "max_age": Span(1.0, True, None, False),
+    "id_retention": NON_NEGATIVE,
+    "evidence_effect": POSITIVE,
+    "evidence_step": POSITIVE,
+    "evidence_decay": UNIT,
+    "evidence_margin": NON_NEGATIVE,
+    "min_static_points": NON_NEGATIVE,
+    "unestablished_weight": UNIT,
+    "unpredicted_support": NON_NEGATIVE,
+    "same_place": Span(0.0, False, 1.0, True),
+    "order_reliability": Span(0.5, False, 1.0, False),
+}
 
 
 def default_params() -> Params:
@@ -325,65 +406,24 @@ def params_as_arrays(params: Params) -> Params:
     return Params(*(jnp.asarray(v, jnp.float32) for v in params))
 
 
-# Smallest grid cell checked by check_config, pixels: a 4-pixel grid already tracks 16
-# times the points of the thesis's 16-pixel one (19200 on a 640x480 image) and costs about
-# as much more per frame; below it the points crowd inside one LK window and patch.
-MIN_CELL = 4
-
-
-# The values each Params field can take: (lowest, lowest allowed?, highest, highest
-# allowed?), None for no bound. Outside them a run does not fail, it quietly reports
-# nothing (confidence 1: an infinite moving threshold) or NaN tests (confidence 1.5).
-_PARAM_RANGES = {
-    "lam": (0.0, False, None, False),
-    "delta": (0.0, False, None, False),
-    "s_min": (0.0, True, None, False),
-    "confidence": (0.0, False, 1.0, False),
-    "cluster_eps": (0.0, True, 1.0, True),
-    "cluster_min_samples": (1.0, True, None, False),
-    "min_segment_points": (0.0, True, None, False),
-    "pixel_sigma": (0.0, False, None, False),
-    "depth_coeff": (0.0, False, None, False),
-    "noise_rate": (0.0, True, 1.0, True),
-    "min_match_corr": (-1.0, True, 1.0, True),
-    "max_age": (1.0, True, None, False),
-    "id_retention": (0.0, True, None, False),
-    "evidence_effect": (0.0, False, None, False),
-    "evidence_step": (0.0, False, None, False),
-    "evidence_decay": (0.0, True, 1.0, True),
-    "evidence_margin": (0.0, True, None, False),
-    "min_static_points": (0.0, True, None, False),
-    "unestablished_weight": (0.0, True, 1.0, True),
-    "unpredicted_support": (0.0, True, None, False),
-    "same_place": (0.0, False, 1.0, True),
-    "order_reliability": (0.5, False, 1.0, False),
-}
-
-
 def check_param(field: str, value, *, name: str | None = None) -> None:
     """Raise :class:`~jaxvo.errors.InputError` unless every entry of ``value`` (a number or
-    an array of them, for a batched study) is a finite number in ``field``'s range (any
-    finite number for a field without one)."""
+    an array of them, for a batched study) is a finite number in ``field``'s span
+    (:data:`PARAM_SPANS`; any finite number for a field without one)."""
     import numpy as np
 
     from jaxvo.errors import InputError
 
     name = name or f"Params.{field}"
-    low, low_in, high, high_in = _PARAM_RANGES.get(field, (None, False, None, False))
+    span = PARAM_SPANS.get(field, ANY)
     try:
         v = np.asarray(value, np.float64)
     except (TypeError, ValueError):
         raise InputError(f"{name} must be a number, got {value!r}") from None
     if not np.all(np.isfinite(v)):
         raise InputError(f"{name} must be a finite number, got {value!r}")
-    inside = np.ones(v.shape, bool)
-    if low is not None:
-        inside &= (v >= low) if low_in else (v > low)
-    if high is not None:
-        inside &= (v <= high) if high_in else (v < high)
+    inside = span.holds(v)
     if not np.all(inside):
-        span = (f"{'[' if low_in else '('}{low:g}, " if low is not None else "(-inf, ") + \
-               (f"{high:g}{']' if high_in else ')'}" if high is not None else "inf)")
         bad = v[~inside].flat[0]
         raise InputError(f"{name} must be in {span}, got {bad:g}")
 
@@ -403,13 +443,10 @@ def check_config(
 ) -> None:
     """Raise :class:`~jaxvo.errors.InputError` for settings no run can use.
 
-    The grid cell must be at least :data:`MIN_CELL` pixels (and leave 2 x 2 cells on the
-    image, when its size is given); there must be at least one hypothesis, minimal samples
-    of at least 3 points, and room for at least one segment; the keyframe window holds at
-    least one keyframe, its points every stride-th grid point (with keyframes, enough of
-    them for a fit when the image size is given), with no negative iteration count; every
-    other whole number at its least, every float in its range (not NaN), every switch a
-    bool.
+    Every setting as its declaration says (:func:`whole`: a whole number at its least;
+    :func:`number`: a float in its span, not NaN; a bool: True or False); the depth band
+    not empty; with the image size, 2 x 2 grid cells on it and, with keyframes, enough
+    points in a keyframe for a fit.
 
     Args:
       cfg: the settings.
@@ -422,37 +459,51 @@ def check_config(
     def name(field: str) -> str:
         return (names or {}).get(field, f"Config.{field}")
 
-    for field, least, unit in _CONFIG_LEAST:
-        value = getattr(cfg, field)
-        try:
-            whole = operator.index(value)  # Python and NumPy integers, not floats
-        except TypeError:
-            raise InputError(f"{name(field)} must be a whole number, got {value!r}") from None
-        if whole < least:
-            raise InputError(f"{name(field)} must be at least {least} {unit}, got {value}")
-    for field, (low, low_in, high, high_in) in _CONFIG_RANGES.items():
-        value = getattr(cfg, field)
-        ok = isinstance(value, int | float) and not isinstance(value, bool) or (
-            hasattr(value, "dtype") and getattr(value, "ndim", 1) == 0)
-        v = float(value) if ok else float("nan")
-        inside = (v >= low if low_in else v > low) and (high is None or (
-            v <= high if high_in else v < high))
-        if not inside:  # also NaN, and what is no number
-            span = f"{'[' if low_in else '('}{low:g}, " + (
-                f"{high:g}{']' if high_in else ')'}" if high is not None else "inf)")
-            raise InputError(f"{name(field)} must be a number in {span}, got {value!r}")
+    for field, spec in config_fields().items():
+        problem = _setting_problem(spec, getattr(cfg, field))
+        if problem:
+            raise InputError(f"{name(field)} {problem}")
     if not cfg.depth_max > cfg.depth_min:
         raise InputError(f"{name('depth_max')} {cfg.depth_max} must be beyond "
                          f"{name('depth_min')} {cfg.depth_min}")
-    for field in ("depth_smooth", "textured_points", "noise_calibration", "keyframes"):
-        if not isinstance(getattr(cfg, field), bool | np_bool()):
-            raise InputError(f"{name(field)} must be True or False, got {getattr(cfg, field)!r}")
-    if height is not None and width is not None and min(height, width) // cfg.cell < 2:
+    if height is not None and width is not None:
+        _check_image(cfg, height, width, name)
+
+
+def _setting_problem(spec: dataclasses.Field, value) -> str | None:
+    """What is wrong with ``value`` for the setting ``spec`` declares (None: nothing)."""
+    import numpy as np
+
+    if isinstance(spec.default, bool):
+        if not isinstance(value, bool | np.bool_):
+            return f"must be True or False, got {value!r}"
+    elif "least" in spec.metadata:
+        try:
+            whole_value = operator.index(value)  # Python and NumPy integers, not floats
+        except TypeError:
+            return f"must be a whole number, got {value!r}"
+        if whole_value < spec.metadata["least"]:
+            return f"must be at least {spec.metadata['least']} {spec.metadata['unit']}, " \
+                   f"got {value}"
+    elif "span" in spec.metadata:
+        ok = isinstance(value, int | float) and not isinstance(value, bool) or (
+            hasattr(value, "dtype") and getattr(value, "ndim", 1) == 0)
+        if not (ok and spec.metadata["span"].holds(float(value))):  # also NaN, and no number
+            return f"must be a number in {spec.metadata['span']}, got {value!r}"
+    return None
+
+
+def _check_image(cfg: Config, height: int, width: int, name) -> None:
+    """The settings against the image size: 2 x 2 grid cells, and with keyframes enough
+    points in a keyframe for a fit of the camera's motion."""
+    from jaxvo.errors import InputError
+
+    if min(height, width) // cfg.cell < 2:
         raise InputError(
             f"{name('cell')} {cfg.cell} leaves fewer than 2 x 2 grid cells on the "
             f"{width}x{height} image: at most {min(height, width) // 2} pixels"
         )
-    if cfg.keyframes and height is not None and width is not None:
+    if cfg.keyframes:
         rows, cols = height // cfg.cell, width // cfg.cell
         kept = -(-rows // cfg.keyframe_stride) * -(-cols // cfg.keyframe_stride)
         least = int(Params().min_static_points)
@@ -466,13 +517,6 @@ def check_config(
                     f"{name('cell')}"))
 
 
-def np_bool():
-    """NumPy's bool type (a ``Config`` built from arrays may hold one)."""
-    import numpy as np
-
-    return np.bool_
-
-
 def _largest_stride(rows: int, cols: int, least: int) -> int:
     """The largest keyframe stride that keeps ``least`` points of a ``rows`` x ``cols`` grid
     (0: none does)."""
@@ -481,45 +525,6 @@ def _largest_stride(rows: int, cols: int, least: int) -> int:
         if -(-rows // stride) * -(-cols // stride) >= least:
             best = stride
     return best
-
-
-# The least value of each whole-number Config field, and its unit in messages
-_CONFIG_LEAST = (
-    ("cell", MIN_CELL, "pixels"),
-    ("num_hypotheses", 1, "hypothesis"),
-    ("sample_size", 3, "points (a rigid fit needs 3)"),
-    ("max_segments", 1, "segment"),
-    ("keyframe_window", 1, "keyframe"),
-    ("keyframe_stride", 1, "grid row and column"),
-    ("keyframe_iters", 0, "iterations"),
-    ("lk_window", 3, "pixels"),
-    ("lk_levels", 0, "pyramid levels"),
-    ("patch", 3, "pixels"),
-    ("lk_iters", 1, "iteration"),
-    ("fill_radius", 0, "pixels"),
-    ("fill_min_valid", 0, "neighbours"),
-    ("sample_radius", 1, "grid cell"),
-    ("num_candidates", 1, "candidate"),
-    ("refine_iters", 0, "iterations"),
-    ("cluster_refine_iters", 0, "iterations"),
-    ("max_ids", 1, "identifier"),
-    ("match_window", 1, "frame"),
-    ("ego_iters", 0, "iterations"),
-    ("ego_reprojection_iters", 0, "iterations"),
-)
-# The values each float Config field can take: (lowest, lowest allowed?, highest, highest
-# allowed?), None for no bound; NaN is refused everywhere (keyframe_overlap = nan took no
-# keyframe ever, silently)
-_CONFIG_RANGES = {
-    "lk_fast_px": (0.0, False, None, False),
-    "lk_eps": (0.0, False, None, False),
-    "fb_max": (0.0, False, None, False),
-    "min_similarity": (-1.0, True, 1.0, True),
-    "depth_min": (0.0, True, None, False),
-    "depth_max": (0.0, False, None, False),
-    "depth_jump": (0.0, False, None, False),
-    "keyframe_overlap": (0.0, True, 1.0, True),
-}
 
 
 def grid_shape(height: int, width: int, cell: int) -> tuple[int, int]:

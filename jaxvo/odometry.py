@@ -126,8 +126,8 @@ class Odometry:
         self.cfg = cfg
         self._step_options = cfg.step  # the step's static argument: no flow setting in it
         # One frame's step is a long chain of small dependent operations, bound by launch
-        # latency on an accelerator: on an H100 it took 19-25 ms a frame against 9 ms on 2
-        # CPU cores (docs/report/pipeline_h100.md). So the step runs on the CPU unless told
+        # latency on an accelerator: on an H100 it took longer a frame than on 2 CPU cores
+        # (docs/report/pipeline_h100.md). So the step runs on the CPU unless told
         # otherwise; the state, parameters and key live there, and the step follows them.
         self.device = _device(device)
         params = params if params is not None else Params()
@@ -205,8 +205,8 @@ class Odometry:
 
         The device step of this frame is left running while the caller fetches the next
         frame and the next call computes its flow on the host, so a frame costs about the
-        larger of the two instead of their sum (``bench/bench_pipeline.py`` on 2 cores: medians
-        of 7.4-8.8 against 10.1-14.9 ms per frame over several runs); each result arrives
+        larger of the two instead of their sum (``bench/bench_pipeline.py``,
+        ``docs/report/host_decisions.md``); each result arrives
         one frame later. Call :meth:`flush` after the last
         frame for its result. Poses, labels and statuses are those of :meth:`process`, and
         so are the arguments and errors.

@@ -2,8 +2,10 @@
 
 Both sides read them: the host writes a run's poses and reads a sequence's ground truth
 (:mod:`jaxvo.host.io`), the evaluation scores one trajectory against another
-(:mod:`jaxvo.evaluation.metrics`). Numpy only; a file is written whole or not at all
-(:mod:`jaxvo.host.outputs`).
+(:mod:`jaxvo.evaluation.metrics`). Numpy only, and nothing of the host: the lines of a
+TUM file are made here (:func:`tum_header`, :func:`tum_lines`) and written by the host's
+two writers, :func:`jaxvo.host.io.write_trajectory` and
+:class:`jaxvo.host.io.TrajectoryWriter`, whole or not at all.
 
 TUM format: one line a pose, ``timestamp tx ty tz qx qy qz qw`` (seconds, metres, the
 camera-to-world rotation's quaternion, scalar last); ``#`` starts a comment.
@@ -17,6 +19,7 @@ from typing import NamedTuple
 import numpy as np
 
 from jaxvo.errors import InputError
+from jaxvo.transforms import pose_from_tq, rotation_to_quat
 
 
 class Trajectory(NamedTuple):
@@ -85,8 +88,6 @@ def read_trajectory(path: str | Path, *, text: str | None = None) -> Trajectory:
     Returns:
       a :class:`Trajectory`, timestamps (N,) seconds, poses (N, 4, 4) ``T_w_c`` metres.
     """
-    from jaxvo.host.transforms import pose_from_tq
-
     path = Path(path)
     rows, linenos = [], []
     for lineno, parts in data_lines(path, text):
@@ -130,33 +131,32 @@ def is_number(text: str) -> bool:
     return True
 
 
-def write_trajectory(path: str | Path, traj: Trajectory, *, comment: str = "") -> None:
-    """Write a TUM trajectory file: timestamps ``%.6f`` s, translation and quaternion ``%.9f``.
+def tum_header(comment: str = "") -> str:
+    """The first lines of a TUM trajectory file: ``comment``'s lines after ``# ``, then the
+    column names; each line ends in a newline."""
+    return "".join(f"# {line}\n" for line in comment.splitlines()) + HEADER + "\n"
 
-    Reading the file back gives timestamps within 5e-7 s, translations within 5e-10 m and
-    rotations within about 1e-9 of the written ones (the printed precision).
+
+def tum_lines(timestamps: np.ndarray, poses: np.ndarray) -> str:
+    """Poses as TUM trajectory lines, each ending in a newline: timestamps ``%.6f`` s,
+    translation and quaternion ``%.9f``.
+
+    Reading them back gives timestamps within 5e-7 s, translations within 5e-10 m and
+    rotations within about 1e-9 of the given ones (the printed precision).
 
     Args:
-      path: the file to write (replaced whole, :class:`jaxvo.host.outputs.OutputFile`).
-      traj: timestamps (N,) seconds, poses (N, 4, 4) ``T_w_c``.
-      comment: an optional first line (written after ``# ``).
+      timestamps: (N,) seconds.
+      poses: (N, 4, 4) ``T_w_c``.
     """
-    from jaxvo.host.outputs import write_text
-    from jaxvo.host.transforms import rotation_to_quat
-
-    poses = np.asarray(traj.poses, np.float64)
-    stamps = np.asarray(traj.timestamps, np.float64)
-    if poses.ndim != 3 or poses.shape[1:] != (4, 4) or len(stamps) != len(poses):
+    poses = np.asarray(poses, np.float64)
+    stamps = np.asarray(timestamps, np.float64)
+    if poses.ndim != 3 or poses.shape[1:] != (4, 4) or stamps.shape != (len(poses),):
         raise ValueError(
             f"trajectory needs (N,) timestamps and (N, 4, 4) poses, got {stamps.shape} "
             f"and {poses.shape}"
         )
     q = rotation_to_quat(poses[:, :3, :3])
-    lines = [f"# {line}" for line in comment.splitlines()] if comment else []
-    lines.append(HEADER)
-    for t, T, qi in zip(stamps, poses, q):
-        lines.append(POSE_LINE % (t, *T[:3, 3], *qi))
-    write_text(path, "\n".join(lines) + "\n")  # whole or not at all, errors name the file
+    return "".join(POSE_LINE % (t, *T[:3, 3], *qi) + "\n" for t, T, qi in zip(stamps, poses, q))
 
 
 def pose_at(traj: Trajectory, t: float, *, max_diff: float = 0.02) -> np.ndarray | None:

@@ -120,8 +120,8 @@ def random_groundtruth():
     ``t0`` s (random-walk positions, small random rotations), drawn from ``rng``."""
     import numpy as np
 
-    from jaxvo.host.transforms import pose_from_tq
     from jaxvo.trajectory import Trajectory
+    from jaxvo.transforms import pose_from_tq
 
     def make(rng, n: int, t0: float):
         t = t0 + np.arange(n) / 30.0

@@ -74,7 +74,9 @@ def stale_names(text: str) -> list[str]:
     lacks."""
     import importlib
 
-    from jaxvo.config import Config, Params
+    from jaxvo.config import Config, Params, config_fields
+
+    settings = {*config_fields(), *Config.__dataclass_fields__}  # cfg.cell, cfg.flow
 
     modules, stale = _modules(), []
     for line in text.splitlines():
@@ -89,7 +91,7 @@ def stale_names(text: str) -> list[str]:
                 if rest[-1] in FILE_TYPES or rest[-1] == "py" or head in LIBRARIES:
                     continue
                 if head in ("cfg", "params"):
-                    fields = Config.__dataclass_fields__ if head == "cfg" else Params._fields
+                    fields = settings if head == "cfg" else Params._fields
                     stale += [dotted] if rest[0] not in fields else []
                     continue
                 found = False
@@ -111,7 +113,7 @@ def stale_names(text: str) -> list[str]:
 
 
 def test_the_stale_names_check_finds_what_moved_and_what_is_gone():
-    assert stale_names("`evidence.reported_ids`, `flow.GridFlow`, `cfg.cell`") == []
+    assert stale_names("`evidence.reported_ids`, `flow.GridFlow`, `cfg.cell`, `cfg.step`") == []
     assert stale_names("`temporal.reported_ids` and `study_report.write_report`, "
                        "`cfg.window`, `core/window.py`") == [
         "core/window.py", "temporal.reported_ids", "study_report.write_report", "cfg.window"]

@@ -38,9 +38,9 @@ from jaxvo.host.camera import Intrinsics
 from jaxvo.host.io import open_sequence
 from jaxvo.host.realsense import image_message
 from jaxvo.host.rosbag import TUM_TOPICS
-from jaxvo.host.transforms import rotation_to_quat
 from jaxvo.synth.scenes import make_sequence, write_sequence
 from jaxvo.trajectory import read_trajectory
+from jaxvo.transforms import rotation_to_quat
 
 N = 6  # frames: a few pairs, so that masks move and the map has points
 

@@ -8,8 +8,9 @@ import numpy as np
 import pytest
 
 from jaxvo.cli.main import main
-from jaxvo.host.transforms import pose_from_tq
-from jaxvo.trajectory import Trajectory, write_trajectory
+from jaxvo.host.io import write_trajectory
+from jaxvo.trajectory import Trajectory
+from jaxvo.transforms import pose_from_tq
 
 
 @pytest.fixture

@@ -98,9 +98,9 @@ def test_a_run_of_another_sequence_is_refused_and_a_foreign_motion_warned(run_di
                                                                            tmp_path):
     """Both sequences timed index / 30 from 0: the timestamps matched, and a map came out
     with no word."""
-    from jaxvo.host.io import open_sequence
+    from jaxvo.host.io import open_sequence, write_trajectory
     from jaxvo.run import run_header
-    from jaxvo.trajectory import Trajectory, write_trajectory
+    from jaxvo.trajectory import Trajectory
 
     d = run_dir
     other = open_sequence(d / "seq")

@@ -20,8 +20,9 @@ import pytest
 
 from jaxvo.cli.main import main
 from jaxvo.evaluation.metrics import ate
-from jaxvo.host.transforms import pose_from_tq
-from jaxvo.trajectory import Trajectory, read_trajectory, write_trajectory
+from jaxvo.host.io import write_trajectory
+from jaxvo.trajectory import Trajectory, read_trajectory
+from jaxvo.transforms import pose_from_tq
 
 # evo's cases beside jaxvo's: (jaxvo eval argv after the files, evo command, evo's flags)
 CASES = {

@@ -1,4 +1,4 @@
-"""Tests of jaxvo.host.io and jaxvo.host.transforms: trajectory files, association, TUM sequences."""
+"""Tests of jaxvo.host.io and jaxvo.transforms: trajectory files, association, TUM sequences."""
 
 from __future__ import annotations
 
@@ -10,15 +10,23 @@ import pytest
 
 from jaxvo.errors import InputError
 from jaxvo.host.camera import PRESETS, Intrinsics, write_camera_file
-from jaxvo.host.io import Frame, InMemorySequence, TumSequence, open_sequence, preset_from_name
-from jaxvo.host.transforms import (
+from jaxvo.host.io import (
+    Frame,
+    InMemorySequence,
+    TrajectoryWriter,
+    TumSequence,
+    open_sequence,
+    preset_from_name,
+    write_trajectory,
+)
+from jaxvo.trajectory import Trajectory, associate, read_trajectory, tum_header, tum_lines
+from jaxvo.transforms import (
     invert_pose,
     pose_from_tq,
     quat_to_rotation,
     rotation_angle,
     rotation_to_quat,
 )
-from jaxvo.trajectory import Trajectory, associate, read_trajectory, write_trajectory
 
 
 def random_quats(rng, n):
@@ -409,6 +417,27 @@ def test_a_trajectory_writer_reads_back_its_own_poses_whoever_replaced_the_file(
     got = w.written()
     np.testing.assert_array_equal(got.timestamps, [1.0])
     np.testing.assert_allclose(got.poses[0], T, atol=5e-10)  # printed to 1e-9 m
+
+
+def test_the_streaming_and_the_whole_file_writers_write_the_same_tum_lines(tmp_path):
+    """One TUM format: TrajectoryWriter (a run's poses as they come) and write_trajectory
+    (a whole trajectory) both write jaxvo.trajectory's header and lines, byte for byte."""
+    rng = np.random.default_rng(3)
+    q = rng.normal(size=(5, 4))
+    poses = pose_from_tq(rng.normal(size=(5, 3)), q / np.linalg.norm(q, axis=1, keepdims=True))
+    stamps = 1.3e9 + np.arange(5) / 30.0
+    write_trajectory(tmp_path / "whole.txt", Trajectory(stamps, poses), comment="a\nb")
+    with TrajectoryWriter(tmp_path / "stream.txt", comment="a\nb") as w:
+        for t, T in zip(stamps, poses):
+            w.write(t, T)
+    text = (tmp_path / "whole.txt").read_text()
+    assert (tmp_path / "stream.txt").read_text() == text
+    assert text == tum_header("a\nb") + tum_lines(stamps, poses)
+    assert text.splitlines()[:3] == ["# a", "# b", "# timestamp tx ty tz qx qy qz qw"]
+    back = read_trajectory(tmp_path / "whole.txt")
+    np.testing.assert_allclose(back.poses, poses, atol=5e-9)  # printed to 1e-9
+    with pytest.raises(ValueError, match=r"\(N,\) timestamps and \(N, 4, 4\) poses"):
+        tum_lines(stamps[:4], poses)
 
 
 # --- the depth scale check ------------------------------------------------------------

@@ -48,6 +48,66 @@ def test_importing_the_traced_pipeline_loads_no_opencv():
 
 PACKAGE = Path(jaxvo.core.__file__).parent.parent
 
+# What both sides read and what scores a run: numpy only, nothing of the host (no OpenCV,
+# no file writing of its own), so that the arrows run from host/ to them and never back.
+NEUTRAL = ("jaxvo.trajectory", "jaxvo.transforms", "jaxvo.evaluation.metrics",
+           "jaxvo.evaluation.scores", "jaxvo.evaluation.evo_results")
+
+
+def _host_imports(path: Path) -> set[str]:
+    """What ``path`` imports (anywhere in it) of the host side: jaxvo.host or OpenCV."""
+    found = set()
+    for node in ast.walk(ast.parse(path.read_text())):
+        if isinstance(node, ast.Import):
+            names = [a.name for a in node.names]
+        elif isinstance(node, ast.ImportFrom) and node.module:
+            names = [node.module] + [f"{node.module}.{a.name}" for a in node.names]
+        else:
+            continue
+        found.update(n for n in names if n.split(".")[0] == "cv2"
+                     or n == "jaxvo.host" or n.startswith("jaxvo.host."))
+    return found
+
+
+def test_host_imports_are_found_at_any_depth():
+    assert _host_imports_of("def f():\n    from jaxvo import host\n") == {"jaxvo.host"}
+    assert _host_imports_of("import cv2\nfrom jaxvo.host.io import x\n") == {
+        "cv2", "jaxvo.host.io", "jaxvo.host.io.x"}
+    assert _host_imports_of("from jaxvo.transforms import x\nimport numpy\n") == set()
+
+
+def _host_imports_of(source: str) -> set[str]:
+    import tempfile
+
+    with tempfile.TemporaryDirectory() as folder:
+        path = Path(folder) / "m.py"
+        path.write_text(source)
+        return _host_imports(path)
+
+
+def test_the_trajectory_and_the_evaluation_import_nothing_of_the_host():
+    paths = [PACKAGE / "trajectory.py", PACKAGE / "transforms.py",
+             *sorted((PACKAGE / "evaluation").glob("*.py"))]
+    assert {_module_name(p) for p in paths} >= set(NEUTRAL)  # the walk sees them all
+    bad = {_module_name(p): sorted(_host_imports(p)) for p in paths if _host_imports(p)}
+    assert not bad, f"these import host code or OpenCV: {bad}"
+
+
+def test_scoring_a_run_loads_no_host_module_and_no_opencv():
+    code = ("import importlib, sys\n"
+            f"for m in {NEUTRAL!r}: importlib.import_module(m)\n"
+            "import numpy as np\n"
+            "from jaxvo.evaluation.scores import trajectory_scores, moving_at_grid\n"
+            "from jaxvo.trajectory import Trajectory, tum_lines\n"
+            "t = Trajectory(np.arange(5.0), np.tile(np.eye(4), (5, 1, 1)))\n"
+            "trajectory_scores(t, t); moving_at_grid(np.zeros((32, 32)), 16)\n"
+            "tum_lines(t.timestamps, t.poses)\n"
+            "host = sorted(m for m in sys.modules if m.startswith('jaxvo.host'))\n"
+            "assert not host and 'cv2' not in sys.modules, (host, 'cv2' in sys.modules)\n")
+    done = subprocess.run([sys.executable, "-c", code], capture_output=True, text=True,
+                          timeout=120, check=False)
+    assert done.returncode == 0, done.stderr[-2000:]
+
 
 def _module_name(path: Path) -> str:
     parts = list(path.relative_to(PACKAGE.parent).with_suffix("").parts)
@@ -123,7 +183,8 @@ def test_no_module_of_jaxvo_imports_itself_through_others():
 
 # A figure with a unit of an experiment (millimetres, milli- or microseconds, a percentage)
 # or an issue number: evidence that goes stale as the code moves, kept in docs/report/.
-NARRATION = re.compile(r"\d(?:[\d.,]*\d)?\s*(?:mm|ms|µs|us)\b|\d(?:[\d.]*\d)?\s*%"
+NARRATION = re.compile(r"\d(?:[\d.,]*\d)?\s*(?:mm|ms|µs|us|[KMG]i?B)\b|\d(?:[\d.]*\d)?\s*%"
+                       r"|\d(?:[\d.-]*\d)?\s*x\s+(?:faster|slower)\b"
                        r"|\bissues?\s+#?\d+", re.IGNORECASE)
 
 
@@ -148,20 +209,26 @@ def narrations(source: str) -> list[tuple[int, str]]:
 def test_the_narration_pattern_finds_figures_and_leaves_equations_and_shapes():
     bad = ['"""RPE 12.2 mm per frame."""', '"""Took 26 against 140 us."""',
            "x = 1  # 0.84 against 0.06 ms", '"""From 48.8 % to 58.4 %."""',
-           "# faded as it came near, issue 26", '"""See Issue #30."""', "# 3µs"]
+           "# faded as it came near, issue 26", '"""See Issue #30."""', "# 3µs",
+           "# the step's program is 0.6 MiB", '"""A 50 MB recording."""', "# 4x faster",
+           "# runs 10-500x slower"]
     for src in bad:
         assert narrations(src), src
     good = ['"""Eq. (4.1): C_ij = N_ij / sqrt(N_i N_j); shapes (3, n), (n, 4)."""',
             '"""Within a relative 2**-12; m^2; 1e-6 m; chi2_3(0.99)."""',
             "r = idx % cols  # row-major: c = i % cols", 'msg = f"{x:.1f} % of {n} ms"',
-            '"""Algorithm 3 lines 5-7; thesis section 4.2.1; 3 users."""']
+            '"""Algorithm 3 lines 5-7; thesis section 4.2.1; 3 users."""',
+            "# a 640x480 image; 1 << 30 bytes; (H, W) 4x4 blocks"]
     for src in good:
         assert not narrations(src), src
 
 
-def test_no_docstring_or_comment_of_the_core_narrates_an_experiment():
-    """Figures go in docs/report/ (docs/report/core_decisions.md), linked from the code."""
-    found = [f"{p.name}:{line}: {text}" for p in sorted(CORE.glob("*.py"))
+def test_no_docstring_or_comment_of_jaxvo_narrates_an_experiment():
+    """Figures go in docs/report/ (docs/report/core_decisions.md), linked from the code;
+    every module of the package is read, the core's, the host's, the settings'."""
+    paths = sorted(PACKAGE.rglob("*.py"))
+    assert PACKAGE / "config.py" in paths and CORE / "pipeline.py" in paths
+    found = [f"{p.relative_to(PACKAGE.parent)}:{line}: {text}" for p in paths
              for line, text in narrations(p.read_text(encoding="utf-8"))]
     assert not found, "\n".join(found)
 
@@ -201,6 +268,16 @@ def test_no_module_over_800_lines_and_no_function_over_80():
         if source.count("\n") > MAX_FILE_LINES:
             found.append(f"{name}: {source.count(chr(10))} lines")
         found += [f"{name}: {f}() {n} lines" for f, n in long_functions(source)]
+    assert not found, "\n".join(found)
+
+
+def test_no_test_file_over_800_lines():
+    """A newcomer maps a test file to what it tests: the bad-input cases, once all in one
+    file, are one file a door (tests/test_bad_input_*.py)."""
+    tests = sorted(Path(__file__).parent.glob("*.py"))
+    assert Path(__file__) in tests and len(tests) > 40
+    found = [f"{p.name}: {n} lines" for p in tests
+             if (n := p.read_text(encoding="utf-8").count("\n")) > MAX_FILE_LINES]
     assert not found, "\n".join(found)
 
 

@@ -2,7 +2,8 @@
 
 import numpy as np
 
-from jaxvo.host.masks import dynamic_pixels, grid_to_pixels, label_image, moving_at_grid, overlay
+from jaxvo.evaluation.scores import moving_at_grid
+from jaxvo.host.masks import dynamic_pixels, grid_to_pixels, label_image, overlay
 
 H, W, CELL = 50, 70, 16  # 3 x 4 cells with a strip of 2 rows / 6 columns left over
 

@@ -17,8 +17,8 @@ from jaxvo.evaluation.metrics import (
     rpe,
     rpe_pairs,
 )
-from jaxvo.host.transforms import pose_from_tq
 from jaxvo.trajectory import Trajectory, read_trajectory
+from jaxvo.transforms import pose_from_tq
 
 
 def random_rotation(rng):

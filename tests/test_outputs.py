@@ -79,12 +79,13 @@ def _writers():
     """(name, write(path)) of every file writer of jaxvo but the recording (Rerun writes its
     own file: tests/test_recording.py) and the trajectory writer of a run (Ctrl-C keeps
     its poses: tests/test_cli_run.py)."""
-    from jaxvo.evaluation.evo_results import plot_result, save_results
+    from jaxvo.evaluation.evo_results import result_image, result_zip
     from jaxvo.host.camera import Intrinsics, write_camera_file
-    from jaxvo.host.io import write_image
+    from jaxvo.host.io import write_image, write_trajectory
     from jaxvo.host.mapping import PointMap, write_ply
+    from jaxvo.host.outputs import write_bytes
     from jaxvo.study.report import write_csv
-    from jaxvo.trajectory import Trajectory, write_trajectory
+    from jaxvo.trajectory import Trajectory
 
     traj = Trajectory(np.arange(3.0), np.tile(np.eye(4), (3, 1, 1)))
     cloud = PointMap(np.zeros((4, 3), np.float32), np.zeros((4, 3), np.uint8),
@@ -96,8 +97,9 @@ def _writers():
         ("study table", "results.csv", lambda p: write_csv(p, [{"a": 1}], ["a"])),
         ("camera", "camera.txt", lambda p: write_camera_file(p, Intrinsics(525, 525, 319.5,
                                                                            239.5))),
-        ("evo zip", "ate.zip", lambda p: save_results(p, _evo_result())),
-        ("evo plot", "ate.png", lambda p: plot_result(p, _evo_result(), plot_mode="xy")),
+        ("evo zip", "ate.zip", lambda p: write_bytes(p, result_zip(_evo_result()))),
+        ("evo plot", "ate.png", lambda p: write_bytes(p, result_image(p, _evo_result(),
+                                                                      plot_mode="xy"))),
     ]
 
 

@@ -25,9 +25,9 @@ from jaxvo.evaluation.metrics import ate as ate_of
 from jaxvo.host.camera import Distortion, Intrinsics
 from jaxvo.host.io import open_sequence
 from jaxvo.host.realsense import register_depth
-from jaxvo.host.transforms import pose_from_tq, rotation_to_quat
 from jaxvo.synth.scenes import make_sequence
 from jaxvo.trajectory import Trajectory, read_trajectory
+from jaxvo.transforms import pose_from_tq, rotation_to_quat
 
 DEVICE = "/device_0"
 DEPTH = f"{DEVICE}/sensor_0/Depth_0"

@@ -103,11 +103,10 @@ def prepare(args: argparse.Namespace):
 def run(args: argparse.Namespace, prepared=None) -> int:
     from jaxvo.cli.main import interrupt_at_safe_points
     from jaxvo.evaluation.scores import trajectory_scores
-    from jaxvo.host.io import InMemorySequence
+    from jaxvo.host.io import InMemorySequence, write_trajectory
     from jaxvo.host.peers import run_peer
     from jaxvo.host.progress import Progress
     from jaxvo.synth.scenes import make_sequence
-    from jaxvo.trajectory import write_trajectory
 
     cfg, peers, out = prepared or prepare(args)
     say = (lambda *a: None) if args.json else print
@@ -181,8 +180,8 @@ def _run_jaxvo(seq, cfg, seed: int, progress) -> _Ours:
 def _timed_scan(res, cfg, seed: int) -> float:
     """Seconds of a second run of the scan ``run_sequence`` compiled, called as it called
     it (:func:`jaxvo.odometry.scan_flows`), so that nothing compiles: called with other
-    argument types it compiled again, and the demo's table gave jaxvo 24.7 ms a frame
-    where about 7 were steady."""
+    argument types it compiled again, and the demo's table timed the compile instead of
+    the steady state (docs/report/host_decisions.md)."""
     import time
 
     import jax
@@ -199,9 +198,8 @@ def _write_outputs(out, seq, res, cfg) -> None:
     """The ground truth, jaxvo's trajectory and six overlays into ``out``."""
     import jax
 
-    from jaxvo.host.io import write_image
+    from jaxvo.host.io import write_image, write_trajectory
     from jaxvo.host.masks import overlay_panel
-    from jaxvo.trajectory import write_trajectory
 
     write_trajectory(out / "groundtruth.txt", seq.groundtruth)
     write_trajectory(out / "jaxvo.txt", res.trajectory)

@@ -172,6 +172,7 @@ def run(args: argparse.Namespace) -> int:
 
     from jaxvo.errors import InputError
     from jaxvo.evaluation import evo_results, metrics
+    from jaxvo.host.outputs import write_bytes
     from jaxvo.trajectory import read_trajectory
 
     if not (math.isfinite(args.max_diff) and args.max_diff >= 0):
@@ -196,9 +197,10 @@ def run(args: argparse.Namespace) -> int:
         evo = evo_results.rpe_result(res, args.pose_relation, ref_name=args.gt,
                                      est_name=args.est, align_line=line)
     if args.save_results:
-        evo_results.save_results(args.save_results, evo)
+        write_bytes(args.save_results, evo_results.result_zip(evo))
     if args.plot:
-        evo_results.plot_result(args.plot, evo, plot_mode=args.plot_mode)
+        write_bytes(args.plot, evo_results.result_image(args.plot, evo,
+                                                        plot_mode=args.plot_mode))
     if args.json:
         print(json.dumps(report, indent=1))
     else:

@@ -102,7 +102,7 @@ def add_arguments(p: argparse.ArgumentParser) -> None:
                    help="grid cell size in pixels, at least 4 (default 16)")
     p.add_argument("--hypotheses", type=int, default=20,
                    help="motion hypotheses per frame pair, H, at least 1 (default 20)")
-    # the consecutive-frame window (issue 21) is gone: its option only says what replaced it
+    # the consecutive-frame window is gone: its option only says what replaced it
     p.add_argument("--window", help=argparse.SUPPRESS)
     p.add_argument("--keyframes", action=argparse.BooleanOptionalAction, default=None,
                    help="also fit each frame's motion to the latest keyframe's static points, and "

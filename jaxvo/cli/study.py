@@ -139,7 +139,8 @@ def _start(args: argparse.Namespace, prepared):
 def _check_cpu_devices(n: int | None) -> None:
     """Refuse a --cpu-devices count beyond this machine's cores (InputError): each device
     compiles its own program and runs on its own thread, so past the cores it only adds
-    compiles (1000 of them: a 3-frame study compiled past 5 minutes at 8.8 GB, not 48 s)."""
+    compiles (a thousand of them made a 3-frame study compile for minutes, in many times
+    the memory)."""
     import os
 
     from jaxvo.errors import InputError

@@ -17,6 +17,10 @@ of ``evo_ape`` / ``evo_rpe --save_results`` and ``evo_res`` compares them. A res
 The plot is evo's two figures side by side: the errors over time with their rmse, median,
 mean and a band of one std about the mean; and the trajectory (``plot_mode`` axes) with the
 ground truth dashed grey and the estimate coloured by its error (``jet``, min to max).
+
+Both are made in memory (:func:`result_zip`, :func:`result_figure`, :func:`figure_bytes`);
+the host writes them (``jaxvo.host.outputs.write_bytes``: whole or not at all), so that the
+evaluation imports nothing of the host.
 """
 
 from __future__ import annotations
@@ -149,23 +153,23 @@ def alignment_line(*, align: bool, scale: bool) -> str:
     return "(scale corrected)" if scale else "(not aligned)"
 
 
-def save_results(path: str | Path, result: EvoResult) -> None:
-    """Write ``result`` as evo's result zip (``evo_res`` and evo's ``load_res_file`` read it).
+def result_zip(result: EvoResult) -> bytes:
+    """``result`` as evo's result zip (``evo_res`` and evo's ``load_res_file`` read it).
 
     Args:
-      path: the ``.zip`` to write (replaced whole, or left as it was on a failure:
-        :class:`jaxvo.host.outputs.OutputFile`).
       result: from :func:`ape_result` or :func:`rpe_result`.
+    Returns:
+      the zip file's bytes.
     """
-    from jaxvo.host.outputs import OutputFile
-
-    with OutputFile(path) as fh, zipfile.ZipFile(fh.handle, "w") as archive:
+    out = io.BytesIO()
+    with zipfile.ZipFile(out, "w") as archive:
         archive.writestr("info.json", json.dumps(result.info))
         archive.writestr("stats.json", json.dumps(result.stats))
         for name, array in result.arrays.items():
             buf = io.BytesIO()
             np.save(buf, np.asarray(array))
             archive.writestr(f"{name}.npy", buf.getvalue())
+    return out.getvalue()
 
 
 def require_matplotlib(path: str | Path | None = None) -> None:
@@ -188,13 +192,15 @@ def require_matplotlib(path: str | Path | None = None) -> None:
                          f"give one of {', '.join('.' + f for f in sorted(formats))}")
 
 
-def plot_result(path: str | Path, result: EvoResult, *, plot_mode: str = "xyz") -> None:
-    """Draw evo's two figures of ``result`` side by side into one image file.
+def result_image(path: str | Path, result: EvoResult, *, plot_mode: str = "xyz") -> bytes:
+    """evo's two figures of ``result`` side by side, as the image file ``path`` holds them.
 
     Args:
-      path: the image (``.png``, ``.pdf``, ``.svg``: matplotlib picks by extension).
+      path: the image's name (``.png``, ``.pdf``, ``.svg``: matplotlib picks by extension).
       result: from :func:`ape_result` or :func:`rpe_result`.
       plot_mode: the axes of the trajectory panel, evo's ``--plot_mode`` (``xyz``: 3D).
+    Returns:
+      the image file's bytes.
     """
     import matplotlib
 
@@ -207,17 +213,17 @@ def plot_result(path: str | Path, result: EvoResult, *, plot_mode: str = "xyz") 
     ax = fig.add_subplot(1, 2, 2, projection="3d" if len(axes) == 3 else None)
     _plot_trajectory(fig, ax, result, axes)
     fig.tight_layout()
-    save_figure(fig, path)
+    data = figure_bytes(fig, path)
     plt.close(fig)
+    return data
 
 
-def save_figure(fig, path: str | Path) -> None:
-    """``fig.savefig(path)`` at 110 dpi, written whole or not at all
-    (:class:`jaxvo.host.outputs.OutputFile`; the format from the extension)."""
-    from jaxvo.host.outputs import OutputFile
-
-    with OutputFile(path) as fh:
-        fig.savefig(fh.handle, dpi=110, format=Path(path).suffix.lstrip(".").lower() or None)
+def figure_bytes(fig, path: str | Path) -> bytes:
+    """``fig`` at 110 dpi as the image file ``path`` holds it (the format from the
+    extension)."""
+    out = io.BytesIO()
+    fig.savefig(out, dpi=110, format=Path(path).suffix.lstrip(".").lower() or None)
+    return out.getvalue()
 
 
 def _plot_errors(ax, result: EvoResult) -> None:

@@ -24,8 +24,8 @@ from typing import NamedTuple
 import numpy as np
 
 from jaxvo.errors import InputError
-from jaxvo.host.transforms import relative_pose, rotation_angle
 from jaxvo.trajectory import Trajectory, associate
+from jaxvo.transforms import relative_pose, rotation_angle
 
 # Positions that spread less than this (metres, RMS about their centroid) carry no
 # orientation: a rotation fitted to them would be arbitrary.

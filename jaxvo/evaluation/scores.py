@@ -13,8 +13,20 @@ from __future__ import annotations
 import numpy as np
 
 from jaxvo.evaluation.metrics import SegmentationScores, ate, rpe
-from jaxvo.host.masks import moving_at_grid
 from jaxvo.trajectory import Trajectory
+
+
+def ids_at_grid(mask: np.ndarray, cell: int) -> np.ndarray:
+    """Ground-truth ``(H, W)`` object-id mask sampled at the grid cell centres -> ``(n,)``."""
+    rows, cols = mask.shape[0] // cell, mask.shape[1] // cell
+    ys = (np.arange(rows) * cell + cell // 2).astype(int)
+    xs = (np.arange(cols) * cell + cell // 2).astype(int)
+    return mask[np.ix_(ys, xs)].ravel()
+
+
+def moving_at_grid(mask: np.ndarray, cell: int) -> np.ndarray:
+    """Ground-truth ``(H, W)`` object-id mask sampled at the grid cell centres -> ``(n,)`` bool."""
+    return ids_at_grid(mask, cell) > 0
 
 
 def trajectory_scores(gt: Trajectory, est: Trajectory) -> dict:

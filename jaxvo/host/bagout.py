@@ -391,7 +391,7 @@ class BagWriter:
             binning_x=0, binning_y=0, roi=roi)
 
     def _pose(self, T_w_c: np.ndarray):
-        from jaxvo.host.transforms import rotation_to_quat
+        from jaxvo.transforms import rotation_to_quat
 
         T = np.asarray(T_w_c, np.float64)
         qx, qy, qz, qw = (float(v) for v in rotation_to_quat(T[:3, :3]))

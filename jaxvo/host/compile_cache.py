@@ -48,12 +48,12 @@ from jaxvo.errors import InputError
 
 ENV = "JAXVO_COMPILE_CACHE"
 OFF = "off"
-# Larger than every configuration's programs together (the per-frame step is 0.6 MiB, a
-# scan about as much); bounded, so that JAX evicts old entries and locks the folder.
+# Larger than every configuration's programs together (the per-frame step's program, a
+# scan's about as large); bounded, so that JAX evicts old entries and locks the folder.
 MAX_BYTES = 1 << 30
-# Every program is stored, the tiny ones JAX compiles for eager operations too (about 20 of
-# them, 25 ms each to compile, 0.7 MiB together): loading them took the first frame of a
-# later run from 0.30 to 0.05 s here.
+# Every program is stored, the tiny ones JAX compiles for eager operations too (a few dozen,
+# small, each quick to compile): loading them shortens a later run's first frame several
+# times over (docs/report/host_decisions.md).
 MIN_COMPILE_SECONDS = 0.0
 # The lock file JAX's bounded cache takes (jax._src.lru_cache); the repair takes it too.
 _LOCK_NAME = ".lockfile"
@@ -359,10 +359,10 @@ def announce_compile(
     this thread inside the block goes on for ``after`` seconds: ``jaxvo: preparing the
     per-frame step (compiled once per machine and cached) ... compiled (first run with these
     settings on this machine) in 7.4 s``, or ``... loaded from the compile cache in 3.6 s``
-    where the persistent cache had it (0.05-0.3 s on a quiet machine, seconds on a busy
-    one; whether the cache has it is known only when the load ends). Nothing is said for a
-    program that is ready within ``after`` seconds, nor for the quick compiles of eager
-    operations.
+    where the persistent cache had it (a fraction of a second on a quiet machine, seconds
+    on a busy one; whether the cache has it is known only when the load ends). Nothing is
+    said for a program that is ready within ``after`` seconds, nor for the quick compiles
+    of eager operations.
 
     Args:
       what: what compiles, in words (``"the per-frame step"``).

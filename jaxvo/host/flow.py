@@ -17,7 +17,7 @@ The pyramid follows the motion: when the last pair's median track is longer than
 thesis's LK did always; a third level on every pair cost the synthetic fixed-camera scene
 some of its slow object (see ``Config.lk_fast_px``).
 
-Speed (LK, 1-2 us per point and direction here, is most of the time per pair):
+Speed (LK per point and direction is most of the time per pair):
 
 * the checks run cheapest first, each on the points that passed the ones before: no depth
   at the grid point, then forward LK, then the image bounds and similarity, then depth at
@@ -30,13 +30,13 @@ Speed (LK, 1-2 us per point and direction here, is most of the time per pair):
   keeps that for the next pair;
 * depth runs beside LK: the new frame's grid depth (needed by the next pair only) while this
   pair's forward LK runs, and the tracked points' depth while backward LK runs, on one
-  helper thread (numpy and OpenCV's LK both release the GIL). On 2 cores that is 6-16 %
-  less time per pair, with the same flow. With ``cv2.setNumThreads(1)`` (or 0) the tracker
-  stays on the calling thread.
+  helper thread (numpy and OpenCV's LK both release the GIL). On 2 cores that takes time
+  off every pair, with the same flow (docs/report/host_decisions.md). With
+  ``cv2.setNumThreads(1)`` (or 0) the tracker stays on the calling thread.
 
 OpenCV 5.0's Python binding still takes no pyramid from ``cv2.buildOpticalFlowPyramid``
 in ``cv2.calcOpticalFlowPyrLK`` (images only: opencv/opencv#4777), so each LK call
-rebuilds both pyramids (about 0.3 ms a call); its LK runs on the calling thread whatever
+rebuilds both pyramids; its LK runs on the calling thread whatever
 ``cv2.setNumThreads`` says.
 
 Host only: numpy and OpenCV, never traced.
@@ -209,9 +209,9 @@ class GridFlowTracker:
         self.uv_grid = grid_pixels(self.height, self.width, cfg.cell)  # (n, 2) float32
         self.n = self.uv_grid.shape[0]
         self._grid_lookup = _lookup(self.uv_grid, self.height, self.width, cfg)
-        # Float grey images for the patches. A fresh 1.2 MB array per frame cost ~370 page
-        # faults per pair (~1 ms here: the heap is trimmed and regrown each time); instead
-        # two buffers take turns, the previous frame holding the other one.
+        # Float grey images for the patches. A fresh image-sized array per frame cost page
+        # faults on every pair (the heap is trimmed and regrown each time); instead two
+        # buffers take turns, the previous frame holding the other one.
         self._grey_f = tuple(np.empty((self.height, self.width), np.float32) for _ in range(2))
         self._win = (cfg.lk_window, cfg.lk_window)
         self._criteria = (cv2.TERM_CRITERIA_COUNT | cv2.TERM_CRITERIA_EPS, cfg.lk_iters, cfg.lk_eps)
@@ -302,8 +302,8 @@ class GridFlowTracker:
         if len(pts) == 0:
             return pts, np.zeros((0, 1), np.uint8)
         # The flag makes LK report the minimum eigenvalue it has already computed as the
-        # error, instead of a last pass over each window for a residual nobody reads: ~7 %
-        # less time, the same positions and status.
+        # error, instead of a last pass over each window for a residual nobody reads: less
+        # time, the same positions and status.
         found, st, _ = cv2.calcOpticalFlowPyrLK(
             src, dst, pts, None,
             winSize=self._win, maxLevel=self._levels, criteria=self._criteria,
@@ -315,7 +315,7 @@ class GridFlowTracker:
         self, prev: _Frame, grey: np.ndarray, grey_f: np.ndarray, depth: np.ndarray
     ) -> GridFlow:
         """The checks of the module docstring, cheapest first, each on the survivors of the
-        last: LK costs 1-2 us per point and direction, most of the time per pair, and
+        last: LK per point and direction is most of the time per pair, and
         tracks each point on its own, so following only the points that can still pass
         gives the same flow as checking every point. ``grey``, ``grey_f`` and ``depth`` are
         the current frame's."""

@@ -42,13 +42,13 @@ from jaxvo.host.outputs import (  # noqa: F401 (re-exported)
 )
 from jaxvo.host.rosbag import BagSequence, is_bag
 from jaxvo.trajectory import (
-    HEADER,
-    POSE_LINE,
     Trajectory,
     associate,
     data_lines,
     is_number,
     read_trajectory,
+    tum_header,
+    tum_lines,
 )
 
 
@@ -388,9 +388,22 @@ def open_sequence(path: str | Path, *, rgb_topic: str | None = None,
     return TumSequence(root, **kwargs)
 
 
+def write_trajectory(path: str | Path, traj: Trajectory, *, comment: str = "") -> None:
+    """Write a TUM trajectory file (:func:`jaxvo.trajectory.tum_lines`: timestamps ``%.6f``
+    s, translation and quaternion ``%.9f``), whole or not at all.
+
+    Args:
+      path: the file to write (replaced whole, :class:`jaxvo.host.outputs.OutputFile`).
+      traj: timestamps (N,) seconds, poses (N, 4, 4) ``T_w_c``.
+      comment: optional first lines (each written after ``# ``).
+    """
+    text = tum_header(comment) + tum_lines(traj.timestamps, traj.poses)
+    write_text(path, text)  # whole or not at all, errors name the file
+
+
 class TrajectoryWriter:
-    """Writes a TUM trajectory one pose at a time (as
-    :func:`jaxvo.trajectory.write_trajectory`; ``"-"``: standard output), whole at every
+    """Writes a TUM trajectory one pose at a time (as :func:`write_trajectory`; ``"-"``:
+    standard output), whole at every
     moment a reader can see: the poses go to a temporary file beside it, flushed pose by
     pose, which replaces the file on :meth:`close` (also
     after Ctrl-C, with the poses computed so far; after a second Ctrl-C as flushed,
@@ -421,7 +434,7 @@ class TrajectoryWriter:
             self._out = OutputFile(self.path, text=True, keep_on_abort=True)
         self._fh = sys.stdout if self._stdout else self._out.handle
         self._text: list[str] = []  # what the file holds
-        self._put("".join(f"# {line}\n" for line in comment.splitlines()) + HEADER + "\n")
+        self._put(tum_header(comment))
 
     def _put(self, text: str) -> None:
         try:
@@ -432,11 +445,8 @@ class TrajectoryWriter:
         self._text.append(text)
 
     def write(self, timestamp: float, T_w_c: np.ndarray) -> None:
-        from jaxvo.host.transforms import rotation_to_quat
-
         T = np.asarray(T_w_c, np.float64)
-        q = rotation_to_quat(T[:3, :3])
-        self._put(POSE_LINE % (timestamp, *T[:3, 3], *q) + "\n")
+        self._put(tum_lines([timestamp], T[None]))
         self.timestamps.append(float(timestamp))
         self.poses.append(T)
 
@@ -484,9 +494,8 @@ _DEPTH_SOFT_M = (0.5, 8.0)
 # centre (2 m): when another common scale puts it nearer (in ratio), that scale is the
 # likelier one. Where the depths lie is the middle, in ratio, of the span the view reads
 # (_SPAN_PERCENTILES), not the median: an object filling most of the view near the camera
-# moves the median to itself (0.78 m with 90 % of the image covered at 0.7-0.8 m), while
-# the span still reaches the room behind it (to 3.2 m), and a wrong scale moves the whole
-# span.
+# moves the median to itself, while the span still reaches the room behind it, and a wrong
+# scale moves the whole span (docs/report/host_decisions.md).
 _COMMON_SCALES = (5000.0, 1000.0)
 _TYPICAL_M = float(np.sqrt(_DEPTH_SOFT_M[0] * _DEPTH_SOFT_M[1]))
 _SPAN_PERCENTILES = (1.0, 99.0)

@@ -47,7 +47,7 @@ GROW = 8
 VOTE_VOXEL = 0.05
 VOTE_SHARE = 0.1
 # the smallest voxel, metres: a tenth of a millimetre, far below what any RGB-D sensor
-# resolves (about 1 mm at 0.5 m); below it the voxels' keys overflow for a room-sized map
+# resolves; below it the voxels' keys overflow for a room-sized map
 MIN_VOXEL = 1e-4
 
 
@@ -95,8 +95,8 @@ def check_map_settings(*, voxel: float, max_depth: float, grow: int, vote_voxel:
     """Refuse fusion settings no map can use (:func:`fuse_maps`'s arguments; ``jaxvo map``'s
     options, named as ``names`` says): sizes that are not positive finite metres (``voxel``
     0 made a map of one point after NumPy's warnings), a share outside 0..1, and a ``grow``
-    wider than the frames (``--grow 100000`` asked for a 37 GiB kernel; any grow as wide as
-    the frame already leaves a whole frame out).
+    wider than the frames (``--grow 100000`` asked for a kernel larger than any machine's
+    memory; any grow as wide as the frame already leaves a whole frame out).
 
     Raises:
       InputError: one line naming the setting and its range.
@@ -234,9 +234,8 @@ def matched_poses(seq, traj: Trajectory, *, where: str, max_diff: float = 0.02,
 
 # Where a trajectory claims the camera moved (its motion moves at least MOVED_SHARE of a
 # frame's points beyond the depth test), that motion must explain the later frame's depth
-# better than standing still does; a trajectory of another sequence explained it worse (on
-# the shared 7-Scenes and TUM frames, 40 frames apart: 8 and 5 % of the points agreed
-# against 13 and 5 % standing still; the right trajectories 98 and 24 %, against the same).
+# better than standing still does; a trajectory of another sequence explained it worse
+# (docs/report/host_decisions.md has the shares measured).
 MOVED_SHARE = 0.5
 # a reading agrees with another frame's when their depths differ by less than this share of
 # the depth plus DEPTH_TOL_M (the sensors' noise at 4 m, with the tracker's pixel)

@@ -48,19 +48,6 @@ def grid_to_pixels(values: np.ndarray, height: int, width: int, cell: int) -> np
     return np.pad(block, pad, mode="edge")
 
 
-def ids_at_grid(mask: np.ndarray, cell: int) -> np.ndarray:
-    """Ground-truth ``(H, W)`` object-id mask sampled at the grid cell centres -> ``(n,)``."""
-    rows, cols = mask.shape[0] // cell, mask.shape[1] // cell
-    ys = (np.arange(rows) * cell + cell // 2).astype(int)
-    xs = (np.arange(cols) * cell + cell // 2).astype(int)
-    return mask[np.ix_(ys, xs)].ravel()
-
-
-def moving_at_grid(mask: np.ndarray, cell: int) -> np.ndarray:
-    """Ground-truth ``(H, W)`` object-id mask sampled at the grid cell centres -> ``(n,)`` bool."""
-    return ids_at_grid(mask, cell) > 0
-
-
 def dynamic_pixels(moving: np.ndarray, height: int, width: int, cell: int, *, grow: int = 0):
     """Pixels to ignore for ego-motion: moving cells, grown by ``grow`` cells so that object
     borders between grid points are covered too.
@@ -84,7 +71,7 @@ def overlay(bgr: np.ndarray, ids: np.ndarray, cell: int, *, alpha: float = 0.45)
     h, w = bgr.shape[:2]
     ids = np.asarray(ids)
     # colour and weight per cell, then per pixel, in float32: per pixel in float64 this was
-    # half of the 38 ms a `jaxvo run --overlays` panel took
+    # half of the time a `jaxvo run --overlays` panel took
     a = np.where(ids >= 2, alpha, np.where(ids == 1, alpha * 0.35, 0.0)).astype(np.float32)
     tint = palette(ids).astype(np.float32) * a[:, None]
     a_px = grid_to_pixels(a, h, w, cell)[..., None]
@@ -94,7 +81,7 @@ def overlay(bgr: np.ndarray, ids: np.ndarray, cell: int, *, alpha: float = 0.45)
 
 def label_image(ids: np.ndarray, height: int, width: int, cell: int) -> np.ndarray:
     """Identifiers as a colour image (black = unknown)."""
-    return grid_to_pixels(palette(ids), height, width, cell)  # the palette per cell: 4x faster
+    return grid_to_pixels(palette(ids), height, width, cell)  # the palette per cell: faster
 
 
 def overlay_panel(bgr: np.ndarray, out, cell: int, *, scale: float = 0.5) -> np.ndarray:

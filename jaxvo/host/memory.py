@@ -12,26 +12,20 @@ from __future__ import annotations
 
 from jaxvo.errors import InputError
 
-# Calibration (2 cores of AMD EPYC, JAX 0.10.2 on the CPU). The per-frame step's buffers,
+# Calibration (docs/report/host_decisions.md has the measurements). The per-frame step's buffers,
 # from XLA's buffer assignment of jit_step (temporaries + arguments + outputs,
-# `compiled.memory_analysis()`), 640x480:
-#   H 20: 2.05 MB   H 200: 3.03 MB   H 800: 11.15 MB   (n = 1200 grid points)
-#   cell 8 (n = 4800): 8.17 MB (H 20)
-# are fit within 1 % by per-point, hypothesis x point and H^2 terms (the hypotheses'
-# pairwise inlier overlaps and DBSCAN distances are (H, H)), with 10.4 bytes per H^2. The
-# process's peak resident memory grows faster than the buffers (compiling): `jaxvo run` on
-# 4 synthetic frames peaked at 869.6 MiB with the defaults and 1126.4 MiB with H 4000, so
-# the squared term below is that peak's (1.5 times the buffers'): the estimate is of what
-# the process takes. Checked on a size it was not fit to: H 8000, estimated 1860 MiB,
-# peaked at 1912 MiB (3 % more).
+# `compiled.memory_analysis()`), at several hypothesis counts H and grid cells, are fit by
+# per-point, hypothesis x point and H^2 terms (the hypotheses' pairwise inlier overlaps and
+# DBSCAN distances are (H, H)). The process's peak resident memory grows faster than the
+# buffers (compiling), so the squared term below is that peak's: the estimate is of what
+# the process takes, and it held on a size it was not fit to.
 _STEP_PER_POINT = 1.65e3  # bytes per grid point (flow, state, per-point stages)
 _STEP_PER_HYP_POINT = 2.6  # bytes per hypothesis and grid point (inlier sets)
 _STEP_PER_HYP2 = 16.0  # bytes per hypothesis squared (overlaps, distances)
 # The keyframe window (cfg.keyframes): each point of each of K keyframes is read by every
 # later one and the refinement's Jacobian blocks are per reading, so the step's buffers grow
-# as K^2 m (m points a keyframe). Measured on jit_step, 640x480 (m = 300): K 1, 4, 8, 16 ->
-# 2.09, 2.39, 8.13, 30.79 MB, 375 bytes per K^2 m at K 16; times 1.5 for the process's
-# peak, as above.
+# as K^2 m (m points a keyframe). Measured on jit_step at several K
+# (docs/report/host_decisions.md), times the process's peak over the buffers, as above.
 _STEP_PER_KF2_POINT = 560.0
 # Per frame pair kept for a whole-sequence scan or a study: its flow (flow_bytes: the grid
 # flow, and with keyframes the keyframe flow, as their types hold them) and the stacked
@@ -48,7 +42,7 @@ SYNTH_BYTES_PER_OBJECT_FRAME = 135.0
 FRAME_BYTES_PER_PIXEL = 8
 # What a jaxvo process holds before its own arrays: Python, JAX, XLA's compiler and
 # OpenCV: the peak resident of `jaxvo run` on 4 synthetic frames with the default
-# settings, compiling its step (no compile cache), was 869.6 MiB.
+# settings, compiling its step (no compile cache), rounded up (docs/report/host_decisions.md).
 PROCESS_BYTES = 0.9e9
 
 

@@ -2,7 +2,7 @@
 pool, images written behind on one thread (host only).
 
 Decoding a 640x480 frame (a JPEG or PNG colour image and a 16-bit PNG depth image) takes
-3-5 ms here, and encoding a mask or overlay PNG a few more; ``cv2.imread``, ``cv2.imwrite``
+milliseconds, and encoding a mask or overlay PNG a few more; ``cv2.imread``, ``cv2.imwrite``
 and numpy's array arithmetic release the GIL, so on a second core this work runs while the
 main thread computes the grid flow and the device step runs, instead of adding to them.
 
@@ -29,8 +29,8 @@ from typing import Self, TypeVar
 T = TypeVar("T")
 
 # Frames read beyond the one being used, and the threads reading them. Two threads keep a
-# 2-core machine's spare core busy through a slow frame; four frames (about 10 MiB at
-# 640x480) ride out a stall of the disk without holding much memory.
+# 2-core machine's spare core busy through a slow frame; four decoded frames ride out a
+# stall of the disk without holding much memory.
 READ_AHEAD = 4
 READ_WORKERS = 2
 

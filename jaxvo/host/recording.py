@@ -47,12 +47,13 @@ from jaxvo.host.prefetch import BackgroundWriter
 
 EXTRA = "pip install 'jaxvo[viz]'"
 # The images (colour, depth, identifiers) are logged at SCALE times their size, the colour
-# image as JPEG: raw at full size, 49 TUM frames made a 50 MB recording and the logging
-# cost a 2-core run about a third of its time; at half size the grid's cells are still 8 px
+# image as JPEG: raw at full size the recording grew large and the logging cost a 2-core
+# run a good share of its time (docs/report/host_decisions.md); at half size the grid's
+# cells are still 8 px
 JPEG_QUALITY = 90
 SCALE = 0.5
 # the per-frame numbers, one series each of the entity ``stats`` (one log call a frame:
-# each call costs about 0.3 ms on 2 busy cores), on scales that share one plot
+# each call has a cost of its own), on scales that share one plot
 STATS = ("points used in the fit (% of the grid)", "moving (% of the grid)",
          "ms per frame", "skipped pairs so far")
 
@@ -246,7 +247,7 @@ class RerunLogger:
         h2, w2 = self.size
         small = cv2.resize(bgr, (w2, h2), interpolation=cv2.INTER_AREA)
         jpeg = cv2.imencode(".jpg", small, [cv2.IMWRITE_JPEG_QUALITY, JPEG_QUALITY])[1]
-        # a uint8 array, not bytes: rerun takes bytes ~100x slower (25 ms against 0.2)
+        # a uint8 array, not bytes: rerun takes bytes far slower
         rec.log("world/camera/image/rgb", rr.EncodedImage(contents=jpeg.ravel(),
                                                           media_type="image/jpeg"))
         rec.log("world/camera/image/depth", rr.DepthImage(
@@ -403,7 +404,7 @@ class RerunLogger:
 # the Rerun streams whose file failed, held to the process's end (RerunLogger._let_go)
 _LET_GO: list = []
 # The viewer is given this long to start listening (seconds); Rerun's own gRPC client waits
-# 7-11 s and then fails at the end of the run with a traceback
+# about as long and then fails at the end of the run with a traceback
 VIEWER_WAIT = 10.0
 # one wait of a flush, seconds; flushes go on while the recording grows
 FLUSH_WAIT = 2.0

@@ -61,7 +61,7 @@ def open_study_sequence(s: SequenceSpec):
 class _Subset:
     """Every ``step``-th of the first frames of a sequence, lazily; it keeps each frame's
     moving ground truth at the grid as the flow reads the frames (rendering a synthetic
-    frame costs 0.1 s, so it is read once)."""
+    frame is slow, so it is read once)."""
 
     def __init__(self, seq, label: str, *, frames: int | None, step: int):
         idx = np.arange(0, len(seq), step)
@@ -77,7 +77,7 @@ class _Subset:
         return len(self._idx)
 
     def __getitem__(self, i: int):
-        from jaxvo.host.masks import moving_at_grid
+        from jaxvo.evaluation.scores import moving_at_grid
 
         frame = self._seq[int(self._idx[i])]
         if self.cell is not None:

@@ -39,10 +39,9 @@ def batched_params(configs: list[dict]):
 CPU_BATCH = 4
 
 
-# The largest share of a device's free memory one call may take, and the widest call. On an
-# H200 a 60-frame scene ran 3.3k configuration-frames/s at 64 configurations a call, 9.8k
-# at 256, 38k at 1024 and 83k at 4096 (issue 30): an accelerator wants the widest call the
-# study and the memory allow.
+# The largest share of a device's free memory one call may take, and the widest call. An
+# accelerator's throughput grew with the call's width as far as it was measured
+# (docs/report/host_decisions.md): it wants the widest call the study and the memory allow.
 MEMORY_SHARE = 0.5
 MAX_ACCELERATOR_BATCH = 16384
 

@@ -24,8 +24,8 @@ from pathlib import Path
 import numpy as np
 
 from jaxvo.config import Params
-from jaxvo.evaluation.evo_results import save_figure
-from jaxvo.host.outputs import write_text
+from jaxvo.evaluation.evo_results import figure_bytes
+from jaxvo.host.outputs import write_bytes, write_text
 from jaxvo.study.spec import METRICS, StudySpec
 
 
@@ -194,7 +194,7 @@ def write_plot(spec: StudySpec, summary: list[dict], path: Path) -> str | None:
     fig.suptitle(f"{spec.name}: mean over {len(spec.seeds)} seed(s), bars one standard "
                  "deviation; dotted: base value", fontsize="small", y=0.005, va="bottom")
     fig.tight_layout(rect=(0, 0.3 / height, 1, 1 - 0.4 / height))
-    save_figure(fig, path)
+    write_bytes(path, figure_bytes(fig, path))
     plt.close(fig)
     return None
 

@@ -54,7 +54,7 @@ import json
 from pathlib import Path
 from typing import Any, NamedTuple
 
-from jaxvo.config import Config, Params, check_config, check_param
+from jaxvo.config import Config, Params, check_config, check_param, config_fields
 from jaxvo.errors import InputError
 
 # Columns of the results table: the scores of one run. ``moving_*`` need ground-truth
@@ -78,8 +78,8 @@ _TOP_KEYS = ("name", "seeds", "metrics", "batch", "sequences", "fixed", "sweep",
              "points", "distributed")
 _SEQUENCE_KEYS = ("name", "scene", "path", "composite", "frames", "seed", "step", "camera")
 _DISTRIBUTED_KEYS = ("coordinator", "num_processes", "process_id")
-# settings that are gone, with what replaced them: the consecutive-frame window of issue 21
-# gave way to the local window over keyframes (jaxvo.core.keyframe)
+# settings that are gone, with what replaced them: the consecutive-frame window gave way
+# to the local window over keyframes (jaxvo.core.keyframe)
 _REPLACED = {"window": "keyframes = true, keyframe_window", "window_iters": "keyframe_iters"}
 
 
@@ -109,11 +109,6 @@ class StudySpec(NamedTuple):
     batch: int | None  # configurations per device and call (None: by backend)
     distributed: dict  # coordinator, num_processes, process_id as given
     source: str | None = None  # the spec's file (what the results must not overwrite)
-
-
-def config_fields() -> dict[str, dataclasses.Field]:
-    """``Config``'s fields by name (read at call time: the settings may change)."""
-    return {f.name: f for f in dataclasses.fields(Config)}
 
 
 def load_spec(path: str | Path, *, check_folders: bool = True) -> StudySpec:
@@ -378,7 +373,7 @@ def _parse_configs(data, bad):
     named |= {k for p in point_values for k in p}
     cfg_names = [f for f in config_fields() if f in named]
     settings = tuple(cfg_names + [f for f in Params._fields if f in named])
-    defaults = {**dataclasses.asdict(Config()), **Params()._asdict()}
+    defaults = {**Config().as_dict(), **Params()._asdict()}
     base = {k: fixed.get(k, defaults[k]) for k in settings}
 
     configs: list[dict] = []
@@ -390,7 +385,7 @@ def _parse_configs(data, bad):
             configs += [{**around, k: v} for v in lists[("sweep", k)]]
     configs += [{**base, **p} for p in point_values]
     # the first of each distinct configuration, in spec order: keyed by its values' reprs
-    # (a dict lookup, not a scan of those kept, which took 15 s for 32,768 configurations)
+    # (a dict lookup, not a scan of those kept, which grew with the square of their number)
     by_key: dict[tuple, dict] = {}
     for c in configs:
         by_key.setdefault(tuple(repr(c[k]) for k in settings), c)
@@ -414,8 +409,8 @@ def _parse_configs(data, bad):
 def group_config(settings: dict) -> Config:
     """The ``Config`` of a configuration (its Config fields over the defaults).
 
-    A study asks it of every run; the Configs are few, so each is made once (building
-    one took 0.4 ms: 100000 configurations spent a minute here before the first line)."""
+    A study asks it of every run; the Configs are few, so each is made once (a study of
+    many configurations spent most of its start building the same few again)."""
     items = tuple((k, v) for k, v in settings.items() if k in _field_names(Config))
     try:
         return _config_of(Config, items)

@@ -155,7 +155,7 @@ def cast(boxes: Boxes, overlap: jax.Array, *, height: int, width: int,
 
         # A scan over boxes with the nearest hit so far as the carry: each step is
         # elementwise over the tile and the loop materialises the carry. Unrolled, XLA's
-        # CPU fusion recomputes the chain per output and runs 10-500x slower. Boxes that
+        # CPU fusion recomputes the chain per output and runs many times slower. Boxes that
         # cannot show in this tile skip the work (cond), not just the result.
         def step(best, item):
             box, flag = item
@@ -191,7 +191,7 @@ def cast(boxes: Boxes, overlap: jax.Array, *, height: int, width: int,
     any_hit = jnp.isfinite(best_t)
     lab = jnp.floor((code + 0.5) * (1.0 / 6.0))
     face = code - 6 * lab
-    # A where-chain, not a table gather: XLA's CPU gather costs ~100 ms on a full frame.
+    # A where-chain, not a table gather: XLA's CPU gather is slow on a full frame.
     shade = jnp.zeros((height, width), jnp.float32)
     for f, val in enumerate(_SHADE):
         shade = jnp.where(any_hit & (face == f), val, shade)

@@ -26,7 +26,7 @@ import numpy as np
 
 from jaxvo.errors import InputError
 from jaxvo.host.camera import Distortion, write_camera_file
-from jaxvo.host.io import TumSequence
+from jaxvo.host.io import TumSequence, write_trajectory
 from jaxvo.synth.scenario import SCENARIOS, ObjectSpec, Scenario, SensorOptions
 from jaxvo.synth.sequence import (
     DEPTH_SCALE,
@@ -35,7 +35,7 @@ from jaxvo.synth.sequence import (
     make_atlas,
     smooth_poses,
 )
-from jaxvo.trajectory import associate, write_trajectory
+from jaxvo.trajectory import associate
 
 DEFAULT_FRAMES = 90
 DEFAULT_FPS = 30.0
@@ -92,7 +92,7 @@ def composite_sequence(sequence: str | Path | TumSequence,
     average), so they stay in view while moving independently of the camera, and are
     z-buffered against the real depth (no reading counts as far). The camera trajectory is
     the real ground truth; object trajectories are exact. Only frames with a ground-truth
-    pose within 20 ms are used. Sensor effects apply to the inserted pixels only.
+    pose within 0.02 s are used. Sensor effects apply to the inserted pixels only.
 
     Args:
       sequence: a TUM-layout folder (with ``groundtruth.txt``, ``camera.txt``) or an open
@@ -158,7 +158,7 @@ def write_sequence(seq: SyntheticSequence, out_dir: str | Path, *,
       OSError: a file cannot be written, naming it (a full disk).
     """
     from jaxvo.host.outputs import OutputFolder, write_image, write_text
-    from jaxvo.host.transforms import rotation_to_quat
+    from jaxvo.transforms import rotation_to_quat
 
     out = Path(out_dir)
     names = [f"{t:.6f}.png" for t in seq.timestamps]

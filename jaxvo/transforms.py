@@ -1,7 +1,8 @@
-"""Rotations and rigid poses on the host, float64 numpy (quaternions in TUM order ``qx qy qz qw``).
+"""Rotations and rigid poses in float64 numpy (quaternions in TUM order ``qx qy qz qw``).
 
-The device side has its own pose helpers in :mod:`jaxvo.core.geometry`; this module serves file
-I/O and evaluation, where float64 and exact conventions matter more than tracing.
+The traced step has its own pose helpers in :mod:`jaxvo.core.geometry`; this module serves
+trajectory files, bags and the evaluation, where float64 and exact conventions matter more
+than tracing. Numpy only, so that scoring a run loads nothing of the host.
 """
 
 from __future__ import annotations
