@@ -155,11 +155,11 @@ def test_study_vmaps_seeds_and_params_and_matches_single_runs(flows, seq, scan_r
     T0 = jnp.asarray(seq.groundtruth.poses[0], jnp.float32)
     keys = jnp.stack([jax.random.key(7), jax.random.key(7), jax.random.key(8)])
     params = batch_params(Params(), lam=[1e3, 1e4, 1e3])
-    outs = run_study(flows, keys, params, T0, cfg=CFG, grid=grid)
+    outs = run_study(flows, keys, params, T0, cfg=CFG.step, grid=grid)
     assert outs.T_w_c.shape == (3, FRAMES - 1, 4, 4)
     # configuration 0 is the default run: equal to the single scan within float32 rounding
     np.testing.assert_allclose(np.asarray(outs.T_w_c[0]), scan_result.outputs.T_w_c, atol=1e-4)
-    single = run_scan(flows, jax.random.key(8), params_as_arrays(Params()), T0, cfg=CFG,
+    single = run_scan(flows, jax.random.key(8), params_as_arrays(Params()), T0, cfg=CFG.step,
                       grid=grid)[1]
     np.testing.assert_allclose(np.asarray(outs.T_w_c[2]), np.asarray(single.T_w_c), atol=1e-4)
 
@@ -306,7 +306,7 @@ def run_hand(flows, seed=0):
     state = init_pipeline(cfg=CFG, grid=GRID_S, params=prm)
     outs = []
     for f in flows:
-        state, out = jit_step(state, f, jax.random.key(seed), prm, cfg=CFG, grid=GRID_S)
+        state, out = jit_step(state, f, jax.random.key(seed), prm, cfg=CFG.step, grid=GRID_S)
         outs.append(jax.tree.map(np.asarray, out))
     return state, outs
 

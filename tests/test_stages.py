@@ -93,3 +93,13 @@ def test_the_step_refuses_keyframes_without_their_flow():
     flow = invalid_flow(np.zeros((grid[0] * grid[1], 2), np.float32))
     with pytest.raises(ValueError, match="KeyframeFlow"):
         pipeline.step(state, flow, None, Params(), cfg=cfg, grid=grid)
+
+
+def test_the_compiled_entry_points_refuse_a_whole_config():
+    """A whole Config as the static argument compiled a program per host setting (an LK
+    window): the step's entry points take its StepOptions (Config.step) alone."""
+    from jaxvo.config import Config
+
+    with pytest.raises(TypeError, match="pass cfg.step"):
+        pipeline._step_options(Config())
+    assert pipeline._step_options(Config().step) == Config().step

@@ -273,7 +273,7 @@ def test_a_study_run_matches_run_study_called_directly(tiny):
     for row in (res.rows[1], res.rows[4]):  # lam 1000 seed 1, lam 1e5 seed 0
         out = run_study(jax.tree.map(jnp.asarray, data.flows), jax.random.key(row["seed"])[None],
                         batch_params(Params(confidence=0.9, noise_rate=0.2), lam=[row["lam"]]),
-                        jnp.asarray(data.T_w_c0, jnp.float32), cfg=cfg, grid=(15, 20))
+                        jnp.asarray(data.T_w_c0, jnp.float32), cfg=cfg.step, grid=(15, 20))
         T, moving, status = (np.asarray(a[0]) for a in (out.T_w_c, out.moving, out.status))
         direct = study.score_run(data, T, moving, status)
         assert direct["digest"] == row["digest"]

@@ -262,15 +262,23 @@ def frame_key(key, index):
     return jax.random.fold_in(key, index)
 
 
+def _step_options(cfg) -> StepOptions:
+    """``cfg`` itself where it is the step's options, else a ``TypeError`` naming them: a
+    whole ``Config`` as the static argument would compile a program per host setting."""
+    if not isinstance(cfg, StepOptions):
+        raise TypeError(f"cfg must be the step's options (StepOptions, Config.step), got "
+                        f"{type(cfg).__name__}: pass cfg.step")
+    return cfg
+
+
 @functools.partial(jax.jit, static_argnames=("cfg", "grid"))
 def jit_step(state, flow, key, params, *, cfg: StepOptions, grid, keyframe=None):
     """:func:`step` compiled once per (cfg, grid); the key is folded with the frame count.
 
     ``cfg`` is ``Config.step``: the step's own options, so that a setting of the host's
-    flow (an LK window) compiles nothing (a whole ``Config`` also runs, compiled per
-    ``Config``)."""
-    return step(state, flow, frame_key(key, state.frame), params, cfg=cfg, grid=grid,
-                keyframe=keyframe)
+    flow (an LK window) compiles nothing; a whole ``Config`` is refused."""
+    return step(state, flow, frame_key(key, state.frame), params, cfg=_step_options(cfg),
+                grid=grid, keyframe=keyframe)
 
 
 def _scan(flows, key, params, T_w_c0, cfg, grid, outer_axes=(), keyframes=None):
@@ -302,7 +310,7 @@ def run_scan(flows, key, params, T_w_c0, *, cfg: StepOptions, grid, keyframes=No
     Returns:
       ``(final_state, outputs)`` with every :class:`StepOutput` field stacked over T.
     """
-    return _scan(flows, key, params, T_w_c0, cfg, grid, keyframes=keyframes)
+    return _scan(flows, key, params, T_w_c0, _step_options(cfg), grid, keyframes=keyframes)
 
 
 @functools.partial(jax.jit, static_argnames=("cfg", "grid"))
@@ -322,6 +330,8 @@ def run_study(flows, keys, params, T_w_c0, *, cfg: StepOptions, grid, keyframes=
     Returns:
       ``StepOutput`` stacked as (B, T, ...) (the final states are dropped).
     """
+
+    cfg = _step_options(cfg)
 
     def one(k, p):
         return _scan(flows, k, p, T_w_c0, cfg, grid, outer_axes=("configs",),
