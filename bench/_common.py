@@ -10,7 +10,7 @@ from pathlib import Path
 
 import numpy as np
 
-from jaxvo.host.io import InMemorySequence, data_root
+from jaxvo.host.readers.io import InMemorySequence, data_root
 
 # The real sequences the benchmarks read from the data root (``$JAXVO_DATA``), when present.
 SEVEN_SCENES = "7scenes_static_0000_0299"
@@ -128,7 +128,7 @@ def machine_line() -> str:
             f"opencv {m['opencv']}; load average {m['load_average_start']}")
 
 
-# The in-memory copy of a sequence moved into the package (jaxvo.host.io.InMemorySequence).
+# The in-memory copy of a sequence moved into the package (jaxvo.host.readers.io.InMemorySequence).
 CachedSequence = InMemorySequence
 
 

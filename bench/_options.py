@@ -16,7 +16,7 @@ from collections.abc import Callable, Iterable
 
 from jaxvo.config import Config, Params, check_config, check_params, config_fields
 from jaxvo.errors import InputError
-from jaxvo.host.io import data_root
+from jaxvo.host.readers.io import data_root
 
 
 def count(least: int = 1) -> Callable[[str], int]:
@@ -97,7 +97,7 @@ def check_options(ap: argparse.ArgumentParser, args: argparse.Namespace, *,
         are checked at that size, and the run's memory (``frames`` of them) against the
         machine's.
     """
-    from jaxvo.host.memory import check_memory, run_bytes
+    from jaxvo.host.services.memory import check_memory, run_bytes
 
     only = getattr(args, "only", None)
     if only and cases is not None:

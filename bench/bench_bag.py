@@ -13,11 +13,11 @@ ms/frame.
 
 **In this process.** ``Odometry.submit`` over the clip's frames (read beforehand), each
 result's dynamic mask made (as ``--dynamic-masks`` makes it, in both arms) and, with the
-bag, its pose and mask given to a :class:`jaxvo.host.bagout.BagWriter`, in pairs whose order
+bag, its pose and mask given to a :class:`jaxvo.host.writers.bagout.BagWriter`, in pairs whose order
 alternates: the steady ms/frame as the summary counts it and the ratio pair by pair, the
 bag's ``finish`` apart. No reading or PNG writing here, so less of the machine's noise.
 
-**The writer alone.** In this process, :class:`jaxvo.host.bagout.BagWriter` fed the clip's
+**The writer alone.** In this process, :class:`jaxvo.host.writers.bagout.BagWriter` fed the clip's
 frames (poses and masks of one run): the first call apart (the writer made: its message
 definitions, the temporary folder, the file opened; and the first frame's connections), then
 the steady ms/frame of the rest, its ``finish`` (close and rename) included, for each storage.
@@ -47,7 +47,7 @@ import numpy as np
 sys.path.insert(0, str(Path(__file__).resolve().parent))
 from _common import TUM_WALKING, load_average, log, machine, machine_line, markdown_table
 
-from jaxvo.host.io import InMemorySequence, data_root, open_sequence
+from jaxvo.host.readers.io import InMemorySequence, data_root, open_sequence
 from jaxvo.trajectory import read_trajectory
 
 TARGET = 0.10  # the bag may add this share of the steady ms/frame
@@ -104,9 +104,9 @@ def in_process(seq, bag_dir: Path | None) -> dict:
     summary counts it (each frame's submit and its writes, from the third frame on), and
     the bag's ``finish`` apart. The bag is opened half a second before the first frame, as
     the run's first frame (its step loaded) gives it time to."""
-    from jaxvo.host.bagout import BagWriter
-    from jaxvo.host.masks import dynamic_pixels
-    from jaxvo.host.plugin import mask_png
+    from jaxvo.host.writers.bagout import BagWriter
+    from jaxvo.host.writers.masks import dynamic_pixels
+    from jaxvo.host.writers.plugin import mask_png
     from jaxvo.odometry import Odometry
 
     odo = Odometry(seq.intrinsics)
@@ -178,7 +178,7 @@ def writer_cost(seq, traj, masks: Path, storage: str, repeats: int = 3) -> dict:
     the clock) beyond the one-frame bag's is the steady cost of a frame; the wall time too."""
     import cv2
 
-    from jaxvo.host.bagout import BagWriter
+    from jaxvo.host.writers.bagout import BagWriter
 
     frames = [seq[i] for i in range(len(traj))]
     png = {p.name: cv2.imread(str(p), cv2.IMREAD_UNCHANGED) for p in masks.glob("*.png")}

@@ -49,7 +49,7 @@ against the ground truth:
    long, and across the view (the image's scale) or along it (the depth's).
 
 Beside them **the bar** of issue 43: jaxvo's median ATE against ORB-SLAM3's (the median of
-its runs) and every OpenCV and Open3D peer's (``jaxvo.host.peers``, one run each).
+its runs) and every OpenCV and Open3D peer's (``jaxvo.host.services.peers``, one run each).
 
 Writes ``budget.md`` and ``budget.json`` under ``--out``; ORB-SLAM3's trajectories are kept
 under ``--runs`` (``--orbslam3-runs`` runs per case, default 1, the run of median ATE
@@ -95,9 +95,9 @@ from jaxvo.core.inputs import GridFlow
 from jaxvo.core.points import frame_points
 from jaxvo.evaluation.metrics import align_umeyama, ate
 from jaxvo.evaluation.scores import trajectory_scores
-from jaxvo.host.io import write_trajectory
-from jaxvo.host.outputs import write_text
-from jaxvo.host.peers import OPEN3D_PEERS, OPENCV_PEERS, available_peers
+from jaxvo.host.readers.io import write_trajectory
+from jaxvo.host.writers.outputs import write_text
+from jaxvo.host.services.peers import OPEN3D_PEERS, OPENCV_PEERS, available_peers
 from jaxvo.status import Status
 from jaxvo.trajectory import Trajectory, pose_at, read_trajectory
 from jaxvo.transforms import invert_pose, relative_pose, rotation_angle

@@ -43,8 +43,8 @@ from splits import Case
 
 from jaxvo.config import Params
 from jaxvo.evaluation.scores import trajectory_scores
-from jaxvo.host.io import InMemorySequence, data_root
-from jaxvo.host.peers import OPENCV_PEERS
+from jaxvo.host.readers.io import InMemorySequence, data_root
+from jaxvo.host.services.peers import OPENCV_PEERS
 from jaxvo.synth.scenes import composite_sequence, make_sequence
 
 # each family's presets (jaxvo.synth) and frames a run: frames 1, 10 and 50 are judged

@@ -30,8 +30,8 @@ sys.path.insert(0, str(Path(__file__).resolve().parent))
 from _common import log, machine, machine_line, markdown_table
 
 from jaxvo.evaluation.metrics import ate
-from jaxvo.host.camera import TUM_DISTORTION, describe_distortion
-from jaxvo.host.outputs import write_text
+from jaxvo.host.frontend.camera import TUM_DISTORTION, describe_distortion
+from jaxvo.host.writers.outputs import write_text
 from jaxvo.odometry import run_sequence
 from jaxvo.synth.scenes import SCENARIOS, make_sequence
 

@@ -1,4 +1,4 @@
-"""Benchmark of the streaming grid-flow front end (jaxvo.host.flow.GridFlowTracker).
+"""Benchmark of the streaming grid-flow front end (jaxvo.host.frontend.flow.GridFlowTracker).
 
 Times ``push`` (one new frame = one pair: grey conversion, depth refinement, forward and
 backward LK, similarity, depth lookup, back-projection) on real 640x480 frames from the
@@ -9,8 +9,8 @@ many pairs, and the load average is printed next to them.
     .venv/bin/python bench/bench_flow.py [--threads N] [--pairs 200] [--thesis-lk]
         [--baseline OLD_FLOW_PY]
 
-``--baseline`` times another version of jaxvo/host/flow.py in the same run, e.g.
-``git show HEAD~1:jaxvo/host/flow.py > flow_old.py``: each version streams in its own
+``--baseline`` times another version of jaxvo/host/frontend/flow.py in the same run, e.g.
+``git show HEAD~1:jaxvo/host/frontend/flow.py > flow_old.py``: each version streams in its own
 process (its own heap: page faults cost ~2.7 us each here, and one version's allocations
 must not cost the other faults), the two taking turns every 10 pairs.
 """
@@ -30,9 +30,9 @@ import numpy as np
 from _common import machine_line, real_present
 
 from jaxvo.config import Config
-from jaxvo.host.camera import Intrinsics, read_camera_file
-from jaxvo.host.flow import GridFlowTracker
-from jaxvo.host.io import data_root
+from jaxvo.host.frontend.camera import Intrinsics, read_camera_file
+from jaxvo.host.frontend.flow import GridFlowTracker
+from jaxvo.host.readers.io import data_root
 
 
 def load_real(name: str, limit: int):
@@ -74,7 +74,7 @@ def load_set(name: str, n_frames: int):
 
 
 def load_tracker_class(path: str | None):
-    """``GridFlowTracker`` of another flow.py (e.g. ``git show HEAD~3:jaxvo/host/flow.py``)."""
+    """``GridFlowTracker`` of another flow.py (e.g. ``git show HEAD~3:jaxvo/host/frontend/flow.py``)."""
     if path is None:
         return GridFlowTracker
     spec = importlib.util.spec_from_file_location("baseline_flow", path)

@@ -34,7 +34,7 @@ from bench_seeds import score_case
 from splits import Case, cases, runnable
 
 from jaxvo.config import Config, Params
-from jaxvo.host.io import InMemorySequence, data_root, open_sequence
+from jaxvo.host.readers.io import InMemorySequence, data_root, open_sequence
 from jaxvo.odometry import Odometry
 
 SETTINGS = {

@@ -2,7 +2,7 @@
 
 **People in the map.** jaxvo runs on the TUM walking clip (``--seeds`` seeds; the same
 trajectory and dynamic cells ``jaxvo run --dynamic-masks`` gives for the seed), and the
-clip's depth is fused into the static map (jaxvo's masks, :mod:`jaxvo.host.mapping`) and the
+clip's depth is fused into the static map (jaxvo's masks, :mod:`jaxvo.host.writers.mapping`) and the
 map with nothing left out, from the same poses (with depth edges left out, both maps). A map point is *on the people* when, in
 some frame, it projects into that frame's hand-drawn people mask (``bench/annotations``,
 ``bench/people_masks.py``) and lies on the surface the frame's depth sees there (within
@@ -41,9 +41,9 @@ from _common import TUM_WALKING, load_average, log, machine_line, markdown_table
 from people_masks import people_clip
 
 from jaxvo.config import Config
-from jaxvo.host.io import InMemorySequence, data_root, open_sequence
-from jaxvo.host.mapping import GROW, VOTE_SHARE, fuse_maps, map_picture
-from jaxvo.host.masks import dynamic_pixels
+from jaxvo.host.readers.io import InMemorySequence, data_root, open_sequence
+from jaxvo.host.writers.mapping import GROW, VOTE_SHARE, fuse_maps, map_picture
+from jaxvo.host.writers.masks import dynamic_pixels
 from jaxvo.odometry import Odometry, run_sequence
 
 # (name, grow pixels, vote share, depth edge): the ways of using jaxvo's masks compared
@@ -118,7 +118,7 @@ def in_process(seq, logger_path: Path | None) -> float:
     """ms/frame of ``Odometry.submit`` over the frames, a logger's close included."""
     logger = None
     if logger_path is not None:
-        from jaxvo.host.recording import RerunLogger
+        from jaxvo.host.writers.recording import RerunLogger
 
         logger = RerunLogger(save=logger_path)
     odo = Odometry(seq.intrinsics, logger=logger)

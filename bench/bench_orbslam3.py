@@ -43,8 +43,8 @@ from splits import available, cases
 
 import jaxvo
 from jaxvo.evaluation.scores import trajectory_scores
-from jaxvo.host.io import InMemorySequence, data_root, first_pose, open_sequence
-from jaxvo.host.peers import OPENCV_PEERS, run_peer
+from jaxvo.host.readers.io import InMemorySequence, data_root, first_pose, open_sequence
+from jaxvo.host.services.peers import OPENCV_PEERS, run_peer
 
 ALONE = "ORB-SLAM3"
 # ORB-SLAM3 runs that make the TUM clip's reference (their medoid: the run with the least

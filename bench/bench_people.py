@@ -26,7 +26,7 @@ from _common import TUM_WALKING, log, machine_line
 from people_masks import people_clip
 
 from jaxvo.evaluation.metrics import ate
-from jaxvo.host.io import InMemorySequence
+from jaxvo.host.readers.io import InMemorySequence
 from jaxvo.odometry import run_sequence
 
 

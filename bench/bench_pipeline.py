@@ -8,7 +8,7 @@ a temporary folder when they are absent), on this machine:
    run on the machine (a fresh compile-cache folder: the step compiles) and on later runs
    (the step loaded from that cache), its first frame pair's time (the compile or the load),
    its ATE;
-2. OpenCV's RGB odometry (``jaxvo.host.peers``) the same ways: a child process reading the same
+2. OpenCV's RGB odometry (``jaxvo.host.services.peers``) the same ways: a child process reading the same
    folder, for the whole-process ratio, and in this process on the same frames preloaded,
    for the per-frame ratio;
 3. in this process, on the frames preloaded: ``Odometry.process`` per frame (median, p90;
@@ -47,9 +47,9 @@ from _common import SEVEN_SCENES, data_name, load_average, log, machine
 
 from jaxvo.config import Config, Params, grid_shape, params_as_arrays
 from jaxvo.core.pipeline import run_scan
-from jaxvo.host.flow import sequence_flows
-from jaxvo.host.io import InMemorySequence, data_root, open_sequence
-from jaxvo.host.peers import run_peer
+from jaxvo.host.frontend.flow import sequence_flows
+from jaxvo.host.readers.io import InMemorySequence, data_root, open_sequence
+from jaxvo.host.services.peers import run_peer
 from jaxvo.odometry import Odometry
 from jaxvo.synth.scenes import make_sequence, write_sequence
 
@@ -69,7 +69,7 @@ TARGETS = {
 
 # The peer over a folder as a process of its own, as a user would run it.
 PEER_CHILD = (
-    "import sys; from jaxvo.host.io import open_sequence; from jaxvo.host.peers import run_peer; "
+    "import sys; from jaxvo.host.readers.io import open_sequence; from jaxvo.host.services.peers import run_peer; "
     f"run_peer(open_sequence(sys.argv[1]), {PEER!r})"
 )
 

@@ -37,16 +37,16 @@ from _common import first_pose, groundtruth, log, machine, markdown_table
 from _options import check_options, params_from, params_setting
 from splits import Case, cases, runnable
 
-import jaxvo.host.keyframes
+import jaxvo.host.frontend.keyframes
 from jaxvo.config import Config, Params, config_fields, grid_shape, params_as_arrays
 from jaxvo.core.inputs import GridFlow
 from jaxvo.core.pipeline import final_moving, init_pipeline, jit_step
 from jaxvo.evaluation.metrics import SegmentationScores
 from jaxvo.evaluation.scores import moving_at_grid, trajectory_scores
-from jaxvo.host.flow import sequence_flows
-from jaxvo.host.outputs import write_text
-from jaxvo.host.peers import OPENCV_PEERS
-from jaxvo.host.plugin import iter_dynamic_masks
+from jaxvo.host.frontend.flow import sequence_flows
+from jaxvo.host.writers.outputs import write_text
+from jaxvo.host.services.peers import OPENCV_PEERS
+from jaxvo.host.writers.plugin import iter_dynamic_masks
 from jaxvo.status import Status
 from jaxvo.study import runner as study
 from jaxvo.trajectory import Trajectory
@@ -68,15 +68,15 @@ def _flow_key(cfg: Config) -> str:
 def frames_hash() -> str:
     """A short hash of the code that makes a case's frames (not its flow): what the peers'
     runs and the grid truth depend on, so that a change to the tracker re-runs neither."""
-    import jaxvo.host.frames
-    import jaxvo.host.io
+    import jaxvo.host.frontend.frames
+    import jaxvo.host.readers.io
     import jaxvo.synth.render
     import jaxvo.synth.scenario
     import jaxvo.synth.scenes
     import jaxvo.synth.sequence
 
     h = hashlib.sha1()
-    for mod in (jaxvo.host.frames, jaxvo.host.io, jaxvo.synth.render, jaxvo.synth.scenario,
+    for mod in (jaxvo.host.frontend.frames, jaxvo.host.readers.io, jaxvo.synth.render, jaxvo.synth.scenario,
                 jaxvo.synth.sequence, jaxvo.synth.scenes):
         h.update(inspect.getsource(mod).encode())
     return h.hexdigest()[:16]
@@ -112,7 +112,7 @@ def flow_path(case: Case, cache: Path, cfg: Config) -> Path:
         return cache / f"{case.name}__{_flow_key(cfg)}.npz"
     fields = {f.name: getattr(cfg, f.name) for f in config_fields().values()
               if f.name.startswith("keyframe")}
-    kf = hashlib.sha1(json.dumps([fields, inspect.getsource(jaxvo.host.keyframes)],
+    kf = hashlib.sha1(json.dumps([fields, inspect.getsource(jaxvo.host.frontend.keyframes)],
                                  sort_keys=True).encode()).hexdigest()[:8]
     return cache / f"{case.name}__{_flow_key(cfg)}_kf{kf}.npz"
 
@@ -266,7 +266,7 @@ def people_scores(case: Case, masks, h: int, w: int, cfg: Config) -> dict:
         return {"people": "no annotation module (bench/people_masks.py)"}
     import cv2
 
-    from jaxvo.host.io import data_root
+    from jaxvo.host.readers.io import data_root
 
     people = people_masks(data_root() / case.source)
     grow = np.ones((2 * cfg.cell + 1, 2 * cfg.cell + 1), np.uint8)

@@ -50,8 +50,8 @@ from jaxvo.core.inputs import GridFlow, KeyframeFlow
 from jaxvo.core.pipeline import frame_key, init_pipeline, step
 from jaxvo.evaluation.metrics import SegmentationScores
 from jaxvo.evaluation.scores import trajectory_scores
-from jaxvo.host.io import data_root
-from jaxvo.host.peers import OPENCV_PEERS
+from jaxvo.host.readers.io import data_root
+from jaxvo.host.services.peers import OPENCV_PEERS
 from jaxvo.trajectory import Trajectory
 
 

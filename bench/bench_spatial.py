@@ -36,8 +36,8 @@ from _common import load_average, machine, real_present
 from jaxvo.config import Config, Params, grid_shape, params_as_arrays
 from jaxvo.core.procrustes import fit_rigid
 from jaxvo.core.spatial import segment
-from jaxvo.host.flow import flows_for_sequence
-from jaxvo.host.io import InMemorySequence, data_root, open_sequence
+from jaxvo.host.frontend.flow import flows_for_sequence
+from jaxvo.host.readers.io import InMemorySequence, data_root, open_sequence
 
 
 def _rotation(axis, angle):

@@ -37,8 +37,8 @@ from jaxvo.core.pipeline import frame_key
 from jaxvo.core.spatial import segment
 from jaxvo.evaluation.metrics import SegmentationScores
 from jaxvo.evaluation.scores import ids_at_grid
-from jaxvo.host.camera import project
-from jaxvo.host.flow import flows_for_sequence
+from jaxvo.host.frontend.camera import project
+from jaxvo.host.frontend.flow import flows_for_sequence
 from jaxvo.synth.scenes import SCENARIOS, make_sequence
 
 MIN_PX = 1.0  # an object moving this much or less in the image is not counted as a motion

@@ -30,7 +30,7 @@ import orbslam3_peer as orb
 from _common import TUM_WALKING, load_average, log, machine, markdown_table
 from bench_orbslam3 import jaxvo_pass, orb_rows, people_reference
 
-from jaxvo.host.io import InMemorySequence, data_root, open_sequence
+from jaxvo.host.readers.io import InMemorySequence, data_root, open_sequence
 
 HAND = "hand-drawn people masks, depth"
 

@@ -54,7 +54,7 @@ def vocabulary() -> Path:
     env = os.environ.get("PYORBSLAM3_VOCAB")
     if env:
         return Path(env)
-    from jaxvo.host.io import data_root
+    from jaxvo.host.readers.io import data_root
 
     return data_root().parent / "orbslam3" / "ORBvoc.txt"
 
@@ -96,7 +96,7 @@ def settings_yaml(K, width: int, height: int, *, fps: float = 30.0, features: in
     depth is sent in metres (``RGBD.DepthMapFactor`` 1) and colour in BGR order.
 
     Args:
-      K: :class:`jaxvo.host.camera.Intrinsics` (fx, fy, cx, cy in pixels).
+      K: :class:`jaxvo.host.frontend.camera.Intrinsics` (fx, fy, cx, cy in pixels).
       width, height: image size, pixels.
       fps: frame rate, Hz (ORB-SLAM3 reads an integer).
       features: ORB features per image (ORB-SLAM3's TUM settings use 1000).
@@ -257,7 +257,7 @@ class OrbSlam3:
         run = orb.finish()   # OrbRun: end-of-run trajectory, ms per frame
 
     Args:
-      intrinsics: :class:`jaxvo.host.camera.Intrinsics` of the depth-registered camera.
+      intrinsics: :class:`jaxvo.host.frontend.camera.Intrinsics` of the depth-registered camera.
       width, height: image size, pixels.
       vocab: ORB vocabulary file (default :func:`vocabulary`).
     """
@@ -329,7 +329,7 @@ def anchored(traj, gt):
 
 def run_orbslam3(seq, *, keep: Callable[[int], np.ndarray] | None = None,
                  masking: Masking = CHOSEN):
-    """ORB-SLAM3 over ``seq``, as :func:`jaxvo.host.peers.run_peer` runs a peer.
+    """ORB-SLAM3 over ``seq``, as :func:`jaxvo.host.services.peers.run_peer` runs a peer.
 
     Args:
       seq: a sequence (``len``, ``seq[i] -> Frame``, ``intrinsics``, ``width``,
@@ -341,7 +341,7 @@ def run_orbslam3(seq, *, keep: Callable[[int], np.ndarray] | None = None,
       ``(PeerRun, OrbRun)``: the peer's trajectory (anchored at the ground truth),
       frames not tracked and median ms per frame, and the whole run.
     """
-    from jaxvo.host.peers import PeerRun
+    from jaxvo.host.services.peers import PeerRun
 
     orb = OrbSlam3(seq.intrinsics, seq.width, seq.height)
     for i in range(len(seq)):
@@ -354,17 +354,17 @@ def run_orbslam3(seq, *, keep: Callable[[int], np.ndarray] | None = None,
 
 
 def all_peers() -> list[str]:
-    """Every peer that can run here: :func:`jaxvo.host.peers.available_peers`, then ORB-SLAM3
+    """Every peer that can run here: :func:`jaxvo.host.services.peers.available_peers`, then ORB-SLAM3
     where :func:`missing` finds nothing missing."""
-    from jaxvo.host.peers import available_peers
+    from jaxvo.host.services.peers import available_peers
 
     return available_peers() + ([] if missing() else [NAME])
 
 
 def run_any_peer(seq, kind: str, *, keep: Callable[[int], np.ndarray] | None = None):
-    """:func:`jaxvo.host.peers.run_peer` for the peers of the package, :func:`run_orbslam3`
-    for ORB-SLAM3: a :class:`jaxvo.host.peers.PeerRun` either way."""
-    from jaxvo.host.peers import run_peer
+    """:func:`jaxvo.host.services.peers.run_peer` for the peers of the package, :func:`run_orbslam3`
+    for ORB-SLAM3: a :class:`jaxvo.host.services.peers.PeerRun` either way."""
+    from jaxvo.host.services.peers import run_peer
 
     return run_orbslam3(seq, keep=keep)[0] if kind == NAME else run_peer(seq, kind, keep=keep)
 
@@ -373,7 +373,7 @@ def streaming_masks(seq, odo, *, grow: int = 0) -> Iterator[tuple[object, np.nda
     """jaxvo's dynamic pixels of each frame, frame by frame as a robot gets them.
 
     ``odo.process`` of frame ``k + 1`` labels the grid of image ``k`` (the previous image
-    of the pair, where its flow was measured: ``jaxvo.host.plugin``), so each frame comes out
+    of the pair, where its flow was measured: ``jaxvo.host.writers.plugin``), so each frame comes out
     one frame late with its mask (``StepOutput.dynamic``: moving cells and their unmeasured
     neighbours, as pixels); the last frame takes the last mask, as ``jaxvo run
     --dynamic-masks`` gives it. A frame jaxvo dropped takes the mask before it.
@@ -381,11 +381,11 @@ def streaming_masks(seq, odo, *, grow: int = 0) -> Iterator[tuple[object, np.nda
     Args:
       seq: frames in order (each with ``bgr``, ``depth``, ``timestamp``).
       odo: a fresh :class:`jaxvo.Odometry`.
-      grow: grid cells by which each dynamic cell is grown (``jaxvo.host.masks.dynamic_pixels``).
+      grow: grid cells by which each dynamic cell is grown (``jaxvo.host.writers.masks.dynamic_pixels``).
     Yields:
       ``(frame, (H, W) bool mask)``, True = dynamic, in frame order.
     """
-    from jaxvo.host.masks import dynamic_pixels
+    from jaxvo.host.writers.masks import dynamic_pixels
 
     prev, mask = None, None
     for frame in seq:
@@ -403,7 +403,7 @@ def streaming_masks(seq, odo, *, grow: int = 0) -> Iterator[tuple[object, np.nda
 
 
 def streaming_keep(seq, odo):
-    """``keep(i)`` for :func:`run_orbslam3` and :func:`jaxvo.host.peers.run_peer` that runs
+    """``keep(i)`` for :func:`run_orbslam3` and :func:`jaxvo.host.services.peers.run_peer` that runs
     jaxvo frame by frame as the peer asks for each frame: jaxvo and the peer in one loop,
     as on a robot, each frame reaching the peer one frame late with its mask
     (:func:`streaming_masks`). Frames must be asked for in order, once each."""
@@ -438,8 +438,8 @@ def main(argv=None) -> int:
     if why:
         print(f"orbslam3_peer: {why}", file=sys.stderr)
         return 2
-    from jaxvo.host.io import open_sequence
-    from jaxvo.host.io import write_trajectory
+    from jaxvo.host.readers.io import open_sequence
+    from jaxvo.host.readers.io import write_trajectory
 
     seq = open_sequence(args.sequence)
     keep = None

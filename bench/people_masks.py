@@ -125,7 +125,7 @@ def people_clip(bench: str):
     """The TUM walking clip (:data:`SEQUENCE` under the data root) as ``(sequence, people
     masks)``, the frames read lazily; None, after a line saying ``bench`` skipped, where the
     clip is absent."""
-    from jaxvo.host.io import data_root, open_sequence
+    from jaxvo.host.readers.io import data_root, open_sequence
 
     folder = data_root() / SEQUENCE
     if not folder.is_dir():
@@ -182,7 +182,7 @@ def main(argv: list[str] | None = None) -> int:
                         help=f"the clip's folder (default: the data root's {SEQUENCE})")
     args = parser.parse_args(argv)
     if args.seq is None:
-        from jaxvo.host.io import data_root
+        from jaxvo.host.readers.io import data_root
 
         seq = data_root() / SEQUENCE
     else:

@@ -52,11 +52,11 @@ from jaxvo.core.pipeline import (
 from jaxvo.core.spatial import segment
 from jaxvo.evaluation.metrics import SegmentationScores, ate
 from jaxvo.evaluation.scores import segmentation_scores, trajectory_scores
-from jaxvo.host.flow import GridFlowTracker
-from jaxvo.host.io import data_root, first_pose, open_sequence, write_trajectory
-from jaxvo.host.masks import overlay_panel
-from jaxvo.host.peers import OPEN3D_PEERS
-from jaxvo.host.plugin import dynamic_masks
+from jaxvo.host.frontend.flow import GridFlowTracker
+from jaxvo.host.readers.io import data_root, first_pose, open_sequence, write_trajectory
+from jaxvo.host.writers.masks import overlay_panel
+from jaxvo.host.services.peers import OPEN3D_PEERS
+from jaxvo.host.writers.plugin import dynamic_masks
 from jaxvo.status import Status
 from jaxvo.synth.scenes import SCENARIOS, composite_sequence, make_sequence
 from jaxvo.trajectory import Trajectory
@@ -322,7 +322,7 @@ def panel_frames(T: int, count: int) -> list[int]:
 def plot_labels_and_peers(path: Path, seq: CachedSequence, trajs: dict, outs: StepOutput,
                           cell: int, title: str, count: int = 3) -> None:
     """No ground truth: jaxvo's label overlays of a few frames beside every method's path."""
-    from jaxvo.host.masks import overlay
+    from jaxvo.host.writers.masks import overlay
 
     plt = _plt()
     T = len(outs.ids)
@@ -398,7 +398,7 @@ def write_report(out: Path, res: dict) -> None:
           ("- **opencv_rgb / opencv_depth / opencv_rgbd**: `cv2.Odometry` (RGB, DEPTH, "
           "RGB_DEPTH), frame to frame, default settings."),
           ("- **PEER x jaxvo**: the same peer with jaxvo's dynamic pixels masked out of every "
-          "frame (`jaxvo.host.plugin.dynamic_masks`, thesis Fig. 5.8 \"Proposed x DVO\"); image "
+          "frame (`jaxvo.host.writers.plugin.dynamic_masks`, thesis Fig. 5.8 \"Proposed x DVO\"); image "
           "k takes the labels of pair k -> k+1, the last image the final compensated "
           "temporal map."),
           "- **Open3D** (colour / hybrid RGB-D odometry): " + (

@@ -28,7 +28,7 @@ from typing import NamedTuple
 
 from _common import SEVEN_SCENES, TUM_WALKING, tum_walking_truth, with_groundtruth
 
-from jaxvo.host.io import InMemorySequence, data_root, open_sequence
+from jaxvo.host.readers.io import InMemorySequence, data_root, open_sequence
 from jaxvo.synth.scenes import composite_sequence, make_sequence
 
 SYNTHETIC = ("fixed_camera_1", "fixed_camera_2", "handheld_fast", "handheld_slow",

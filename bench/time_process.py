@@ -29,7 +29,7 @@ from _common import SEVEN_SCENES, load_average
 from _options import check_options, config_from, config_setting, count
 
 import jaxvo
-from jaxvo.host.io import InMemorySequence, data_root, open_sequence
+from jaxvo.host.readers.io import InMemorySequence, data_root, open_sequence
 from jaxvo.odometry import Odometry
 
 

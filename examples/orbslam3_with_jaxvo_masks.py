@@ -23,8 +23,8 @@ import sys
 from pathlib import Path
 
 import jaxvo
-from jaxvo.host.io import data_root, first_pose
-from jaxvo.host.masks import dynamic_pixels
+from jaxvo.host.readers.io import data_root, first_pose
+from jaxvo.host.writers.masks import dynamic_pixels
 
 sys.path.insert(0, str(Path(__file__).resolve().parent.parent / "bench"))
 from orbslam3_peer import OrbSlam3, anchored, mask_frame, missing

@@ -6,7 +6,7 @@
 import sys
 
 import jaxvo
-from jaxvo.host.compile_cache import setup_compile_cache
+from jaxvo.host.services.compile_cache import setup_compile_cache
 
 setup_compile_cache()  # later runs load the compiled programs (~20 s saved)
 scenario = sys.argv[1] if len(sys.argv) > 1 else "handheld_fast"

@@ -13,9 +13,9 @@ from pathlib import Path
 import cv2
 
 import jaxvo
-from jaxvo.host.compile_cache import setup_compile_cache
-from jaxvo.host.io import data_root
-from jaxvo.host.masks import overlay_panel
+from jaxvo.host.services.compile_cache import setup_compile_cache
+from jaxvo.host.readers.io import data_root
+from jaxvo.host.writers.masks import overlay_panel
 
 default = data_root() / "tum_fr3_walking_halfsphere_50"
 root = Path(sys.argv[1]) if len(sys.argv) > 1 else default

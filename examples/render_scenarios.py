@@ -23,8 +23,8 @@ from pathlib import Path
 import cv2
 import numpy as np
 
-from jaxvo.host.camera import backproject, project
-from jaxvo.host.io import data_root
+from jaxvo.host.frontend.camera import backproject, project
+from jaxvo.host.readers.io import data_root
 from jaxvo.synth import scenes as synth
 
 TILE = (256, 192)

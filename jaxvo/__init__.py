@@ -28,12 +28,12 @@ _EXPORTS: dict[str, tuple[str, ...]] = {
     "jaxvo.errors": ("InputError",),
     "jaxvo.config": ("Config", "Params"),
     "jaxvo.status": ("Status",),
-    "jaxvo.host.camera": ("Intrinsics",),
-    "jaxvo.host.io": ("open_sequence", "write_trajectory"),
+    "jaxvo.host.frontend.camera": ("Intrinsics",),
+    "jaxvo.host.readers.io": ("open_sequence", "write_trajectory"),
     "jaxvo.trajectory": ("Trajectory", "read_trajectory"),
     "jaxvo.synth.scenes": ("composite_sequence", "make_sequence", "write_sequence"),
     "jaxvo.odometry": ("Odometry", "run_sequence"),
-    "jaxvo.host.plugin": ("dynamic_masks",),
+    "jaxvo.host.writers.plugin": ("dynamic_masks",),
     "jaxvo.evaluation.metrics": ("ate", "rpe"),
     "jaxvo.evaluation.scores": ("segmentation_scores", "trajectory_scores"),
     "jaxvo.study.spec": ("load_spec",),
@@ -48,11 +48,11 @@ __all__ = sorted(_MODULE_OF)  # noqa: PLE0605 (built from _EXPORTS: one list to 
 # here, with a DeprecationWarning saying where they live, so that a script using them goes
 # on; they are no current API (not in __all__ nor dir)
 _MOVED: dict[str, str] = {
-    "setup_compile_cache": "jaxvo.host.compile_cache",
-    "RerunLogger": "jaxvo.host.recording",
-    "fuse_maps": "jaxvo.host.mapping",
-    "matched_poses": "jaxvo.host.mapping",
-    "write_ply": "jaxvo.host.mapping",
+    "setup_compile_cache": "jaxvo.host.services.compile_cache",
+    "RerunLogger": "jaxvo.host.writers.recording",
+    "fuse_maps": "jaxvo.host.writers.mapping",
+    "matched_poses": "jaxvo.host.writers.mapping",
+    "write_ply": "jaxvo.host.writers.mapping",
 }
 
 

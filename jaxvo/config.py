@@ -86,7 +86,7 @@ class SharedOptions:
     sample_size: int = whole(4, 3, "points (a rigid fit needs 3)")
     # frame-to-keyframe tracking (jaxvo.core.keyframe, our addition): the ego-motion also
     # fits the keyframe's static grid points tracked into the current image
-    # (jaxvo.host.keyframes.KeyframeTracker), so that drift accrues per keyframe
+    # (jaxvo.host.frontend.keyframes.KeyframeTracker), so that drift accrues per keyframe
     keyframes: bool = False
     # the keyframe's points are every keyframe_stride-th grid row and column: LK per point is
     # most of the cost, and 2 scored as well as 1 on the development split
@@ -100,8 +100,8 @@ class SharedOptions:
 
 @dataclasses.dataclass(frozen=True)
 class FlowOptions(SharedOptions):
-    """What the host's grid flow (:mod:`jaxvo.host.flow`, :mod:`jaxvo.host.depth`) and
-    keyframe tracker (:mod:`jaxvo.host.keyframes`) read: a study's flow cache is keyed by
+    """What the host's grid flow (:mod:`jaxvo.host.frontend.flow`, :mod:`jaxvo.host.frontend.depth`) and
+    keyframe tracker (:mod:`jaxvo.host.frontend.keyframes`) read: a study's flow cache is keyed by
     them (thesis section 2.2)."""
 
     # The thesis ran mexopencv's LK defaults (window 21, 3 levels); on a small host those
@@ -126,7 +126,7 @@ class FlowOptions(SharedOptions):
     # fewest valid neighbours (of (2r+1)^2 - 1) needed to fill a hole
     fill_min_valid: int = whole(6, 0, "neighbours")
     depth_smooth: bool = True  # also average valid depth over agreeing (2r+1)^2 windows
-    # each cell's grid point at its most trackable pixel with depth (host.flow.textured_points)
+    # each cell's grid point at its most trackable pixel with depth (host.frontend.flow.textured_points)
     # instead of its centre, which on a wall or floor gives LK nothing to follow
     textured_points: bool = False
     # a new keyframe is taken when fewer than this fraction of the keyframe's points that

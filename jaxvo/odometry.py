@@ -7,7 +7,7 @@
   runs every frame in one jit-compiled ``lax.scan``.
 
 Both drop the frames that cannot be used and pair the next frame with the last good one
-(:class:`jaxvo.host.flow.FrameChain`), and both use the same per-frame step and the same PRNG
+(:class:`jaxvo.host.frontend.flow.FrameChain`), and both use the same per-frame step and the same PRNG
 keys (folded from the seed and the index of the frame pair stepped), so they give the same
 trajectory for the same seed.
 """
@@ -28,16 +28,16 @@ from jaxvo.config import Config, Params, check_config, check_params, grid_shape,
 from jaxvo.core.inputs import GridFlow, KeyframeFlow
 from jaxvo.core.pipeline import StepOutput, init_pipeline, jit_step, run_scan
 from jaxvo.errors import InputError
-from jaxvo.host.camera import Intrinsics, as_intrinsics, check_intrinsics, depth_metres
-from jaxvo.host.flow import (
+from jaxvo.host.frontend.camera import Intrinsics, as_intrinsics, check_intrinsics, depth_metres
+from jaxvo.host.frontend.flow import (
     MAX_DROPPED,
     FrameChain,
     GridFlowTracker,
     min_valid_flow,
     sequence_flows,
 )
-from jaxvo.host.io import DepthScaleWarning, check_depth_scale
-from jaxvo.host.memory import check_memory, run_bytes
+from jaxvo.host.readers.io import DepthScaleWarning, check_depth_scale
+from jaxvo.host.services.memory import check_memory, run_bytes
 from jaxvo.status import Status
 from jaxvo.trajectory import Trajectory, pose_at
 
@@ -65,7 +65,7 @@ class Odometry:
     the last good frame has too few valid vectors: a black, saturated or noise image) is
     dropped: it gets no pose (``FrameResult.dropped`` says why; ``T_w_c`` repeats the last
     kept pose) and is left out of :attr:`trajectory`, and the next frame pairs with the last
-    good one (:class:`jaxvo.host.flow.FrameChain`).
+    good one (:class:`jaxvo.host.frontend.flow.FrameChain`).
 
     Example::
 
@@ -75,9 +75,9 @@ class Odometry:
             print(r.T_w_c[:3, 3], r.status.reason)
 
     The first frame's depth is checked against what RGB-D sensors see
-    (:func:`jaxvo.host.io.check_depth_scale`): a median depth no sensor reads (float depth in
+    (:func:`jaxvo.host.readers.io.check_depth_scale`): a median depth no sensor reads (float depth in
     millimetres or raw units, a wrong depth scale) raises a ``ValueError``, an unusual one
-    gives a :class:`jaxvo.host.io.DepthScaleWarning` (also kept in :attr:`warnings`).
+    gives a :class:`jaxvo.host.readers.io.DepthScaleWarning` (also kept in :attr:`warnings`).
 
     Args:
       intrinsics: the (depth-registered) camera, pixels, as an :class:`Intrinsics`, a
@@ -91,9 +91,9 @@ class Odometry:
       T_w_c0: (4, 4) camera-to-world pose of the first frame; None: the identity (the
         trajectory then starts at the origin of its own frame).
       device: where the per-frame step runs (see ``__init__``).
-      max_dropped: most frames dropped in a row (:class:`jaxvo.host.flow.FrameChain`).
+      max_dropped: most frames dropped in a row (:class:`jaxvo.host.frontend.flow.FrameChain`).
       logger: gets every frame's result with its images (:meth:`attach`), e.g. a
-        :class:`jaxvo.host.recording.RerunLogger`; None: nothing is logged.
+        :class:`jaxvo.host.writers.recording.RerunLogger`; None: nothing is logged.
       checked: the caller has checked the intrinsics and ``cfg`` against the image size,
         the memory the run needs and the first frame's depth, as ``jaxvo run`` does before
         JAX loads (:func:`jaxvo.run.prepare_run`): they are not checked again.
@@ -153,7 +153,7 @@ class Odometry:
         """Give every frame's result from now on to ``logger``: an object with
         ``setup(intrinsics, cell)`` (called here) and ``log_frame(result, bgr, depth)``
         (called as each result comes out, with the frame's colour image and its depth in
-        float32 metres), such as :class:`jaxvo.host.recording.RerunLogger`.
+        float32 metres), such as :class:`jaxvo.host.writers.recording.RerunLogger`.
 
         Raises:
           ValueError: ``logger`` lacks those methods (a file name: give
@@ -162,9 +162,9 @@ class Odometry:
         if not (callable(getattr(logger, "setup", None))
                 and callable(getattr(logger, "log_frame", None))):
             hint = (f"; for a recording, logger=RerunLogger(save={str(logger)!r}) (from "
-                    "jaxvo.host.recording)" if isinstance(logger, str | Path) else "")
+                    "jaxvo.host.writers.recording)" if isinstance(logger, str | Path) else "")
             raise ValueError("logger must have setup(intrinsics, cell) and log_frame(result, "  # noqa: TRY004 (the API says ValueError for any bad input)
-                             "bgr, depth), as jaxvo.host.recording.RerunLogger does; got "
+                             "bgr, depth), as jaxvo.host.writers.recording.RerunLogger does; got "
                              f"{type(logger).__name__}" + hint)
         logger.setup(self.intrinsics, self.cfg.cell)
         self.logger = logger
@@ -195,7 +195,7 @@ class Odometry:
           ValueError: a colour or depth image of the wrong type or shape, images of
             different sizes, a timestamp that is not finite or does not increase; on the
             first frame, depth no sensor reads or settings that need more memory than the
-            machine has (:mod:`jaxvo.host.memory`).
+            machine has (:mod:`jaxvo.host.services.memory`).
         """
         self.flush()
         return self._finish(self._dispatch(bgr, depth, timestamp))
@@ -469,7 +469,7 @@ def run_sequence(
     """Flow for every frame pair on the host, then one jit-compiled ``lax.scan``.
 
     Frames that cannot be used are dropped and the next frame pairs with the last good one
-    (:func:`jaxvo.host.flow.sequence_flows`); the trajectory holds the kept frames.
+    (:func:`jaxvo.host.frontend.flow.sequence_flows`); the trajectory holds the kept frames.
 
     Args:
       seq: a sequence per docs/architecture.md (:func:`jaxvo.open_sequence`,
@@ -486,7 +486,7 @@ def run_sequence(
       :class:`SequenceResult`.
     Raises:
       InputError: fewer than 2 frames, or fewer than 2 that can be used, or a run that
-        needs more memory than the machine has (:mod:`jaxvo.host.memory`).
+        needs more memory than the machine has (:mod:`jaxvo.host.services.memory`).
       ValueError: ``seq`` is neither a sequence nor a folder path.
     """
     seq = _as_sequence(seq)
@@ -546,7 +546,7 @@ def _as_sequence(seq):
     a folder path opened as a TUM-layout sequence; else a ValueError saying what is
     expected (a list of frames has no camera and no timestamps of its own)."""
     if isinstance(seq, str | Path):
-        from jaxvo.host.io import open_sequence
+        from jaxvo.host.readers.io import open_sequence
 
         return open_sequence(seq)
     needed = ("intrinsics", "height", "width", "timestamps", "name")

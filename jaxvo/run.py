@@ -15,7 +15,7 @@ truth. The run's summary is a dict, which :func:`summary_lines` puts in words, a
 Each check runs once a run: :func:`prepare_run` checks the settings against the image size
 and the memory they need, :func:`record_run` the first frame's depth, and the odometry is
 told so (``Odometry(checked=True)``). Every file appears whole or not at all
-(:mod:`jaxvo.host.outputs`); an output other than the trajectory that fails (a full disk)
+(:mod:`jaxvo.host.writers.outputs`); an output other than the trajectory that fails (a full disk)
 stops the run as Ctrl-C does, the trajectory kept, and is then raised
 (:class:`OutputFailures`).
 """
@@ -39,9 +39,9 @@ import numpy as np
 from jaxvo.config import Config, check_config
 from jaxvo.errors import InputError, check_seed
 from jaxvo.errors import warn as warn_user
-from jaxvo.host.bagout import BagOptions, check_bag_options, check_bag_target, open_bag
-from jaxvo.host.camera import Intrinsics, check_depth_scale_value, describe_distortion
-from jaxvo.host.mapping import MapOptions, make_maps, map_outputs
+from jaxvo.host.writers.bagout import BagOptions, check_bag_options, check_bag_target, open_bag
+from jaxvo.host.frontend.camera import Intrinsics, check_depth_scale_value, describe_distortion
+from jaxvo.host.writers.mapping import MapOptions, make_maps, map_outputs
 
 
 @dataclasses.dataclass(frozen=True)
@@ -101,8 +101,8 @@ def prepare_run(o: RunOptions, *, names: dict[str, str] | None = None) -> Prepar
     Raises:
       InputError: one line, naming the option or the file.
     """
-    from jaxvo.host.io import open_sequence
-    from jaxvo.host.memory import check_memory, run_bytes
+    from jaxvo.host.readers.io import open_sequence
+    from jaxvo.host.services.memory import check_memory, run_bytes
 
     _check_values(o)
     seq = open_sequence(o.sequence, camera=o.camera, max_diff=o.max_diff,
@@ -120,7 +120,7 @@ def prepare_run(o: RunOptions, *, names: dict[str, str] | None = None) -> Prepar
 
 def _outputs(o: RunOptions, seq, n: int) -> tuple[Path | str, dict[str, Path]]:
     """The run's outputs checked (none over an input or another output) and made ready."""
-    from jaxvo.host.outputs import (
+    from jaxvo.host.writers.outputs import (
         STDOUT,
         check_outputs,
         output_file,
@@ -143,14 +143,14 @@ def _outputs(o: RunOptions, seq, n: int) -> tuple[Path | str, dict[str, Path]]:
     check_outputs(seq.files(), files=files,
                   folders={**{k: Path(v) for k, v in given.items()}, **bag})
     if o.bag.folder:
-        from jaxvo.host.bagout import check_bag_input
+        from jaxvo.host.writers.bagout import check_bag_input
 
         check_bag_target(o.bag.folder)
         check_bag_input(o.bag, seq)
     for what, path in files.items():
         output_file(path, what=what)
     if o.rerun or o.rerun_save:
-        from jaxvo.host.recording import check_display, import_rerun
+        from jaxvo.host.writers.recording import check_display, import_rerun
 
         import_rerun("--rerun" if o.rerun else "--rerun-save")
         if o.rerun:
@@ -184,10 +184,10 @@ def record_run(run: PreparedRun, *, stop=None,
     Raises:
       InputError: no frame can be read, or the first one's depth no sensor reads.
     """
-    from jaxvo.host.compile_cache import announce_compile
-    from jaxvo.host.io import TrajectoryWriter, check_depth_scale, first_readable
-    from jaxvo.host.prefetch import BackgroundWriter, read_ahead
-    from jaxvo.host.progress import Progress
+    from jaxvo.host.services.compile_cache import announce_compile
+    from jaxvo.host.readers.io import TrajectoryWriter, check_depth_scale, first_readable
+    from jaxvo.host.frontend.prefetch import BackgroundWriter, read_ahead
+    from jaxvo.host.services.progress import Progress
     from jaxvo.odometry import Odometry, choose_start_pose
 
     o, seq, n, out, folders = run
@@ -246,7 +246,7 @@ def _logger(o: RunOptions, odo, gt, failures: OutputFailures):
     holding None; a failure of its frames' logging goes to ``failures``."""
     if not (o.rerun or o.rerun_save):
         return contextlib.nullcontext(None)
-    from jaxvo.host.recording import RerunLogger
+    from jaxvo.host.writers.recording import RerunLogger
 
     logger = RerunLogger(save=o.rerun_save, spawn=o.rerun, what="--rerun-save")
     odo.attach(_Logging(logger, failures))
@@ -301,18 +301,18 @@ class Recorder:
 
     Args:
       cfg: the run's settings (the grid cell).
-      writer: the :class:`~jaxvo.host.io.TrajectoryWriter`.
-      images: the :class:`~jaxvo.host.prefetch.BackgroundWriter` the images go through.
+      writer: the :class:`~jaxvo.host.readers.io.TrajectoryWriter`.
+      images: the :class:`~jaxvo.host.frontend.prefetch.BackgroundWriter` the images go through.
       folders: ``--masks``, ``--dynamic-masks``, ``--overlays`` -> the folder written.
       keep_dynamic: keep each frame's dynamic cells for the map (:attr:`dynamic`).
-      bag: the :class:`~jaxvo.host.bagout.BagWriter`, or None.
+      bag: the :class:`~jaxvo.host.writers.bagout.BagWriter`, or None.
       failures: where a failure on the writer thread is kept (:class:`OutputFailures`);
         the run stops at the next frame after one.
     """
 
     def __init__(self, cfg: Config, writer, images, folders: dict[str, Path], *,
                  keep_dynamic: bool = False, bag=None, failures: OutputFailures | None = None):
-        from jaxvo.host.plugin import LabelAnchor  # OpenCV's masks: not before the run
+        from jaxvo.host.writers.plugin import LabelAnchor  # OpenCV's masks: not before the run
 
         self.cfg, self.writer, self.images, self.folders = cfg, writer, images, folders
         self.bag = bag  # written on the writer thread, as the images
@@ -416,9 +416,9 @@ class Recorder:
         """The images of a pair whose labels lie on ``frame``'s image, named by its time as
         TUM names its images; ``r`` None: the dynamic mask ``moving`` alone. Runs on the
         writer thread: encoding PNGs is most of what a frame's output costs."""
-        from jaxvo.host import outputs
-        from jaxvo.host.masks import dynamic_pixels, grid_to_pixels, overlay_panel
-        from jaxvo.host.plugin import mask_png
+        from jaxvo.host.writers import outputs
+        from jaxvo.host.writers.masks import dynamic_pixels, grid_to_pixels, overlay_panel
+        from jaxvo.host.writers.plugin import mask_png
 
         h, w = frame.depth.shape
         cell = self.cfg.cell
@@ -438,13 +438,13 @@ class Recorder:
 
 def _map(o: RunOptions, seq, n: int, rec: Recorder, out, writer, logger, warn) -> dict:
     """The maps from the trajectory written and the run's dynamic cells, at
-    :class:`~jaxvo.host.mapping.MapOptions`' defaults; the summary's part (why there is no
+    :class:`~jaxvo.host.writers.mapping.MapOptions`' defaults; the summary's part (why there is no
     map, after Ctrl-C or with no pose)."""
     if rec.interrupted or not rec.written:
         why = "the run was interrupted" if rec.interrupted else "no pose was written"
         kept = f" (an earlier {o.map} is as it was)" if Path(o.map).exists() else ""
         return {"map_not_written": why + kept}
-    from jaxvo.host.masks import dynamic_pixels
+    from jaxvo.host.writers.masks import dynamic_pixels
 
     def dynamic(index: int, timestamp: float):
         cells = rec.dynamic.get(index)

@@ -1,11 +1,11 @@
 """Trajectories: timestamped camera poses, TUM trajectory files and association by time.
 
 Both sides read them: the host writes a run's poses and reads a sequence's ground truth
-(:mod:`jaxvo.host.io`), the evaluation scores one trajectory against another
+(:mod:`jaxvo.host.readers.io`), the evaluation scores one trajectory against another
 (:mod:`jaxvo.evaluation.metrics`). Numpy only, and nothing of the host: the lines of a
 TUM file are made here (:func:`tum_header`, :func:`tum_lines`) and written by the host's
-two writers, :func:`jaxvo.host.io.write_trajectory` and
-:class:`jaxvo.host.io.TrajectoryWriter`, whole or not at all.
+two writers, :func:`jaxvo.host.readers.io.write_trajectory` and
+:class:`jaxvo.host.readers.io.TrajectoryWriter`, whole or not at all.
 
 TUM format: one line a pose, ``timestamp tx ty tz qx qy qz qw`` (seconds, metres, the
 camera-to-world rotation's quaternion, scalar last); ``#`` starts a comment.

@@ -26,7 +26,7 @@ import numpy as np
 import pytest
 
 from jaxvo.cli.main import main
-from jaxvo.host.io import InMemorySequence, open_sequence
+from jaxvo.host.readers.io import InMemorySequence, open_sequence
 from jaxvo.synth.scenes import make_sequence, write_sequence
 from jaxvo.trajectory import read_trajectory
 

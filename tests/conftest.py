@@ -17,8 +17,8 @@ from pathlib import Path
 
 import pytest
 
-from jaxvo.host.compile_cache import ENV, OFF, setup_compile_cache, use_compile_cache
-from jaxvo.host.io import data_root as _data_root
+from jaxvo.host.services.compile_cache import ENV, OFF, setup_compile_cache, use_compile_cache
+from jaxvo.host.readers.io import data_root as _data_root
 
 # Folder (under pytest's cache, .pytest_cache/d/) of the compiled programs the tests share
 XLA_CACHE = "jaxvo-xla"
@@ -104,7 +104,7 @@ def bench_module(name: str):
 
 @pytest.fixture
 def data_root() -> Path:
-    """The real-data folder (``jaxvo.host.io.data_root()``); skips the test when it is absent."""
+    """The real-data folder (``jaxvo.host.readers.io.data_root()``); skips the test when it is absent."""
     return _require()
 
 

@@ -14,7 +14,7 @@ import pytest
 from jaxvo.config import Config, Params
 from jaxvo.errors import InputError
 from jaxvo.evaluation.metrics import ate
-from jaxvo.host.camera import Intrinsics
+from jaxvo.host.frontend.camera import Intrinsics
 from jaxvo.odometry import Odometry
 from jaxvo.status import Status
 
@@ -121,7 +121,7 @@ def test_odometry_refuses_float_depth_in_millimetres_or_raw_units(base_seq):
             Odometry(K).process(f.bgr, depth, f.timestamp)
     mm = np.round(f.depth * 1000).astype(np.uint16)  # millimetres at 5000 per metre
     odo = Odometry(K)
-    from jaxvo.host.io import DepthScaleWarning
+    from jaxvo.host.readers.io import DepthScaleWarning
 
     with pytest.warns(DepthScaleWarning, match="depth_scale 1000 is likelier"):
         odo.process(f.bgr, mm, f.timestamp)

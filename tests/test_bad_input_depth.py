@@ -16,8 +16,8 @@ import cv2
 import numpy as np
 import pytest
 
-from jaxvo.host.camera import read_camera_file
-from jaxvo.host.io import open_sequence
+from jaxvo.host.frontend.camera import read_camera_file
+from jaxvo.host.readers.io import open_sequence
 from jaxvo.trajectory import read_trajectory
 
 from bad_input import (

@@ -14,7 +14,7 @@ import cv2
 import numpy as np
 import pytest
 
-from jaxvo.host.camera import Intrinsics, read_camera_file
+from jaxvo.host.frontend.camera import Intrinsics, read_camera_file
 from jaxvo.trajectory import read_trajectory
 
 from bad_input import (

@@ -72,7 +72,7 @@ def test_python_api_refuses_memory_it_cannot_have(base_seq):
 
 
 def test_check_memory_gives_both_numbers():
-    from jaxvo.host.memory import check_memory, run_bytes
+    from jaxvo.host.services.memory import check_memory, run_bytes
 
     need = run_bytes(Config(), height=480, width=640)
     check_memory(need, what="x", available=2 * need)
@@ -91,8 +91,8 @@ def test_a_run_over_a_whole_sequence_counts_the_flow_it_holds_keyframes_included
     """run_sequence and a study hold every pair's flow at once, with keyframes also its
     keyframe flow (80 bytes a grid point at the default window against the grid flow's
     53): run_bytes grows per frame by what sequence_flows really holds."""
-    from jaxvo.host.flow import sequence_flows
-    from jaxvo.host.memory import run_bytes
+    from jaxvo.host.frontend.flow import sequence_flows
+    from jaxvo.host.services.memory import run_bytes
 
     seq = make_sequence("handheld_fast", frames=4, seed=0)
     per_frame = {}

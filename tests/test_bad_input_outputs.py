@@ -165,7 +165,7 @@ def test_study_results_never_go_over_the_spec_or_a_sequence(base, tmp_path, caps
 
 
 def test_check_outputs_refuses_one_file_twice(tmp_path):
-    from jaxvo.host.io import check_outputs
+    from jaxvo.host.readers.io import check_outputs
 
     with pytest.raises(InputError, match="b and a are the same file"):
         check_outputs((), files={"a": tmp_path / "t.txt", "b": tmp_path / "." / "t.txt"})
@@ -265,7 +265,7 @@ def test_a_closed_or_broken_standard_output(base, capsys, monkeypatch):
     ``--out - | head`` ended 'jaxvo: error: -: Broken pipe', exit 2."""
     import errno
 
-    from jaxvo.host import outputs
+    from jaxvo.host.writers import outputs
 
     monkeypatch.setattr(outputs, "STDOUT_CLOSED", False)
     monkeypatch.setattr(sys, "stdout", None)

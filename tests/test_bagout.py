@@ -23,8 +23,8 @@ from test_rosbag import image_msg, info_msg, write_bag
 
 from jaxvo.cli.main import main
 from jaxvo.errors import InputError
-from jaxvo.host import bagout
-from jaxvo.host.bagout import (
+from jaxvo.host.writers import bagout
+from jaxvo.host.writers.bagout import (
     INFO_TOPIC,
     MAP_TOPIC,
     MASK_TOPIC,
@@ -34,10 +34,10 @@ from jaxvo.host.bagout import (
     check_frame_id,
     frame_times,
 )
-from jaxvo.host.camera import Intrinsics
-from jaxvo.host.io import open_sequence
-from jaxvo.host.realsense import image_message
-from jaxvo.host.rosbag import TUM_TOPICS
+from jaxvo.host.frontend.camera import Intrinsics
+from jaxvo.host.readers.io import open_sequence
+from jaxvo.host.readers.realsense import image_message
+from jaxvo.host.readers.rosbag import TUM_TOPICS
 from jaxvo.synth.scenes import make_sequence, write_sequence
 from jaxvo.trajectory import read_trajectory
 from jaxvo.transforms import rotation_to_quat
@@ -507,7 +507,7 @@ def test_a_second_ctrl_c_leaves_no_bag_and_nothing_beside(folder, tmp_path):
     file is, so that nothing of the bag outlives the process."""
     import time
 
-    from jaxvo.host.outputs import abort_pending
+    from jaxvo.host.writers.outputs import abort_pending
 
     bag = tmp_path / "bag"
     writer = bagout.BagWriter(bag, open_sequence(folder))

@@ -8,7 +8,7 @@ import numpy as np
 import pytest
 
 from jaxvo.cli.main import main
-from jaxvo.host.io import write_trajectory
+from jaxvo.host.readers.io import write_trajectory
 from jaxvo.trajectory import Trajectory
 from jaxvo.transforms import pose_from_tq
 

@@ -98,7 +98,7 @@ def test_a_run_of_another_sequence_is_refused_and_a_foreign_motion_warned(run_di
                                                                            tmp_path):
     """Both sequences timed index / 30 from 0: the timestamps matched, and a map came out
     with no word."""
-    from jaxvo.host.io import open_sequence, write_trajectory
+    from jaxvo.host.readers.io import open_sequence, write_trajectory
     from jaxvo.run import run_header
     from jaxvo.trajectory import Trajectory
 
@@ -157,8 +157,8 @@ def test_the_summary_says_what_was_left_out_and_the_camera_warning(run_dir, caps
 
 
 def test_fuse_maps_refuses_settings_no_map_can_use(run_dir):
-    from jaxvo.host.io import open_sequence
-    from jaxvo.host.mapping import fuse_maps
+    from jaxvo.host.readers.io import open_sequence
+    from jaxvo.host.writers.mapping import fuse_maps
 
     seq = open_sequence(run_dir / "seq")
     poses = [(0, np.eye(4))]

@@ -94,8 +94,8 @@ def test_each_check_runs_once_a_run(seq_dir, tmp_path, capsys, monkeypatch):
     run, before JAX loads (jaxvo.run.prepare_run, record_run); the odometry is told so
     and checks none of them again (each ran twice or three times)."""
     import jaxvo.config
-    import jaxvo.host.io
-    import jaxvo.host.memory
+    import jaxvo.host.readers.io
+    import jaxvo.host.services.memory
     import jaxvo.odometry
     import jaxvo.run
 
@@ -110,8 +110,8 @@ def test_each_check_runs_once_a_run(seq_dir, tmp_path, capsys, monkeypatch):
     # each check wherever it is imported from (the functions themselves, taken first)
     for name, home, users in (
             ("check_config", jaxvo.config, (jaxvo.config, jaxvo.run, jaxvo.odometry)),
-            ("check_memory", jaxvo.host.memory, (jaxvo.host.memory, jaxvo.odometry)),
-            ("check_depth_scale", jaxvo.host.io, (jaxvo.host.io, jaxvo.odometry))):
+            ("check_memory", jaxvo.host.services.memory, (jaxvo.host.services.memory, jaxvo.odometry)),
+            ("check_depth_scale", jaxvo.host.readers.io, (jaxvo.host.readers.io, jaxvo.odometry))):
         check = counted(name, getattr(home, name))
         for module in users:
             monkeypatch.setattr(module, name, check)
@@ -186,9 +186,9 @@ def test_an_image_that_cannot_be_written_mid_run_is_one_line_and_exit_2(
     after Ctrl-C: the trajectory (on a disk that may be healthy) keeps the poses computed,
     where it was discarded with the masks, and the folder keeps the masks written whole
     before the failure."""
-    import jaxvo.host.outputs
+    import jaxvo.host.writers.outputs
 
-    real_write = jaxvo.host.outputs.write_image
+    real_write = jaxvo.host.writers.outputs.write_image
     calls = {"n": 0}
 
     def write_image(path, image):
@@ -197,7 +197,7 @@ def test_an_image_that_cannot_be_written_mid_run_is_one_line_and_exit_2(
             raise OSError(28, "No space left on device", str(path))
         real_write(path, image)
 
-    monkeypatch.setattr(jaxvo.host.outputs, "write_image", write_image)
+    monkeypatch.setattr(jaxvo.host.writers.outputs, "write_image", write_image)
     traj = tmp_path / "traj.txt"
     traj.write_text("# an earlier run\n")
     rc = main(["run", str(seq_dir), "--out", str(traj), "--masks", str(tmp_path / "m"), "-q"])
@@ -263,7 +263,7 @@ def test_sigterm_to_a_background_job_of_a_script_keeps_what_was_finished(seq_dir
     from rosbags.highlevel import AnyReader
     from test_recording import _looped, _wait_for_a_pose
 
-    from jaxvo.host.bagout import ODOMETRY_TOPIC
+    from jaxvo.host.writers.bagout import ODOMETRY_TOPIC
 
     long = _looped(seq_dir, tmp_path / "long", 80)  # long enough to be signalled mid-run
     out = tmp_path / "out"

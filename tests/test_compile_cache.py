@@ -16,7 +16,7 @@ import pytest
 from jaxvo import __version__
 from jaxvo.cli.main import build_parser, main
 from jaxvo.errors import InputError
-from jaxvo.host.compile_cache import ENV, choose_compile_cache, setup_compile_cache
+from jaxvo.host.services.compile_cache import ENV, choose_compile_cache, setup_compile_cache
 from jaxvo.trajectory import read_trajectory
 
 VERSIONED = f"jaxvo-{__version__}_jax-{jax.__version__}"
@@ -27,7 +27,7 @@ VERSIONED = f"jaxvo-{__version__}_jax-{jax.__version__}"
 CHILD = """
 import json, sys
 import jax, jax.numpy as jnp
-from jaxvo.host.compile_cache import announce_compile, setup_compile_cache
+from jaxvo.host.services.compile_cache import announce_compile, setup_compile_cache
 setup_compile_cache(sys.argv[1])
 
 @jax.jit
@@ -213,7 +213,7 @@ BROKEN_CHILD = """
 import errno, sys
 import jax, jax.numpy as jnp
 from jax._src import lru_cache
-from jaxvo.host import compile_cache
+from jaxvo.host.services import compile_cache
 compile_cache.LOCK_TIMEOUT_S = 0.5
 if sys.argv[2] == "full":
     def put(self, key, value):

@@ -16,8 +16,8 @@ import pytest
 
 from jaxvo.cli.main import main
 from jaxvo.errors import InputError
-from jaxvo.host.datasets import catalogue, find, unpack
-from jaxvo.host.io import open_sequence, preset_from_name
+from jaxvo.host.readers.datasets import catalogue, find, unpack
+from jaxvo.host.readers.io import open_sequence, preset_from_name
 from jaxvo.synth.scenes import make_sequence, write_sequence
 
 
@@ -296,7 +296,7 @@ def test_a_full_disk_names_the_file_not_the_network(sequence_dir, tmp_path, caps
                            "--mirror", srv.url, "-q")
     assert code == 2 and err == f"jaxvo: error: {part}: No space left on device\n", err
     # unpacking onto a full disk: the file that could not be written, not the archive's fault
-    from jaxvo.host import datasets
+    from jaxvo.host.readers import datasets
 
     real_copy = datasets._copy
 

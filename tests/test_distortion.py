@@ -11,7 +11,7 @@ import pytest
 
 from jaxvo.config import Config
 from jaxvo.errors import InputError
-from jaxvo.host.camera import (
+from jaxvo.host.frontend.camera import (
     PRESETS,
     TUM_DISTORTION,
     Distortion,
@@ -22,8 +22,8 @@ from jaxvo.host.camera import (
     read_camera_file,
     write_camera_file,
 )
-from jaxvo.host.distortion import distort, undistort
-from jaxvo.host.flow import grid_flow
+from jaxvo.host.frontend.distortion import distort, undistort
+from jaxvo.host.frontend.flow import grid_flow
 from jaxvo.synth.scenes import SensorOptions, make_sequence
 from jaxvo.synth.sequence import _lens_maps
 

@@ -20,7 +20,7 @@ import pytest
 
 from jaxvo.cli.main import main
 from jaxvo.evaluation.metrics import ate
-from jaxvo.host.io import write_trajectory
+from jaxvo.host.readers.io import write_trajectory
 from jaxvo.trajectory import Trajectory, read_trajectory
 from jaxvo.transforms import pose_from_tq
 

@@ -10,8 +10,8 @@ import numpy as np
 import pytest
 
 from jaxvo.config import Config
-from jaxvo.host.camera import Intrinsics, backproject, grid_pixels, read_camera_file
-from jaxvo.host.flow import (
+from jaxvo.host.frontend.camera import Intrinsics, backproject, grid_pixels, read_camera_file
+from jaxvo.host.frontend.flow import (
     GridFlow,
     GridFlowTracker,
     bilinear_depth,
@@ -23,8 +23,8 @@ from jaxvo.host.flow import (
     refine_depth,
     sequence_flows,
 )
-from jaxvo.host.io import data_root
-from jaxvo.host.patches import patch_correlation, sample_patches
+from jaxvo.host.readers.io import data_root
+from jaxvo.host.frontend.patches import patch_correlation, sample_patches
 from jaxvo.status import Status
 
 H, W = 480, 640
@@ -469,7 +469,7 @@ def reference_flow(b0, d0, b1, d1, cam, cfg) -> GridFlow:
     LK both ways on all points, whole-image depth refinement, all patches. The grid points
     are the cells' centres or, with ``cfg.textured_points``, where ``textured_points`` puts
     them on the first image."""
-    from jaxvo.host.flow import textured_points
+    from jaxvo.host.frontend.flow import textured_points
 
     g0, g1 = (cv2.cvtColor(b, cv2.COLOR_BGR2GRAY) for b in (b0, b1))
     h, w = g0.shape
@@ -585,7 +585,7 @@ def test_textured_points_take_each_cells_most_trackable_pixel_with_depth():
     """One point per cell: on a flat image every cell keeps its centre; a single corner in a
     cell draws that cell's point to within 2 px of it (the half-size image's resolution),
     unless the corner has no depth reading; neighbouring flat cells keep their centres."""
-    from jaxvo.host.flow import textured_points
+    from jaxvo.host.frontend.flow import textured_points
 
     cell, grid = 16, (H // 16, W // 16)
     centres = grid_pixels(H, W, cell)

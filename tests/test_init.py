@@ -11,11 +11,11 @@ import pytest
 import jaxvo
 
 MOVED = {
-    "setup_compile_cache": "jaxvo.host.compile_cache",
-    "RerunLogger": "jaxvo.host.recording",
-    "fuse_maps": "jaxvo.host.mapping",
-    "matched_poses": "jaxvo.host.mapping",
-    "write_ply": "jaxvo.host.mapping",
+    "setup_compile_cache": "jaxvo.host.services.compile_cache",
+    "RerunLogger": "jaxvo.host.writers.recording",
+    "fuse_maps": "jaxvo.host.writers.mapping",
+    "matched_poses": "jaxvo.host.writers.mapping",
+    "write_ply": "jaxvo.host.writers.mapping",
 }
 
 
@@ -38,7 +38,7 @@ def test_a_from_import_of_a_moved_name_warns_and_loads_no_jax_before():
             "    from jaxvo import write_ply\n"
             "ours = [x for x in w if 'jaxvo.write_ply moved' in str(x.message)]\n"
             "assert [x.category for x in ours] == [DeprecationWarning], w\n"
-            "assert 'jaxvo.host.mapping' in str(ours[0].message)\n")
+            "assert 'jaxvo.host.writers.mapping' in str(ours[0].message)\n")
     done = subprocess.run([sys.executable, "-c", code], capture_output=True, text=True,
                           timeout=120, check=False)
     assert done.returncode == 0, done.stderr[-2000:]

@@ -1,4 +1,4 @@
-"""Tests of jaxvo.host.io and jaxvo.transforms: trajectory files, association, TUM sequences."""
+"""Tests of jaxvo.host.readers.io and jaxvo.transforms: trajectory files, association, TUM sequences."""
 
 from __future__ import annotations
 
@@ -9,8 +9,8 @@ import numpy as np
 import pytest
 
 from jaxvo.errors import InputError
-from jaxvo.host.camera import PRESETS, Intrinsics, write_camera_file
-from jaxvo.host.io import (
+from jaxvo.host.frontend.camera import PRESETS, Intrinsics, write_camera_file
+from jaxvo.host.readers.io import (
     Frame,
     InMemorySequence,
     TrajectoryWriter,
@@ -371,7 +371,7 @@ def test_sevenscenes_sequence(require_data):
 
 
 def test_first_pose_and_the_ground_truth_of_chosen_frames():
-    from jaxvo.host.io import first_pose, groundtruth_of_frames
+    from jaxvo.host.readers.io import first_pose, groundtruth_of_frames
 
     poses = np.tile(np.eye(4), (5, 1, 1))
     poses[:, 0, 3] = np.arange(5.0)
@@ -392,7 +392,7 @@ def test_first_pose_and_the_ground_truth_of_chosen_frames():
 
 def test_the_data_root_defaults_to_shared_data_beside_the_checkout(monkeypatch):
     import jaxvo
-    from jaxvo.host.io import data_root
+    from jaxvo.host.readers.io import data_root
 
     monkeypatch.delenv("JAXVO_DATA", raising=False)
     checkout = Path(jaxvo.__file__).resolve().parent.parent
@@ -405,7 +405,7 @@ def test_a_trajectory_writer_reads_back_its_own_poses_whoever_replaced_the_file(
     """Two runs into one --out: each file whole, the last one kept; the first run scored
     (and mapped) the second's file. written() is the text this writer wrote, parsed as the
     file is (its rounding), never the file."""
-    from jaxvo.host.io import TrajectoryWriter
+    from jaxvo.host.readers.io import TrajectoryWriter
 
     path = tmp_path / "t.txt"
     T = np.eye(4)
@@ -457,7 +457,7 @@ def test_a_near_object_filling_the_view_is_no_wrong_depth_scale(heavy_cover):
     """Its median (0.74-0.78 m) lies nearer the typical 2 m at 1000 per metre (3.7-3.9 m),
     and the run warned that the depth scale was probably wrong; the span the view reads
     (0.7 to 3.2 m) says it is right."""
-    from jaxvo.host.io import check_depth_scale
+    from jaxvo.host.readers.io import check_depth_scale
 
     K, depths = heavy_cover
     for i, depth in enumerate(depths):
@@ -469,7 +469,7 @@ def test_a_near_object_filling_the_view_is_no_wrong_depth_scale(heavy_cover):
 def test_a_wrong_depth_scale_still_warns_with_the_right_one(heavy_cover, factor, likelier):
     """The same frames in millimetres read at 5000 per metre (every depth a fifth), or in
     TUM's units read as millimetres (5 times): the whole span moves, and it is said."""
-    from jaxvo.host.io import check_depth_scale
+    from jaxvo.host.readers.io import check_depth_scale
 
     K, depths = heavy_cover
     K = K._replace(depth_scale=5000.0 if likelier == 1000 else 1000.0)

@@ -1,5 +1,5 @@
 """Keyframes and their local window: jaxvo.core.keyframe (device) and its host tracker
-(jaxvo.host.keyframes.KeyframeTracker), tested together because neither runs without the
+(jaxvo.host.frontend.keyframes.KeyframeTracker), tested together because neither runs without the
 other."""
 
 from __future__ import annotations
@@ -27,7 +27,7 @@ from jaxvo.core.keyframe import (
 )
 from jaxvo.core.noise import init_noise
 from jaxvo.core.points import frame_points
-from jaxvo.host.flow import FrameChain, GridFlowTracker
+from jaxvo.host.frontend.flow import FrameChain, GridFlowTracker
 from jaxvo.odometry import Odometry, run_sequence
 from jaxvo.synth.scenes import make_sequence
 

@@ -71,8 +71,8 @@ def _host_imports(path: Path) -> set[str]:
 
 def test_host_imports_are_found_at_any_depth():
     assert _host_imports_of("def f():\n    from jaxvo import host\n") == {"jaxvo.host"}
-    assert _host_imports_of("import cv2\nfrom jaxvo.host.io import x\n") == {
-        "cv2", "jaxvo.host.io", "jaxvo.host.io.x"}
+    assert _host_imports_of("import cv2\nfrom jaxvo.host.readers.io import x\n") == {
+        "cv2", "jaxvo.host.readers.io", "jaxvo.host.readers.io.x"}
     assert _host_imports_of("from jaxvo.transforms import x\nimport numpy\n") == set()
 
 
@@ -175,9 +175,9 @@ def test_import_circles_are_found():
 
 def test_no_module_of_jaxvo_imports_itself_through_others():
     paths = {_module_name(p): p for p in PACKAGE.rglob("*.py")}
-    assert "jaxvo.host.rosbag" in paths and "jaxvo.host.io" in paths
+    assert "jaxvo.host.readers.rosbag" in paths and "jaxvo.host.readers.io" in paths
     graph = {name: _jaxvo_imports(p, set(paths)) for name, p in paths.items()}
-    assert "jaxvo.host.frames" in graph["jaxvo.host.rosbag"]  # the walk sees imports
+    assert "jaxvo.host.frontend.frames" in graph["jaxvo.host.readers.rosbag"]  # the walk sees imports
     assert import_circles(graph) == []
 
 

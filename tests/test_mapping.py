@@ -1,4 +1,4 @@
-"""The static map (`jaxvo.host.mapping`): voxel averaging against a plain-Python reference,
+"""The static map (`jaxvo.host.writers.mapping`): voxel averaging against a plain-Python reference,
 back-projection against the pinhole model, the masks leaving the movers out (exact masks
 of a synthetic scene), poses matched to frames, and the PLY file read back."""
 
@@ -10,8 +10,8 @@ import numpy as np
 import pytest
 
 from jaxvo.errors import InputError
-from jaxvo.host.camera import Intrinsics
-from jaxvo.host.mapping import (
+from jaxvo.host.frontend.camera import Intrinsics
+from jaxvo.host.writers.mapping import (
     frame_points,
     fuse_maps,
     map_picture,

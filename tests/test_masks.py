@@ -3,7 +3,7 @@
 import numpy as np
 
 from jaxvo.evaluation.scores import moving_at_grid
-from jaxvo.host.masks import dynamic_pixels, grid_to_pixels, label_image, overlay
+from jaxvo.host.writers.masks import dynamic_pixels, grid_to_pixels, label_image, overlay
 
 H, W, CELL = 50, 70, 16  # 3 x 4 cells with a strip of 2 rows / 6 columns left over
 
@@ -48,7 +48,7 @@ def test_overlay_and_label_image_shapes():
 def test_overlay_blends_each_pixel_with_its_cells_colour():
     """Against the blend written out pixel by pixel in float64 (the colour and weight per
     cell are computed once per cell now, in float32): within 1 grey level."""
-    from jaxvo.host.masks import _PALETTE
+    from jaxvo.host.writers.masks import _PALETTE
 
     rng = np.random.default_rng(0)
     bgr = rng.integers(0, 256, (H, W, 3), np.uint8)
@@ -64,7 +64,7 @@ def test_overlay_blends_each_pixel_with_its_cells_colour():
 
 
 def test_label_image_and_colour_blocks_match_the_palette_per_pixel():
-    from jaxvo.host.masks import palette
+    from jaxvo.host.writers.masks import palette
 
     ids = np.arange(-1, 11)
     np.testing.assert_array_equal(label_image(ids, H, W, CELL),

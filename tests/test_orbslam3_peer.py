@@ -19,7 +19,7 @@ _spec = importlib.util.spec_from_file_location("orbslam3_peer", _BENCH / "orbsla
 orb = importlib.util.module_from_spec(_spec)
 _spec.loader.exec_module(orb)
 
-from jaxvo.host.camera import Intrinsics
+from jaxvo.host.frontend.camera import Intrinsics
 
 
 def test_settings_read_back_by_opencv_filestorage(tmp_path):
@@ -74,10 +74,10 @@ def test_mask_frame_removes_depth_and_optionally_colour_of_the_grown_mask(image,
 
 def test_streaming_masks_are_the_runs_plugin_masks():
     # frame by frame (a robot's loop) gives each image the mask the whole-sequence run's
-    # plug-in masks give it (jaxvo.host.plugin: step k labels image k); the last image takes the
+    # plug-in masks give it (jaxvo.host.writers.plugin: step k labels image k); the last image takes the
     # last step's map in both (no final state without the scan)
     import jaxvo
-    from jaxvo.host.io import InMemorySequence
+    from jaxvo.host.readers.io import InMemorySequence
     from jaxvo.synth.scenes import make_sequence
 
     # test_pipeline.py's sequence: the scan is the program compiled there
@@ -95,7 +95,7 @@ def test_orbslam3_tracks_the_static_frames(require_data):
     if why := orb.missing():
         pytest.skip(why)
     from jaxvo.evaluation.scores import trajectory_scores
-    from jaxvo.host.io import InMemorySequence, open_sequence
+    from jaxvo.host.readers.io import InMemorySequence, open_sequence
 
     seq = InMemorySequence(open_sequence(require_data("7scenes_static_0000_0299")), 40)
     peer, run = orb.run_orbslam3(seq)

@@ -1,4 +1,4 @@
-"""Outputs written whole or not at all, and never over an input (``jaxvo.host.outputs``).
+"""Outputs written whole or not at all, and never over an input (``jaxvo.host.writers.outputs``).
 
 Every writer of jaxvo goes through :class:`OutputFile` (or :class:`OutputFolder`); each is
 interrupted here mid-write (Ctrl-C, and a full disk: the handle raises after writing half
@@ -18,8 +18,8 @@ import numpy as np
 import pytest
 
 from jaxvo.errors import InputError
-from jaxvo.host import outputs
-from jaxvo.host.outputs import (
+from jaxvo.host.writers import outputs
+from jaxvo.host.writers.outputs import (
     STDOUT,
     OutputFile,
     OutputFolder,
@@ -80,10 +80,10 @@ def _writers():
     own file: tests/test_recording.py) and the trajectory writer of a run (Ctrl-C keeps
     its poses: tests/test_cli_run.py)."""
     from jaxvo.evaluation.evo_results import result_image, result_zip
-    from jaxvo.host.camera import Intrinsics, write_camera_file
-    from jaxvo.host.io import write_image, write_trajectory
-    from jaxvo.host.mapping import PointMap, write_ply
-    from jaxvo.host.outputs import write_bytes
+    from jaxvo.host.frontend.camera import Intrinsics, write_camera_file
+    from jaxvo.host.readers.io import write_image, write_trajectory
+    from jaxvo.host.writers.mapping import PointMap, write_ply
+    from jaxvo.host.writers.outputs import write_bytes
     from jaxvo.study.report import write_csv
     from jaxvo.trajectory import Trajectory
 

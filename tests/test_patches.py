@@ -1,8 +1,8 @@
-"""The checks a tracked point passes (jaxvo.host.patches): patches and their correlation."""
+"""The checks a tracked point passes (jaxvo.host.frontend.patches): patches and their correlation."""
 
 import numpy as np
 
-from jaxvo.host.patches import lk_converged, patch_correlation, sample_patches, similar
+from jaxvo.host.frontend.patches import lk_converged, patch_correlation, sample_patches, similar
 
 
 def test_patch_correlation_matches_numpy_corrcoef():

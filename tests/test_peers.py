@@ -4,8 +4,8 @@ import numpy as np
 import pytest
 
 from jaxvo.evaluation.scores import trajectory_scores
-from jaxvo.host.io import InMemorySequence
-from jaxvo.host.peers import available_peers, run_peer
+from jaxvo.host.readers.io import InMemorySequence
+from jaxvo.host.services.peers import available_peers, run_peer
 from jaxvo.synth.scenes import make_sequence
 
 

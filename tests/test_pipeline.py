@@ -20,7 +20,7 @@ from jaxvo.core.pipeline import (
     run_study,
 )
 from jaxvo.errors import InputError
-from jaxvo.host.flow import flows_for_sequence
+from jaxvo.host.frontend.flow import flows_for_sequence
 from jaxvo.odometry import Odometry, run_sequence
 from jaxvo.status import Status
 from jaxvo.synth.scenes import make_sequence
@@ -67,8 +67,8 @@ def test_scan_accuracy_is_near_what_was_measured_and_far_better_than_a_peer(scan
     0.5 mm; and relative to OpenCV's RGB-D odometry on the same frames (5.7 mm measured,
     jaxvo 0.028 of it), bounded at a tenth of it."""
     from jaxvo.evaluation.metrics import ate
-    from jaxvo.host.io import InMemorySequence
-    from jaxvo.host.peers import run_peer
+    from jaxvo.host.readers.io import InMemorySequence
+    from jaxvo.host.services.peers import run_peer
 
     jaxvo_ate = ate(seq.groundtruth, scan_result.trajectory).stats.rmse
     assert jaxvo_ate < 0.0005, jaxvo_ate
@@ -230,7 +230,7 @@ def test_fast_real_motion_keeps_the_background_identified(require_data):
     grid cells are reported moving (0 measured) and 2 % fall in the plug-in masks (0
     measured). Counting unmeasured retained cells in eq. (4.1) lost the match for 9 frames
     in a row here (frames 24-32) and called most cells moving."""
-    from jaxvo.host.io import InMemorySequence, open_sequence
+    from jaxvo.host.readers.io import InMemorySequence, open_sequence
 
     seq = InMemorySequence(open_sequence(require_data("7scenes_static_0000_0299")), 36, step=4)
     out = run_sequence(seq, cfg=CFG, seed=0).outputs

@@ -1,4 +1,4 @@
-"""jaxvo.host.plugin: per-frame dynamic-pixel masks from a run's identifiers (shapes, anchoring)."""
+"""jaxvo.host.writers.plugin: per-frame dynamic-pixel masks from a run's identifiers (shapes, anchoring)."""
 
 from __future__ import annotations
 
@@ -8,7 +8,7 @@ import numpy as np
 import pytest
 
 import jaxvo
-from jaxvo.host.plugin import dynamic_masks, iter_dynamic_masks, mask_png
+from jaxvo.host.writers.plugin import dynamic_masks, iter_dynamic_masks, mask_png
 
 H, W, CELL = 48, 70, 16  # 3 x 4 cells; a 6-pixel strip right of the last column
 ROWS, COLS = H // CELL, W // CELL
@@ -127,7 +127,7 @@ def test_png_values_and_public_export():
 def test_a_streams_labels_lie_on_the_image_each_pair_starts_at():
     """LabelAnchor (jaxvo run's masks, overlays, bag and map): pair k's labels on image k,
     the last image, which starts no pair, with the last pair's."""
-    from jaxvo.host.plugin import LabelAnchor
+    from jaxvo.host.writers.plugin import LabelAnchor
 
     anchor = LabelAnchor()
     assert anchor.push("image 0", None) is None and anchor.last_image() is None

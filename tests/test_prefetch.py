@@ -8,7 +8,7 @@ import numpy as np
 import pytest
 
 from jaxvo.errors import InputError
-from jaxvo.host.prefetch import BackgroundWriter, read_ahead
+from jaxvo.host.frontend.prefetch import BackgroundWriter, read_ahead
 
 
 class SlowReader:

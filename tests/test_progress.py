@@ -2,8 +2,8 @@
 
 import io
 
-from jaxvo.host import progress as progress_mod
-from jaxvo.host.progress import Progress
+from jaxvo.host.services import progress as progress_mod
+from jaxvo.host.services.progress import Progress
 
 
 def test_time_left_follows_the_average_rate(monkeypatch):

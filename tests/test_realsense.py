@@ -22,9 +22,9 @@ from rosbags.typesys import Stores, get_types_from_msg, get_typestore
 from jaxvo.cli.main import main
 from jaxvo.errors import InputError
 from jaxvo.evaluation.metrics import ate as ate_of
-from jaxvo.host.camera import Distortion, Intrinsics
-from jaxvo.host.io import open_sequence
-from jaxvo.host.realsense import register_depth
+from jaxvo.host.frontend.camera import Distortion, Intrinsics
+from jaxvo.host.readers.io import open_sequence
+from jaxvo.host.readers.realsense import register_depth
 from jaxvo.synth.scenes import make_sequence
 from jaxvo.trajectory import Trajectory, read_trajectory
 from jaxvo.transforms import pose_from_tq, rotation_to_quat

@@ -1,4 +1,4 @@
-"""The Rerun recording of a run (`jaxvo.host.recording`), read back with Rerun's own reader.
+"""The Rerun recording of a run (`jaxvo.host.writers.recording`), read back with Rerun's own reader.
 
 A few synthetic frames are run with ``jaxvo run --rerun-save``; the ``.rrd`` is read with
 ``rerun.chunk.RrdReader`` (rerun-sdk's reader, not our code): every entity is there, the
@@ -95,7 +95,7 @@ def test_recording_holds_every_entity_one_pose_per_frame_and_the_files_poses(
 
 def test_odometry_logs_through_an_attached_logger(tmp_path):
     _rerun()
-    from jaxvo.host.recording import RerunLogger
+    from jaxvo.host.writers.recording import RerunLogger
     from jaxvo.odometry import Odometry
 
     seq = make_sequence("handheld_fast", frames=3, seed=0)
@@ -111,7 +111,7 @@ def test_odometry_logs_through_an_attached_logger(tmp_path):
 
 def test_a_missing_rerun_is_one_line_naming_the_extra(seq_dir, tmp_path, capsys, monkeypatch):
     monkeypatch.setitem(sys.modules, "rerun", None)  # `import rerun` raises ImportError
-    from jaxvo.host.recording import RerunLogger
+    from jaxvo.host.writers.recording import RerunLogger
 
     with pytest.raises(InputError, match=r"jaxvo\[viz\]"):
         RerunLogger(save=tmp_path / "x.rrd")
@@ -129,8 +129,8 @@ _FAKE_RUN = """
 import sys
 from types import SimpleNamespace
 import numpy as np
-from jaxvo.host.camera import Intrinsics
-from jaxvo.host.recording import RerunLogger
+from jaxvo.host.frontend.camera import Intrinsics
+from jaxvo.host.writers.recording import RerunLogger
 
 def frames(logger, n):
     logger.setup(Intrinsics(525.0, 525.0, 31.5, 23.5), 16)
@@ -160,7 +160,7 @@ def test_a_logger_never_closed_keeps_every_pose(tmp_path):
 
 def test_the_with_form_writes_whole_or_leaves_the_earlier_file(tmp_path):
     _rerun()
-    from jaxvo.host.recording import RerunLogger
+    from jaxvo.host.writers.recording import RerunLogger
 
     namespace = {}
     exec(_FAKE_RUN, namespace)  # noqa: S102 (the helper above, shared with the child)
@@ -182,7 +182,7 @@ def test_a_full_disk_or_a_missing_folder_is_one_line_naming_the_file(tmp_path):
     """A full disk raised Rerun's 'File-writer thread shut down prematurely'; a missing
     folder Rerun's own RuntimeError."""
     _rerun()
-    from jaxvo.host.recording import RerunLogger
+    from jaxvo.host.writers.recording import RerunLogger
 
     with pytest.raises(OSError, match="No space left on device") as got:
         RerunLogger(save="/dev/full")
@@ -224,7 +224,7 @@ def test_a_recording_that_fails_mid_run_keeps_the_trajectory(seq_dir, tmp_path, 
     Ctrl-C: one line naming the recording, exit 2, the trajectory with the poses computed,
     the earlier recording as it was."""
     _rerun()
-    from jaxvo.host import recording
+    from jaxvo.host.writers import recording
 
     traj, rrd = tmp_path / "t.txt", tmp_path / "r.rrd"
     rrd.write_bytes(b"an earlier recording")
@@ -262,8 +262,8 @@ def test_a_disk_that_fills_at_the_end_of_the_recording_is_said_and_the_process_e
         "import sys\n"
         "from types import SimpleNamespace\n"
         "import numpy as np\n"
-        "from jaxvo.host.camera import Intrinsics\n"
-        "from jaxvo.host.recording import RerunLogger\n"
+        "from jaxvo.host.frontend.camera import Intrinsics\n"
+        "from jaxvo.host.writers.recording import RerunLogger\n"
         f"path = {str(mount / 'r.rrd')!r}\n"
         "rng = np.random.default_rng(0)\n"
         "def run():\n"
@@ -298,7 +298,7 @@ def test_a_disk_that_fills_at_the_end_of_the_recording_is_said_and_the_process_e
 
 def test_loggers_that_are_no_loggers_and_a_viewer_that_cannot_start(tmp_path, monkeypatch):
     _rerun()
-    from jaxvo.host import recording
+    from jaxvo.host.writers import recording
     from jaxvo.odometry import Odometry
 
     for bad in ("run.rrd", object()):  # AttributeError: ... no attribute 'setup'

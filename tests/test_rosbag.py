@@ -18,9 +18,9 @@ from rosbags.typesys import Stores, get_typestore
 
 from jaxvo.cli.main import main
 from jaxvo.errors import InputError
-from jaxvo.host.camera import Distortion, Intrinsics
-from jaxvo.host.io import open_sequence
-from jaxvo.host.rosbag import TUM_TOPICS, BagSequence, colour_bgr, depth_m
+from jaxvo.host.frontend.camera import Distortion, Intrinsics
+from jaxvo.host.readers.io import open_sequence
+from jaxvo.host.readers.rosbag import TUM_TOPICS, BagSequence, colour_bgr, depth_m
 from jaxvo.synth.scenes import make_sequence
 from jaxvo.trajectory import read_trajectory
 

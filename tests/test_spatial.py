@@ -488,7 +488,7 @@ def test_a_near_object_motion_does_not_swallow_the_far_wall():
     were found in 7 of the 16 runs and the wall was never apart."""
     from jaxvo.core.noise import NoiseScale
     from jaxvo.evaluation.scores import ids_at_grid
-    from jaxvo.host.flow import flows_for_sequence
+    from jaxvo.host.frontend.flow import flows_for_sequence
     from jaxvo.synth.scenes import make_sequence
 
     seq = make_sequence("fixed_camera_2", frames=48, seed=0)

@@ -461,7 +461,7 @@ def test_an_interrupted_study_resumes_where_it_stopped(tiny, tmp_path):
 
 
 def test_cli_interrupted_keeps_the_tables_of_what_finished(tiny, tmp_path, monkeypatch, capsys):
-    from jaxvo.host.progress import Progress
+    from jaxvo.host.services.progress import Progress
 
     _, path, root, first = tiny
     calls = []
@@ -488,7 +488,7 @@ def test_cli_ctrl_c_stops_after_the_current_call_and_exits_130(tiny, tmp_path, m
     import signal
 
     import jaxvo.cli.main
-    from jaxvo.host.progress import Progress
+    from jaxvo.host.services.progress import Progress
 
     _, path, root, first = tiny
     quieted = []
@@ -631,7 +631,7 @@ def test_a_dropped_frame_scores_as_jaxvo_run_scores_it(tmp_path):
     compiled."""
     import cv2
 
-    from jaxvo.host.io import open_sequence
+    from jaxvo.host.readers.io import open_sequence
     from jaxvo.odometry import run_sequence
     from jaxvo.synth.scenes import make_sequence, write_sequence
 
@@ -665,7 +665,7 @@ def test_a_study_with_keyframes_scores_as_jaxvo_run_keyframes(tmp_path, capsys):
     keyframe (the window refines); frame to frame the study's ATE there is 0.50 mm, with
     keyframes 0.17 mm, so a study that ran frame to frame could not pass. The command's
     step is the one ``jaxvo run --keyframes`` compiles in test_cli_run.py."""
-    from jaxvo.host.io import open_sequence
+    from jaxvo.host.readers.io import open_sequence
     from jaxvo.synth.scenes import make_sequence, write_sequence
     from jaxvo.trajectory import read_trajectory
 

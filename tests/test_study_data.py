@@ -26,7 +26,7 @@ def test_the_flow_reads_only_its_options_and_they_key_the_cache():
     import dataclasses
 
     from jaxvo.config import StepOptions
-    from jaxvo.host.flow import GridFlowTracker, sequence_flows
+    from jaxvo.host.frontend.flow import GridFlowTracker, sequence_flows
     from jaxvo.synth.scenes import make_sequence
 
     seq = make_sequence("handheld_fast", frames=3, seed=0)

@@ -6,8 +6,8 @@ import numpy as np
 import pytest
 
 from jaxvo.errors import InputError
-from jaxvo.host.camera import backproject, project
-from jaxvo.host.io import TumSequence, data_root
+from jaxvo.host.frontend.camera import backproject, project
+from jaxvo.host.readers.io import TumSequence, data_root
 from jaxvo.synth import scenes as synth
 from jaxvo.trajectory import read_trajectory
 

@@ -3,7 +3,7 @@
 ``get`` downloads the publisher's archive with a progress line (resuming a download that
 stopped, checking its size and, with ``--sha256``, its checksum), unpacks it safely into
 ``--dir`` in the layout ``jaxvo run`` reads, and prints the command to run next
-(:mod:`jaxvo.host.datasets`).
+(:mod:`jaxvo.host.readers.datasets`).
 """
 
 from __future__ import annotations
@@ -56,7 +56,7 @@ def add_arguments(p: argparse.ArgumentParser) -> None:
 
 def run(args: argparse.Namespace) -> int:
     from jaxvo.errors import InputError
-    from jaxvo.host.datasets import DATASETS, catalogue
+    from jaxvo.host.readers.datasets import DATASETS, catalogue
 
     if args.dataset is not None and args.dataset not in DATASETS:
         raise InputError(f"unknown dataset {args.dataset!r}: {' or '.join(DATASETS)}")
@@ -70,9 +70,9 @@ def run(args: argparse.Namespace) -> int:
 
 def _get(args: argparse.Namespace) -> int:
     from jaxvo.errors import InputError
-    from jaxvo.host.datasets import check_sha256, download, find, unpack
-    from jaxvo.host.io import output_folder
-    from jaxvo.host.progress import Progress
+    from jaxvo.host.readers.datasets import check_sha256, download, find, unpack
+    from jaxvo.host.readers.io import output_folder
+    from jaxvo.host.services.progress import Progress
 
     entry = find(args.dataset, args.name, bag=args.bag, mirror=args.mirror)
     if args.sha256 is not None and not re.fullmatch(r"[0-9a-fA-F]{64}", args.sha256):

@@ -31,7 +31,7 @@ def add_arguments(p: argparse.ArgumentParser) -> None:
 
 def _peer_list(text: str) -> list[str]:
     from jaxvo.errors import InputError
-    from jaxvo.host.peers import available_peers
+    from jaxvo.host.services.peers import available_peers
 
     names = available_peers()
     if text == "none":
@@ -63,8 +63,8 @@ def _check(args: argparse.Namespace, cfg) -> tuple[list[str], object]:
     from pathlib import Path
 
     from jaxvo.errors import InputError, check_seed
-    from jaxvo.host.io import check_outputs, output_folder
-    from jaxvo.host.memory import (
+    from jaxvo.host.readers.io import check_outputs, output_folder
+    from jaxvo.host.services.memory import (
         FRAME_BYTES_PER_PIXEL,
         SYNTH_BYTES_PER_FRAME,
         check_memory,
@@ -103,9 +103,9 @@ def prepare(args: argparse.Namespace):
 def run(args: argparse.Namespace, prepared=None) -> int:
     from jaxvo.cli.main import interrupt_at_safe_points
     from jaxvo.evaluation.scores import trajectory_scores
-    from jaxvo.host.io import InMemorySequence, write_trajectory
-    from jaxvo.host.peers import run_peer
-    from jaxvo.host.progress import Progress
+    from jaxvo.host.readers.io import InMemorySequence, write_trajectory
+    from jaxvo.host.services.peers import run_peer
+    from jaxvo.host.services.progress import Progress
     from jaxvo.synth.scenes import make_sequence
 
     cfg, peers, out = prepared or prepare(args)
@@ -198,8 +198,8 @@ def _write_outputs(out, seq, res, cfg) -> None:
     """The ground truth, jaxvo's trajectory and six overlays into ``out``."""
     import jax
 
-    from jaxvo.host.io import write_image, write_trajectory
-    from jaxvo.host.masks import overlay_panel
+    from jaxvo.host.readers.io import write_image, write_trajectory
+    from jaxvo.host.writers.masks import overlay_panel
 
     write_trajectory(out / "groundtruth.txt", seq.groundtruth)
     write_trajectory(out / "jaxvo.txt", res.trajectory)

@@ -139,7 +139,7 @@ def _delta_unit(text: str) -> str:
 def _outputs(args) -> None:
     """Check --save_results and --plot before any work (InputError)."""
     from jaxvo.evaluation.evo_results import require_matplotlib
-    from jaxvo.host.io import check_outputs, output_file
+    from jaxvo.host.readers.io import check_outputs, output_file
 
     given = {option: Path(p) for option, p in (("--save_results", args.save_results),
                                                ("--plot", args.plot)) if p}
@@ -172,7 +172,7 @@ def run(args: argparse.Namespace) -> int:
 
     from jaxvo.errors import InputError
     from jaxvo.evaluation import evo_results, metrics
-    from jaxvo.host.outputs import write_bytes
+    from jaxvo.host.writers.outputs import write_bytes
     from jaxvo.trajectory import read_trajectory
 
     if not (math.isfinite(args.max_diff) and args.max_diff >= 0):

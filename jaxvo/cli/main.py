@@ -25,7 +25,7 @@ from collections.abc import Iterator
 
 from jaxvo import __version__
 from jaxvo.errors import InputError
-from jaxvo.host.compile_cache import add_compile_cache_options, setup_compile_cache
+from jaxvo.host.services.compile_cache import add_compile_cache_options, setup_compile_cache
 
 EXIT_OK, EXIT_NOTHING_ESTIMATED, EXIT_BAD_INPUT, EXIT_INTERRUPTED = 0, 1, 2, 130
 EXIT_PIPE = 141  # 128 + SIGPIPE: the reader of standard output closed it
@@ -135,7 +135,7 @@ def interrupt_at_safe_points(*, safe: bool = True) -> Iterator[StopRequest]:
     (a command with no JAX under way) the first one raises ``KeyboardInterrupt`` at once,
     as Python does. A second one ends the process at once with 128 + the signal's number,
     without the interpreter's clean-up that crashed: the outputs being written are settled
-    first (:func:`jaxvo.host.outputs.abort_pending`: the trajectory, whole at every pose,
+    first (:func:`jaxvo.host.writers.outputs.abort_pending`: the trajectory, whole at every pose,
     is kept; a file half-written is not). Off the main thread signals are left as they are;
     a signal the process started with ignored stays ignored, each on its own: a shell
     without job control starts a background job (``jaxvo run ... &`` in a script) with
@@ -146,7 +146,7 @@ def interrupt_at_safe_points(*, safe: bool = True) -> Iterator[StopRequest]:
     if _CURRENT is not None:
         yield _CURRENT
         return
-    from jaxvo.host.outputs import abort_pending
+    from jaxvo.host.writers.outputs import abort_pending
 
     stop = StopRequest()
 
@@ -214,8 +214,8 @@ def _standard_streams() -> None:
     """Standard input, output and error that are closed (``>&-``) become the null device,
     so that no file this command opens takes their descriptor (a library's message on fd 2
     would land in it) and printing ends nowhere quietly. A closed standard output is
-    remembered: ``--out -`` is refused then (:func:`jaxvo.host.outputs.output_file`)."""
-    from jaxvo.host import outputs
+    remembered: ``--out -`` is refused then (:func:`jaxvo.host.writers.outputs.output_file`)."""
+    from jaxvo.host.writers import outputs
 
     for fd in (0, 1, 2):
         try:

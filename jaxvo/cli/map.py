@@ -1,7 +1,7 @@
 """``jaxvo map SEQ_DIR --traj traj.txt --dynamic-masks DIR --out map.ply``: the static map.
 
 Every frame of the trajectory has its depth fused into one voxel-filtered point cloud with
-the pixels of its dynamic mask left out (:mod:`jaxvo.host.mapping`); beside it the same map
+the pixels of its dynamic mask left out (:mod:`jaxvo.host.writers.mapping`); beside it the same map
 with nothing left out, where the movers leave smeared ghosts, and a picture of both from
 above and from the first camera. ``jaxvo run --map map.ply`` does the same in one go.
 """
@@ -73,9 +73,9 @@ def add_arguments(p: argparse.ArgumentParser) -> None:
 
 
 def add_map_options(p: argparse.ArgumentParser) -> None:
-    """The fusion's options, at :class:`~jaxvo.host.mapping.MapOptions`' defaults (which
+    """The fusion's options, at :class:`~jaxvo.host.writers.mapping.MapOptions`' defaults (which
     ``jaxvo run --map`` takes)."""
-    from jaxvo.host.mapping import MapOptions
+    from jaxvo.host.writers.mapping import MapOptions
 
     d = MapOptions()
     p.add_argument("--voxel", type=float, default=d.voxel, metavar="M",
@@ -93,8 +93,8 @@ def add_map_options(p: argparse.ArgumentParser) -> None:
 
 
 def map_options(args: argparse.Namespace):
-    """The :class:`~jaxvo.host.mapping.MapOptions` the command line gives."""
-    from jaxvo.host.mapping import MapOptions
+    """The :class:`~jaxvo.host.writers.mapping.MapOptions` the command line gives."""
+    from jaxvo.host.writers.mapping import MapOptions
 
     return MapOptions(voxel=args.voxel, max_depth=args.max_depth, grow=args.grow,
                       vote_voxel=args.vote_voxel, vote_share=args.vote_share,
@@ -112,15 +112,15 @@ def open_mapped(args: argparse.Namespace):
     first lines (:func:`jaxvo.run.run_header`): one of another sequence is refused, and
     its camera and depth scale are used unless an option gives them."""
     from jaxvo.errors import InputError
-    from jaxvo.host.camera import intrinsics_option
-    from jaxvo.host.frames import describe
-    from jaxvo.host.io import open_sequence
+    from jaxvo.host.frontend.camera import intrinsics_option
+    from jaxvo.host.frontend.frames import describe
+    from jaxvo.host.readers.io import open_sequence
     from jaxvo.run import read_run_header
     from jaxvo.trajectory import read_trajectory
 
     camera = intrinsics_option(args.intrinsics) if args.intrinsics else args.camera
     if args.depth_scale is not None:
-        from jaxvo.host.camera import check_depth_scale_value
+        from jaxvo.host.frontend.camera import check_depth_scale_value
 
         check_depth_scale_value(args.depth_scale, name="--depth-scale")
     traj = read_trajectory(args.traj)
@@ -153,9 +153,9 @@ def open_mapped(args: argparse.Namespace):
 
 def run(args: argparse.Namespace) -> int:
     from jaxvo.errors import InputError, warn
-    from jaxvo.host.io import check_outputs, output_file
-    from jaxvo.host.mapping import make_maps, map_outputs, mask_reader
-    from jaxvo.host.outputs import file_id, stream_target
+    from jaxvo.host.readers.io import check_outputs, output_file
+    from jaxvo.host.writers.mapping import make_maps, map_outputs, mask_reader
+    from jaxvo.host.writers.outputs import file_id, stream_target
 
     options = map_options(args)
     options.check(names=_NAMES)
@@ -202,7 +202,7 @@ def _logger(args: argparse.Namespace):
 
     if not args.rerun_save:
         return contextlib.nullcontext(None)
-    from jaxvo.host.recording import RerunLogger, import_rerun
+    from jaxvo.host.writers.recording import RerunLogger, import_rerun
 
     import_rerun("--rerun-save")
     return RerunLogger(save=args.rerun_save, what="--rerun-save")

@@ -5,7 +5,7 @@ Argument handling and printing over the library's run (:mod:`jaxvo.run`:
 :func:`~jaxvo.run.record_run` runs the streaming odometry and records every output),
 as evo's ``main_ape.py`` is over ``ape()``. The per-frame step is compiled on the first run
 on a machine and loaded from the persistent compile cache afterwards
-(:mod:`jaxvo.host.compile_cache`); the terminal says when it compiles.
+(:mod:`jaxvo.host.services.compile_cache`); the terminal says when it compiles.
 """
 
 from __future__ import annotations
@@ -14,7 +14,7 @@ import argparse
 import json
 import sys
 
-from jaxvo.host.bagout import BagOptions
+from jaxvo.host.writers.bagout import BagOptions
 from jaxvo.run import PreparedRun, RunOptions, prepare_run, record_run, summary_lines
 
 # command-line option -> the Config field it sets (named so in error messages)
@@ -63,7 +63,7 @@ output: the trajectory is camera-to-world in TUM format, one pose per frame kept
 
 def add_arguments(p: argparse.ArgumentParser) -> None:
     from jaxvo.cli.main import EXIT_STATUSES, add_seed_option, add_summary_options
-    from jaxvo.host.camera import PRESETS
+    from jaxvo.host.frontend.camera import PRESETS
 
     p.epilog = EPILOG + "\n" + EXIT_STATUSES
     p.formatter_class = argparse.RawDescriptionHelpFormatter
@@ -139,7 +139,7 @@ def add_arguments(p: argparse.ArgumentParser) -> None:
 
 
 def _add_bag_arguments(g) -> None:
-    from jaxvo.host.bagout import CAMERA_FRAME, STORAGES, WORLD_FRAME
+    from jaxvo.host.writers.bagout import CAMERA_FRAME, STORAGES, WORLD_FRAME
 
     g.add_argument("--out-bag", metavar="DIR",
                    help="also write a ROS 2 bag (a new folder): the odometry "
@@ -162,7 +162,7 @@ def options(args: argparse.Namespace) -> RunOptions:
     :func:`jaxvo.run.prepare_run`)."""
     from jaxvo.config import Config
     from jaxvo.errors import InputError
-    from jaxvo.host.camera import intrinsics_option
+    from jaxvo.host.frontend.camera import intrinsics_option
 
     if args.window is not None:
         raise InputError("--window was removed: --keyframes refines a window over the latest "

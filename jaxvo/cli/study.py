@@ -62,7 +62,7 @@ def run(args: argparse.Namespace, prepared=None) -> int:
     import time
 
     from jaxvo.cli.main import interrupt_at_safe_points, quiet_interrupts_at_exit
-    from jaxvo.host.progress import Progress
+    from jaxvo.host.services.progress import Progress
     from jaxvo.study import runner as study
     from jaxvo.study.report import write_report
 

@@ -45,8 +45,8 @@ def prepare(args: argparse.Namespace):
 
     from jaxvo.config import Config
     from jaxvo.errors import InputError, check_seed
-    from jaxvo.host.io import check_outputs, output_folder
-    from jaxvo.host.memory import (
+    from jaxvo.host.readers.io import check_outputs, output_folder
+    from jaxvo.host.services.memory import (
         SYNTH_BYTES_PER_FRAME,
         SYNTH_BYTES_PER_OBJECT_FRAME,
         check_memory,
@@ -62,7 +62,7 @@ def prepare(args: argparse.Namespace):
                          exposure_change=args.exposure_change)
     reads, real = [], None
     if args.composite:
-        from jaxvo.host.io import open_sequence
+        from jaxvo.host.readers.io import open_sequence
 
         real = open_sequence(args.composite)
         frames = len(real) if args.frames is None else min(args.frames, len(real))

@@ -1,7 +1,7 @@
 """What the host hands the per-frame step: the types of the host/device boundary.
 
-The host computes them with numpy and OpenCV (:mod:`jaxvo.host.flow`,
-:mod:`jaxvo.host.keyframes`); the step (:func:`jaxvo.core.pipeline.step`) reads them as
+The host computes them with numpy and OpenCV (:mod:`jaxvo.host.frontend.flow`,
+:mod:`jaxvo.host.frontend.keyframes`); the step (:func:`jaxvo.core.pipeline.step`) reads them as
 device arrays. Defined here, on the device side, so that the step's arguments carry their
 type and neither the core nor a study imports OpenCV to name them. Numpy only: no JAX, no
 OpenCV. Shapes are fixed (``n = rows * cols`` grid points), invalid entries zeroed.
@@ -18,7 +18,7 @@ from jaxvo.status import Status
 
 class GridFlow(NamedTuple):
     """Grid flow of one image pair (host -> device): numpy arrays from
-    :class:`jaxvo.host.flow.GridFlowTracker`, the same fields as JAX arrays inside the step;
+    :class:`jaxvo.host.frontend.flow.GridFlowTracker`, the same fields as JAX arrays inside the step;
     see docs/architecture.md."""
 
     pts_prev: np.ndarray  # (n, 3) float32 metres, previous camera frame (0 where invalid)
@@ -44,7 +44,7 @@ class GridFlow(NamedTuple):
 
 class KeyframeFlow(NamedTuple):
     """The keyframes' grid points tracked into the current image (host -> device), from
-    :class:`jaxvo.host.keyframes.KeyframeTracker` (``Config.keyframes``)."""
+    :class:`jaxvo.host.frontend.keyframes.KeyframeTracker` (``Config.keyframes``)."""
 
     pts_kf: np.ndarray  # (n, 3) float32 metres, the latest keyframe's points (0 where invalid)
     pts_cur: np.ndarray  # (n, 3) float32 metres, the same in the current camera frame
@@ -106,7 +106,7 @@ def invalid_keyframe_flow(n: int, window: int) -> KeyframeFlow:
 def keyframe_index(grid: tuple[int, int], stride: int) -> np.ndarray:
     """The grid points (row-major indices) a keyframe offers: every ``stride``-th row and
     column of the ``(rows, cols)`` grid. The one rule of both sides: the host's
-    :class:`jaxvo.host.keyframes.KeyframeTracker` tracks these points, the step reads them
+    :class:`jaxvo.host.frontend.keyframes.KeyframeTracker` tracks these points, the step reads them
     (:mod:`jaxvo.core.keyframe`)."""
     rows, cols = grid
     r, c = np.meshgrid(np.arange(0, rows, stride), np.arange(0, cols, stride), indexing="ij")

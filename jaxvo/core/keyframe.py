@@ -3,7 +3,7 @@ ego-motion, and their poses and points refined together (device side; our additi
 
 Frame to frame, every pair adds its error to the pose chain, also while the camera hovers
 over the same view. The host tracks the latest keyframe's grid points into each new image
-(:class:`jaxvo.host.keyframes.KeyframeTracker`); here those tracks join the pair's points
+(:class:`jaxvo.host.frontend.keyframes.KeyframeTracker`); here those tracks join the pair's points
 in one ego-motion fit. A keyframe point ``P`` enters as the pair ``(T_prev_kf P, p_cur)``
 with ``T_prev_kf = inv(T_w_prev) T_w_kf``: the same rigid motion ``T_cur_prev`` explains
 it, so the fit, its robust weights and its noise model are those of the pair
@@ -129,7 +129,7 @@ def join_points(a: Points, b: Points) -> Points:
 class SupportInputs(NamedTuple):
     """What the keyframe's support of the ego-motion reads (:func:`keyframe_support`)."""
 
-    kf: KeyframeFlow  # the pair's keyframe flow (jaxvo.host.keyframes.KeyframeTracker)
+    kf: KeyframeFlow  # the pair's keyframe flow (jaxvo.host.frontend.keyframes.KeyframeTracker)
     T_w_prev: jax.Array  # (4, 4) float32 the previous camera's pose
     pts: Points  # the pair's points
     # the background's output (jaxvo.core.background.BackgroundOut): its use and belief
@@ -405,7 +405,7 @@ def _learn_first(state: KeyframeState, kf, index) -> KeyframeState:
 class KeyframeInputs(NamedTuple):
     """What the keyframe window reads after the pair (:func:`update_keyframe`)."""
 
-    kf: KeyframeFlow  # the pair's keyframe flow (jaxvo.host.keyframes.KeyframeTracker)
+    kf: KeyframeFlow  # the pair's keyframe flow (jaxvo.host.frontend.keyframes.KeyframeTracker)
     T_w_c: jax.Array  # (4, 4) float32 the current camera's pose from the ego-motion
     static: jax.Array  # (n,) bool grid points of the current image the temporal model holds static
     # the pair's ego-motion, the previous camera's pose, the pair's points and those the

@@ -17,7 +17,7 @@ confidence ``p`` is ``d2 <= chi2_3(p)``, at every depth and for every sensor, in
 millimetre thresholds tuned per scene.
 
 The two scales are not constants of a sensor: the tracker's noise grows with motion blur,
-the depth noise after :func:`jaxvo.host.flow.refine_depth` depends on the sensor's spatial
+the depth noise after :func:`jaxvo.host.frontend.flow.refine_depth` depends on the sensor's spatial
 correlation, and colour-to-depth misregistration adds to both (measured against ground
 truth by ``bench/calibrate_noise.py``; the figures in docs/report/core_decisions.md). Every test uses the model of
 :class:`jaxvo.config.Params`' ``pixel_sigma`` and ``depth_coeff`` (a real sensor's values,

@@ -145,7 +145,7 @@ def step(state: PipelineState, flow: GridFlow, key, params: Params, *, cfg: Step
       cfg: the step's options (``Config.step``), static; grid: static ``(rows, cols)``.
       batch_axis: the vmapped axes' name(s) in a study, :func:`jaxvo.core.spatial.segment`.
       keyframe: with ``cfg.keyframes`` (required then), the pair's
-        :class:`~jaxvo.core.inputs.KeyframeFlow` (:class:`jaxvo.host.keyframes.KeyframeTracker`).
+        :class:`~jaxvo.core.inputs.KeyframeFlow` (:class:`jaxvo.host.frontend.keyframes.KeyframeTracker`).
     """
     if cfg.keyframes != (keyframe is not None):
         raise ValueError("the step takes a KeyframeFlow exactly when cfg.keyframes is set "
@@ -304,7 +304,7 @@ def run_scan(flows, key, params, T_w_c0, *, cfg: StepOptions, grid, keyframes=No
       params: numeric settings.
       T_w_c0: (4, 4) pose of the first camera.
       keyframes: with ``cfg.keyframes``, the ``KeyframeFlow`` of every pair stacked as
-        ``flows`` (:func:`jaxvo.host.flow.sequence_flows`); None: frame to frame only.
+        ``flows`` (:func:`jaxvo.host.frontend.flow.sequence_flows`); None: frame to frame only.
       cfg: the step's options (``Config.step``); grid: ``(rows, cols)``.
 
     Returns:

@@ -40,7 +40,7 @@ def frame_points(pts_prev, pts_cur, valid, params, *, focal, scale: NoiseScale |
     Points that are non-finite or have non-positive depth count as invalid and are zeroed.
     ``scale`` is the sensor noise (:class:`~jaxvo.core.noise.NoiseScale`), by default
     ``params``' starting one; ``fb_error`` and ``depth_slope`` (n,) the tracker's quality of
-    each point (:class:`jaxvo.host.flow.GridFlow`; see :func:`jaxvo.core.noise.point_noise`),
+    each point (:class:`jaxvo.host.frontend.flow.GridFlow`; see :func:`jaxvo.core.noise.point_noise`),
     by default none.
     """
     finite = jnp.all(jnp.isfinite(pts_prev), axis=1) & jnp.all(jnp.isfinite(pts_cur), axis=1)

@@ -414,7 +414,7 @@ def segment(key, pts_prev, pts_cur, valid, params, *, cfg, grid, focal=525.0, sc
       params: :class:`jaxvo.config.Params`; numeric fields may be traced arrays.
       cfg: :class:`jaxvo.config.Config` (static).
       grid: (rows, cols) static.
-      focal: () the camera's focal length, pixels (:class:`jaxvo.host.flow.GridFlow` ``focal``).
+      focal: () the camera's focal length, pixels (:class:`jaxvo.host.frontend.flow.GridFlow` ``focal``).
       scale: the sensor noise (:class:`jaxvo.core.noise.NoiseScale`), by default the starting
         values of ``params`` (the pipeline passes its current one).
       batch_axis: the name of a ``vmap`` axis over frames (or a tuple of names), when

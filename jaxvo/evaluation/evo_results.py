@@ -19,7 +19,7 @@ mean and a band of one std about the mean; and the trajectory (``plot_mode`` axe
 ground truth dashed grey and the estimate coloured by its error (``jet``, min to max).
 
 Both are made in memory (:func:`result_zip`, :func:`result_figure`, :func:`figure_bytes`);
-the host writes them (``jaxvo.host.outputs.write_bytes``: whole or not at all), so that the
+the host writes them (``jaxvo.host.writers.outputs.write_bytes``: whole or not at all), so that the
 evaluation imports nothing of the host.
 """
 

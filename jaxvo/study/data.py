@@ -22,8 +22,8 @@ import numpy as np
 
 from jaxvo.config import Config, FlowOptions, grid_shape
 from jaxvo.errors import InputError
-from jaxvo.host.io import groundtruth_of_frames
-from jaxvo.host.outputs import OutputFile
+from jaxvo.host.readers.io import groundtruth_of_frames
+from jaxvo.host.writers.outputs import OutputFile
 from jaxvo.study.spec import SequenceSpec
 from jaxvo.trajectory import Trajectory
 
@@ -44,7 +44,7 @@ class SequenceData(NamedTuple):
 
 def open_study_sequence(s: SequenceSpec):
     """The sequence ``s`` names (frames are read or rendered lazily, when flow asks)."""
-    from jaxvo.host.io import open_sequence
+    from jaxvo.host.readers.io import open_sequence
     from jaxvo.synth.scenes import DEFAULT_FRAMES, composite_sequence, make_sequence
 
     if s.path is None:
@@ -104,7 +104,7 @@ def sequence_identity(s: SequenceSpec) -> dict:
     ground truth and images of the frames used by size and modification time (a depth
     image rewritten under the same lists is another sequence); a bag's files by size and
     modification time (too large to hash)."""
-    from jaxvo.host.rosbag import is_bag
+    from jaxvo.host.readers.rosbag import is_bag
 
     ident: dict = s._asdict()
     ident.pop("label")
@@ -118,7 +118,7 @@ def sequence_identity(s: SequenceSpec) -> dict:
     if is_bag(path):
         files = [path] if path.is_file() else sorted(path.iterdir())
     else:
-        from jaxvo.host.io import open_sequence
+        from jaxvo.host.readers.io import open_sequence
 
         lists = sorted(path.glob("*.txt"))
         ident["lists"] = hashlib.sha256(b"".join(p.read_bytes() for p in lists)).hexdigest()
@@ -153,7 +153,7 @@ def sequence_data(s: SequenceSpec, cfg: Config, cache_dir: str | Path | None, *,
       ``(data, cached)``: ``cached`` says whether it came from ``cache_dir``.
     """
     from jaxvo.core.inputs import GridFlow, KeyframeFlow
-    from jaxvo.host.flow import sequence_flows
+    from jaxvo.host.frontend.flow import sequence_flows
     from jaxvo.odometry import choose_start_pose
 
     path = None

@@ -25,7 +25,7 @@ import numpy as np
 
 from jaxvo.config import Params
 from jaxvo.evaluation.evo_results import figure_bytes
-from jaxvo.host.outputs import write_bytes, write_text
+from jaxvo.host.writers.outputs import write_bytes, write_text
 from jaxvo.study.spec import METRICS, StudySpec
 
 
@@ -202,7 +202,7 @@ def write_plot(spec: StudySpec, summary: list[dict], path: Path) -> str | None:
 def write_report(spec: StudySpec, rows: list[dict], out_dir: str | Path, *,
                  plot: bool = True) -> dict[str, str]:
     """Write the table, the summary and the plot of ``rows`` (runs of ``spec``), each file
-    whole or not at all (:class:`jaxvo.host.outputs.OutputFile`; a failure, e.g. a full
+    whole or not at all (:class:`jaxvo.host.writers.outputs.OutputFile`; a failure, e.g. a full
     disk, raises ``OSError`` naming the file).
 
     Returns:

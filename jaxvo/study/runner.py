@@ -35,7 +35,7 @@ import numpy as np
 
 from jaxvo.config import Config, check_config
 from jaxvo.errors import InputError
-from jaxvo.host.outputs import write_text
+from jaxvo.host.writers.outputs import write_text
 from jaxvo.status import Status
 from jaxvo.study.data import (
     FLOW_FORMAT,
@@ -372,8 +372,8 @@ def check_study(spec: StudySpec, out_dir: str | Path, flow_cache: str | Path,
     Raises:
       InputError: one line naming the sequence, setting or folder.
     """
-    from jaxvo.host.io import check_outputs, first_readable
-    from jaxvo.host.memory import (
+    from jaxvo.host.readers.io import check_outputs, first_readable
+    from jaxvo.host.services.memory import (
         SYNTH_BYTES_PER_FRAME,
         SYNTH_BYTES_PER_OBJECT_FRAME,
         check_memory,
@@ -389,7 +389,7 @@ def check_study(spec: StudySpec, out_dir: str | Path, flow_cache: str | Path,
         if s.path is None:
             frames, (height, width) = DEFAULT_FRAMES if s.frames is None else s.frames, (480, 640)
         else:
-            from jaxvo.host.io import open_sequence
+            from jaxvo.host.readers.io import open_sequence
 
             real = open_sequence(s.path, camera=s.camera)
             idx = range(0, len(real), s.step)

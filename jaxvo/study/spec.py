@@ -215,7 +215,7 @@ def _is_int(x) -> bool:
 
 def _parse_sequences(entries, bad, base_dir: Path, *,
                      check_folders: bool) -> tuple[SequenceSpec, ...]:
-    from jaxvo.host.camera import PRESETS
+    from jaxvo.host.frontend.camera import PRESETS
     from jaxvo.synth.scenes import SCENARIOS
 
     if not isinstance(entries, list) or not entries:
@@ -264,7 +264,7 @@ def _parse_sequences(entries, bad, base_dir: Path, *,
             if folder is None and not check_folders:
                 folder = given
             elif folder is None:
-                from jaxvo.host.io import data_root
+                from jaxvo.host.readers.io import data_root
 
                 raise bad(f"{at}.{kinds[0]}", f"no folder {given!r} beside the spec "
                                               f"({base_dir}) or under the data root "
@@ -285,8 +285,8 @@ def _parse_sequences(entries, bad, base_dir: Path, *,
 def _resolve_folder(given: str, base_dir: Path) -> str | None:
     """A sequence folder (or ROS bag): as given when absolute, else beside the spec, else
     under the data root (None when there is none)."""
-    from jaxvo.host.io import data_root
-    from jaxvo.host.rosbag import is_bag
+    from jaxvo.host.readers.io import data_root
+    from jaxvo.host.readers.rosbag import is_bag
 
     p = Path(given).expanduser()
     for folder in ([p] if p.is_absolute() else [base_dir / p, data_root() / p]):

@@ -25,8 +25,8 @@ from pathlib import Path
 import numpy as np
 
 from jaxvo.errors import InputError
-from jaxvo.host.camera import Distortion, write_camera_file
-from jaxvo.host.io import TumSequence, write_trajectory
+from jaxvo.host.frontend.camera import Distortion, write_camera_file
+from jaxvo.host.readers.io import TumSequence, write_trajectory
 from jaxvo.synth.scenario import SCENARIOS, ObjectSpec, Scenario, SensorOptions
 from jaxvo.synth.sequence import (
     DEPTH_SCALE,
@@ -137,7 +137,7 @@ def composite_sequence(sequence: str | Path | TumSequence,
 def write_sequence(seq: SyntheticSequence, out_dir: str | Path, *,
                    progress: Callable[[int, int], None] | None = None) -> Path:
     """Write a sequence in the TUM layout plus masks and object trajectories, the folder
-    whole or not at all (:class:`jaxvo.host.outputs.OutputFolder`: written beside it and
+    whole or not at all (:class:`jaxvo.host.writers.outputs.OutputFolder`: written beside it and
     renamed into place when complete; an interrupted or failed write leaves no folder).
 
     Layout: ``rgb/`` (PNG), ``depth/`` (16-bit PNG, ``DEPTH_SCALE`` per metre, 0 = no
@@ -157,7 +157,7 @@ def write_sequence(seq: SyntheticSequence, out_dir: str | Path, *,
       InputError: ``out_dir`` holds files, or the timestamps collide.
       OSError: a file cannot be written, naming it (a full disk).
     """
-    from jaxvo.host.outputs import OutputFolder, write_image, write_text
+    from jaxvo.host.writers.outputs import OutputFolder, write_image, write_text
     from jaxvo.transforms import rotation_to_quat
 
     out = Path(out_dir)

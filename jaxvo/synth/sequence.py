@@ -17,8 +17,8 @@ import cv2
 import numpy as np
 
 from jaxvo.errors import InputError, check_seed
-from jaxvo.host.camera import PRESETS, Distortion, Intrinsics
-from jaxvo.host.io import Frame, TumSequence
+from jaxvo.host.frontend.camera import PRESETS, Distortion, Intrinsics
+from jaxvo.host.readers.io import Frame, TumSequence
 from jaxvo.synth.scenario import ObjectSpec, Scenario, SensorOptions
 from jaxvo.trajectory import Trajectory
 
@@ -261,7 +261,7 @@ _SAME_SURFACE = 0.02
 def _lens_maps(K: Intrinsics, lens: Distortion, height: int, width: int):
     """(map_x, map_y) (H, W) float32: the pinhole pixel each pixel of the image seen
     through ``lens`` shows (``cv2.remap``'s maps)."""
-    from jaxvo.host.distortion import undistort
+    from jaxvo.host.frontend.distortion import undistort
 
     v, u = np.mgrid[0:height, 0:width].astype(np.float64)
     xn = undistort(np.stack([u, v], axis=-1), K._replace(distortion=lens))

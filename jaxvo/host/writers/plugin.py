@@ -3,7 +3,7 @@
 Thesis Fig. 5.8 ("Proposed x DVO") hands the static / dynamic labels of the proposed method
 to a dense odometry, which then ignores the moving pixels. This module turns the labels of
 a run into one ``(H, W)`` bool mask per frame of the sequence (True = dynamic, ignore it);
-``~mask`` is the ``keep`` argument of :func:`jaxvo.host.peers.run_peer`.
+``~mask`` is the ``keep`` argument of :func:`jaxvo.host.services.peers.run_peer`.
 
 Anchoring. ``StepOutput`` ``k`` (the frame pair ``k -> k+1``) labels the grid of image ``k``,
 the previous image of the pair, where its flow was measured. So image ``k`` takes the
@@ -30,7 +30,7 @@ from collections.abc import Iterator
 
 import numpy as np
 
-from jaxvo.host.masks import dynamic_pixels
+from jaxvo.host.writers.masks import dynamic_pixels
 
 
 def _ids_of(result) -> np.ndarray:

@@ -1,6 +1,6 @@
 """The checks a tracked point passes on the host, shared by the pair tracker
-(:class:`jaxvo.host.flow.GridFlowTracker`) and the keyframe tracker
-(:class:`jaxvo.host.keyframes.KeyframeTracker`): LK converged inside the image, and the
+(:class:`jaxvo.host.frontend.flow.GridFlowTracker`) and the keyframe tracker
+(:class:`jaxvo.host.frontend.keyframes.KeyframeTracker`): LK converged inside the image, and the
 patches around both ends look alike (thesis section 2.2's similarity check).
 
 Host only: numpy and OpenCV, never traced.

@@ -3,7 +3,7 @@
 Read with ``rosbags`` (pure Python, no ROS install). A :class:`BagSequence` is a sequence as
 ``io.TumSequence`` is (``name``, ``intrinsics``, ``height``, ``width``, ``timestamps``,
 ``groundtruth``, ``__len__``, ``__getitem__ -> Frame``, lazy), so ``jaxvo run``, studies and
-everything downstream take a bag as they take a folder; :func:`jaxvo.host.io.open_sequence`
+everything downstream take a bag as they take a folder; :func:`jaxvo.host.readers.io.open_sequence`
 opens one when given a ``.bag`` file or a folder with ``metadata.yaml``.
 
 Topics: the TUM RGB-D bags' by default (:data:`TUM_TOPICS`); the camera info is the one
@@ -19,7 +19,7 @@ only when asked for, each found again by its bag time and its place among the to
 messages at that time (a converter may write every message at one bag time).
 
 A RealSense Viewer recording (librealsense's ``/device_0/sensor_*/...`` topics) is read
-through :mod:`jaxvo.host.realsense`: its colour and depth streams, their cameras, the depth
+through :mod:`jaxvo.host.readers.realsense`: its colour and depth streams, their cameras, the depth
 units and, where the depth is another camera's, the depth registered to the colour image.
 """
 
@@ -31,7 +31,7 @@ from pathlib import Path
 import numpy as np
 
 from jaxvo.errors import InputError
-from jaxvo.host.camera import (
+from jaxvo.host.frontend.camera import (
     Intrinsics,
     camera_info_distortion,
     camera_info_intrinsics,
@@ -39,8 +39,8 @@ from jaxvo.host.camera import (
     depth_metres,
     preset,
 )
-from jaxvo.host.frames import Frame, check_frame_size, frame_index, given_camera, preset_from_name
-from jaxvo.host.realsense import find_streams, image_message, is_realsense, register_depth
+from jaxvo.host.frontend.frames import Frame, check_frame_size, frame_index, given_camera, preset_from_name
+from jaxvo.host.readers.realsense import find_streams, image_message, is_realsense, register_depth
 from jaxvo.trajectory import associate
 
 # colour, depth and camera-info topics of the TUM RGB-D benchmark's bags
@@ -154,7 +154,7 @@ class BagSequence:
       float_depth: the depth topic holds float metres (``32FC1``), not raw units.
       stamps_ns: (N,) int64 each frame's colour header stamp, nanoseconds (exact).
       record_ns: (N,) int64 the bag time each frame's colour image was recorded at, ns.
-      realsense: the :class:`jaxvo.host.realsense.Streams` of a RealSense recording, or None.
+      realsense: the :class:`jaxvo.host.readers.realsense.Streams` of a RealSense recording, or None.
     """
 
     groundtruth = None  # bags carry the motion capture as tf frames, not read here

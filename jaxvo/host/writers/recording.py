@@ -15,7 +15,7 @@ logs, on one timeline per frame timestamp (``time``, and ``frame``, the frame's 
 ``world/points``                that image's grid points in the world, by identifier
 ``world/trajectory``            the trajectory so far
 ``world/groundtruth``           the ground truth, where the sequence has it (static)
-``world/map/static``, ``/full`` the fused maps (:mod:`jaxvo.host.mapping`; static)
+``world/map/static``, ``/full`` the fused maps (:mod:`jaxvo.host.writers.mapping`; static)
 ``stats``                       points used in the fit and moving cells (% of the grid), ms
                                 per frame, skipped pairs so far (one series each)
 ``log``                         why a pair was skipped or a frame dropped
@@ -40,10 +40,10 @@ from typing import Self
 import numpy as np
 
 from jaxvo.errors import InputError
-from jaxvo.host.camera import Intrinsics, grid_pixels
-from jaxvo.host.masks import _PALETTE
-from jaxvo.host.outputs import OutputFile, output_file
-from jaxvo.host.prefetch import BackgroundWriter
+from jaxvo.host.frontend.camera import Intrinsics, grid_pixels
+from jaxvo.host.writers.masks import _PALETTE
+from jaxvo.host.writers.outputs import OutputFile, output_file
+from jaxvo.host.frontend.prefetch import BackgroundWriter
 
 EXTRA = "pip install 'jaxvo[viz]'"
 # The images (colour, depth, identifiers) are logged at SCALE times their size, the colour
@@ -109,7 +109,7 @@ class RerunLogger:
                 odo.process(bgr, depth, t)
         # run.rrd is whole here
 
-    The recording is written whole or not at all (:class:`jaxvo.host.outputs.OutputFile`):
+    The recording is written whole or not at all (:class:`jaxvo.host.writers.outputs.OutputFile`):
     Rerun writes a temporary file beside ``save``, which replaces it when the logger closes
     (leaving a ``with`` block, also by Ctrl-C; or at the interpreter's exit for a logger
     never closed). A ``with`` block left by an error, or a write that fails (a full disk),
@@ -304,7 +304,7 @@ class RerunLogger:
                 [gt.poses[:, :3, 3]], colors=[(80, 220, 80)]), static=True)
 
     def log_map(self, name: str, pmap) -> None:
-        """A fused map (:class:`jaxvo.host.mapping.PointMap`) as ``world/map/<name>``, static."""
+        """A fused map (:class:`jaxvo.host.writers.mapping.PointMap`) as ``world/map/<name>``, static."""
         if not self._closed:
             self._rerun(self.rec.log, f"world/map/{name}", self.rr.Points3D(
                 pmap.points, colors=pmap.colours, radii=0.01), static=True)

@@ -170,7 +170,7 @@ def setup_compile_cache(
     if choice.source == "JAX_COMPILATION_CACHE_DIR":
         return choice  # JAX reads it itself; its size bound and thresholds are the user's
     if choice.folder is not None:
-        from jaxvo.host.io import output_folder
+        from jaxvo.host.readers.io import output_folder
 
         try:
             output_folder(choice.folder, what=f"compile cache ({choice.source})")

@@ -1,5 +1,5 @@
 """RealSense Viewer recordings: librealsense's ROS 1 ``.bag`` layout, read as an RGB-D
-sequence (host side; :class:`jaxvo.host.rosbag.BagSequence` uses it for such a bag).
+sequence (host side; :class:`jaxvo.host.readers.rosbag.BagSequence` uses it for such a bag).
 
 The layout, as librealsense writes it (``src/media/ros/ros_file_format.h``,
 ``ros_writer.cpp``; topics listed in ``doc/record-and-playback.md``), file versions 2 on:
@@ -34,8 +34,8 @@ from typing import NamedTuple
 import numpy as np
 
 from jaxvo.errors import InputError
-from jaxvo.host.camera import Intrinsics, camera_info_distortion, camera_info_intrinsics
-from jaxvo.host.distortion import distort
+from jaxvo.host.frontend.camera import Intrinsics, camera_info_distortion, camera_info_intrinsics
+from jaxvo.host.frontend.distortion import distort
 
 # /device_<d>/sensor_<s>/<Stream>_<i>/image/data
 STREAM_TOPIC = re.compile(r"^(/device_\d+/sensor_(\d+))/([A-Za-z]+)_(\d+)/image/data$")

@@ -2,7 +2,7 @@
 checks, and the camera a caller gave or a sequence's name points to (timestamps are
 associated by :func:`jaxvo.trajectory.associate`).
 
-TUM folders (:mod:`jaxvo.host.io`), ROS bags (:mod:`jaxvo.host.rosbag`) and synthetic scenes
+TUM folders (:mod:`jaxvo.host.readers.io`), ROS bags (:mod:`jaxvo.host.readers.rosbag`) and synthetic scenes
 import it; it imports none of them, so no reader imports another.
 """
 
@@ -15,7 +15,7 @@ from typing import NamedTuple
 import numpy as np
 
 from jaxvo.errors import InputError
-from jaxvo.host.camera import PRESETS, Intrinsics, preset, read_camera_file
+from jaxvo.host.frontend.camera import PRESETS, Intrinsics, preset, read_camera_file
 
 
 class Frame(NamedTuple):
@@ -48,7 +48,7 @@ def check_frame_size(where: str, image: np.ndarray, height: int, width: int) -> 
 
 def given_camera(camera) -> tuple[Intrinsics, str] | None:
     """The intrinsics a caller gave (an :class:`Intrinsics`, a preset name, or a camera file:
-    a ``camera.txt`` or an OpenCV calibration YAML, :func:`~jaxvo.host.camera.read_camera_file`)
+    a ``camera.txt`` or an OpenCV calibration YAML, :func:`~jaxvo.host.frontend.camera.read_camera_file`)
     and where they came from, in words; None when ``camera`` is None."""
     if isinstance(camera, Intrinsics):
         return camera, "given"

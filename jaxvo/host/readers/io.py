@@ -9,7 +9,7 @@ from pathlib import Path
 import numpy as np
 
 from jaxvo.errors import InputError
-from jaxvo.host.camera import (
+from jaxvo.host.frontend.camera import (
     DEPTH_HARD_M,
     PRESETS,
     Intrinsics,
@@ -21,7 +21,7 @@ from jaxvo.host.camera import (
 )
 
 # what every sequence reader shares; its names stay importable from here too
-from jaxvo.host.frames import (
+from jaxvo.host.frontend.frames import (
     Frame,
     check_frame_size,
     describe,
@@ -31,7 +31,7 @@ from jaxvo.host.frames import (
 )
 
 # the output checks, in a module of their own; their names stay importable from here too
-from jaxvo.host.outputs import (  # noqa: F401 (re-exported)
+from jaxvo.host.writers.outputs import (  # noqa: F401 (re-exported)
     STDOUT,
     OutputFile,
     check_outputs,
@@ -40,7 +40,7 @@ from jaxvo.host.outputs import (  # noqa: F401 (re-exported)
     write_image,
     write_text,
 )
-from jaxvo.host.rosbag import BagSequence, is_bag
+from jaxvo.host.readers.rosbag import BagSequence, is_bag
 from jaxvo.trajectory import (
     Trajectory,
     associate,
@@ -130,7 +130,7 @@ class TumSequence:
     The folder holds ``rgb.txt`` and ``depth.txt`` (``timestamp filename``), optionally
     ``associations.txt`` (``t_rgb rgb t_depth depth``; otherwise colour and depth are
     paired by nearest timestamp within ``max_diff``), ``groundtruth.txt`` (TUM
-    trajectory), ``camera.txt`` (see :func:`jaxvo.host.camera.read_camera_file`) and, for
+    trajectory), ``camera.txt`` (see :func:`jaxvo.host.frontend.camera.read_camera_file`) and, for
     synthetic data, ``mask.txt`` (``timestamp filename`` of uint8 object-id images, the
     same timestamps as ``rgb.txt``).
 
@@ -140,7 +140,7 @@ class TumSequence:
 
     Args:
       path: the folder.
-      camera: a preset name of :data:`jaxvo.host.camera.PRESETS` or an :class:`Intrinsics`;
+      camera: a preset name of :data:`jaxvo.host.frontend.camera.PRESETS` or an :class:`Intrinsics`;
         overrides ``camera.txt`` (a warning says so where the two differ). Without either, a
         folder named as the TUM and Bonn benchmarks name their downloads
         (``..._freiburg3_...``, ``rgbd_bonn_...``) takes that camera's preset; otherwise
@@ -283,7 +283,7 @@ class TumSequence:
         return Frame(index, float(self.timestamps[index]), bgr, depth, mask)
 
     def files(self, frames: int | None = None) -> list[Path]:
-        """What no output may overwrite (:func:`jaxvo.host.outputs.check_outputs`): the
+        """What no output may overwrite (:func:`jaxvo.host.writers.outputs.check_outputs`): the
         lists, the camera, the ground truth, the images of the first ``frames`` frames
         (default all), and the folders of the images, every file of which is protected (the
         images of frames this run does not read too)."""
@@ -374,7 +374,7 @@ def _imread_unchanged() -> int:
 def open_sequence(path: str | Path, *, rgb_topic: str | None = None,
                   depth_topic: str | None = None, **kwargs) -> TumSequence:
     """Open the RGB-D sequence at ``path``: a folder in the TUM layout, or a ROS bag (a
-    ``.bag`` file or a ROS 2 bag folder, :class:`jaxvo.host.rosbag.BagSequence`, whose image
+    ``.bag`` file or a ROS 2 bag folder, :class:`jaxvo.host.readers.rosbag.BagSequence`, whose image
     topics ``rgb_topic`` / ``depth_topic`` choose); ``kwargs`` go to the reader."""
     if is_bag(path):
         return BagSequence(path, rgb_topic=rgb_topic, depth_topic=depth_topic, **kwargs)
@@ -393,7 +393,7 @@ def write_trajectory(path: str | Path, traj: Trajectory, *, comment: str = "") -
     s, translation and quaternion ``%.9f``), whole or not at all.
 
     Args:
-      path: the file to write (replaced whole, :class:`jaxvo.host.outputs.OutputFile`).
+      path: the file to write (replaced whole, :class:`jaxvo.host.writers.outputs.OutputFile`).
       traj: timestamps (N,) seconds, poses (N, 4, 4) ``T_w_c``.
       comment: optional first lines (each written after ``# ``).
     """
@@ -407,8 +407,8 @@ class TrajectoryWriter:
     moment a reader can see: the poses go to a temporary file beside it, flushed pose by
     pose, which replaces the file on :meth:`close` (also
     after Ctrl-C, with the poses computed so far; after a second Ctrl-C as flushed,
-    :func:`jaxvo.host.outputs.abort_pending`). A failed run leaves the earlier file as it
-    was (:class:`jaxvo.host.outputs.OutputFile`); a failed write (a full disk) raises
+    :func:`jaxvo.host.writers.outputs.abort_pending`). A failed run leaves the earlier file as it
+    was (:class:`jaxvo.host.writers.outputs.OutputFile`); a failed write (a full disk) raises
     ``OSError`` naming the file.
 
     Example::

@@ -8,7 +8,7 @@ keyframes of the local window (``cfg.keyframe_window``) are tracked into it too:
 what ties the window's keyframes to each other beyond consecutive ones, for the window's
 joint refinement on the device.
 
-Each kept frame's pair flow (:class:`jaxvo.host.flow.GridFlowTracker`) is composed onto
+Each kept frame's pair flow (:class:`jaxvo.host.frontend.flow.GridFlowTracker`) is composed onto
 every window keyframe's points' positions in the previous image: that predicts where they
 lie in the current image. For the latest keyframe one forward LK from there, on the finest
 two levels, finds them every frame (a seeded track needs no coarse level, and no backward
@@ -27,9 +27,9 @@ from __future__ import annotations
 import numpy as np
 
 from jaxvo.core.inputs import KeyframeFlow, keyframe_index
-from jaxvo.host.camera import backproject
-from jaxvo.host.depth import depth_at
-from jaxvo.host.patches import lk_converged, similar
+from jaxvo.host.frontend.camera import backproject
+from jaxvo.host.frontend.depth import depth_at
+from jaxvo.host.frontend.patches import lk_converged, similar
 
 
 class _Keyframe:
@@ -48,7 +48,7 @@ class KeyframeTracker:
     into each new keyframe (module docstring).
 
     Args:
-        tracker: the stream's :class:`jaxvo.host.flow.GridFlowTracker` (its grid, camera,
+        tracker: the stream's :class:`jaxvo.host.frontend.flow.GridFlowTracker` (its grid, camera,
             LK settings and the frame last pushed).
     """
 

@@ -3,7 +3,7 @@
 A calibrated camera's image is the pinhole image warped by its lens. jaxvo tracks the grid
 in the image as it comes and undoes the warp only where a point is turned into a ray: the
 grid points and their tracked positions (:func:`undistort`, from
-:func:`jaxvo.host.camera.backproject`), a few thousand pixels a frame where remapping both
+:func:`jaxvo.host.frontend.camera.backproject`), a few thousand pixels a frame where remapping both
 images would touch every pixel. The depth is read at the pixel itself: a depth image
 registered to the colour camera holds each colour pixel's reading where that pixel is.
 
@@ -37,7 +37,7 @@ DISTORTION_MODELS: dict[str, tuple[str, ...]] = {
 
 class Distortion(NamedTuple):
     """A lens's distortion: its model (a name of :data:`DISTORTION_MODELS`) and coefficients
-    in that model's order (:func:`jaxvo.host.camera.distortion` checks and builds one)."""
+    in that model's order (:func:`jaxvo.host.frontend.camera.distortion` checks and builds one)."""
 
     model: str
     coeffs: tuple[float, ...]
@@ -49,7 +49,7 @@ class Distortion(NamedTuple):
 
 
 class Camera(Protocol):
-    """What the functions here read of a camera (:class:`jaxvo.host.camera.Intrinsics`)."""
+    """What the functions here read of a camera (:class:`jaxvo.host.frontend.camera.Intrinsics`)."""
 
     fx: float
     fy: float
@@ -82,7 +82,7 @@ def undistort(uv: np.ndarray, K: Camera) -> np.ndarray:
     if d is None:
         return np.stack([(uv[..., 0] - K.cx) / K.fx, (uv[..., 1] - K.cy) / K.fy], axis=-1)
     if d.model in _OPENCV:
-        import cv2  # loaded by the lens that needs it: host.camera imports this module
+        import cv2  # loaded by the lens that needs it: host.frontend.camera imports this module
 
         pts = uv.reshape(-1, 1, 2)
         if len(pts) == 0:

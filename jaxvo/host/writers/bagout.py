@@ -38,7 +38,7 @@ zeros, which ROS's message definitions read as "covariance unknown"; jaxvo gives
 velocity, so the twist is zero with its covariance's element 0 at -1, "no estimate"
 (``sensor_msgs/msg/Imu``'s stated conventions, the ones ROS writes down).
 
-Whole or nothing, as every output of jaxvo (:class:`jaxvo.host.outputs.OutputFolder`): the
+Whole or nothing, as every output of jaxvo (:class:`jaxvo.host.writers.outputs.OutputFolder`): the
 bag is written in a folder of the target's name inside a hidden temporary folder beside the
 target (so its storage file is ``NAME/NAME.mcap``, as ``rosbags`` names it after its folder)
 and renamed onto it once finished; a failure, or an exception that leaves before
@@ -58,8 +58,8 @@ from typing import NamedTuple, Self
 import numpy as np
 
 from jaxvo.errors import InputError
-from jaxvo.host.outputs import OutputFolder
-from jaxvo.host.prefetch import BackgroundWriter
+from jaxvo.host.writers.outputs import OutputFolder
+from jaxvo.host.frontend.prefetch import BackgroundWriter
 
 ODOMETRY_TOPIC = "/jaxvo/odometry"
 TF_TOPIC = "/tf"
@@ -145,7 +145,7 @@ def check_bag_target(path: str | Path, *, what: str = "--out-bag") -> Path:
     """``path`` as a new bag folder this run can write, checked before any work.
 
     The bag is written beside it and renamed onto it when complete (an
-    :class:`~jaxvo.host.outputs.OutputFolder`), so the folder must not exist yet (or be
+    :class:`~jaxvo.host.writers.outputs.OutputFolder`), so the folder must not exist yet (or be
     empty), and its parent must take the temporary folder (made and removed here: nothing
     is left).
 
@@ -182,7 +182,7 @@ def check_bag_input(options: BagOptions, seq) -> None:
     Raises:
       InputError: naming the input and the first of jaxvo's topics it holds.
     """
-    from jaxvo.host.rosbag import is_bag, open_reader
+    from jaxvo.host.readers.rosbag import is_bag, open_reader
 
     path = getattr(seq, "path", "")
     if not (options.folder and options.with_input and is_bag(path)):
@@ -219,14 +219,14 @@ class BagWriter:
     """Writes a run's results into a new ROS 2 bag, whole or not at all.
 
     The ``write_*`` methods return at once: the messages are built, serialised and written
-    on the bag's own thread (a :class:`~jaxvo.host.prefetch.BackgroundWriter`, bounded, in
+    on the bag's own thread (a :class:`~jaxvo.host.frontend.prefetch.BackgroundWriter`, bounded, in
     the order given), so writing overlaps the run's computation; every ``rosbags`` call is
     made there (SQLite takes its connection on one thread only). A failure there is raised
     by a later ``write_*`` or by :meth:`finish`. The bag is an
-    :class:`~jaxvo.host.outputs.OutputFolder` (made by ``rosbags`` at its temporary path):
+    :class:`~jaxvo.host.writers.outputs.OutputFolder` (made by ``rosbags`` at its temporary path):
     :meth:`finish` puts it in place; as a context manager, leaving by an exception (or
     before :meth:`finish`) removes everything written, and so does a second Ctrl-C
-    (:func:`~jaxvo.host.outputs.abort_pending`).
+    (:func:`~jaxvo.host.writers.outputs.abort_pending`).
 
     Args:
       target: the bag folder to create (checked by :func:`check_bag_target`).
@@ -246,7 +246,7 @@ class BagWriter:
         from rosbags.rosbag2 import StoragePlugin, Writer
         from rosbags.typesys import Stores, get_typestore
 
-        from jaxvo.host.rosbag import is_bag
+        from jaxvo.host.readers.rosbag import is_bag
 
         if storage not in STORAGES:
             raise InputError(f"bag storage {storage!r}: one of {', '.join(STORAGES)}")
@@ -325,7 +325,7 @@ class BagWriter:
             self._submit(self._write_frame, frame)
 
     def write_map(self, pmap, index: int) -> None:
-        """The static map (:class:`jaxvo.host.mapping.PointMap`, world frame) as one
+        """The static map (:class:`jaxvo.host.writers.mapping.PointMap`, world frame) as one
         ``PointCloud2`` (x y z float32 and PCL's packed ``rgb``), at frame ``index``'s time."""
         self._submit(self._write_map, pmap, index)
 
@@ -336,7 +336,7 @@ class BagWriter:
         generates it on first use) by serialising a frame's messages without writing them:
         the one-time work, done while the run reads its first frame and loads its step,
         not among the run's steady frames."""
-        from jaxvo.host.frames import Frame
+        from jaxvo.host.frontend.frames import Frame
 
         self._writer.open()
         blank = Frame(0, 0.0, np.zeros((height, width, 3), np.uint8),
@@ -427,14 +427,14 @@ class BagWriter:
         self._write(MASK_TOPIC, "sensor_msgs/msg/Image", at, self._image(stamp, mask, "mono8"))
         self._write(INFO_TOPIC, "sensor_msgs/msg/CameraInfo", at, self._info(stamp))
         if self.overlay_cell is not None and output is not None:
-            from jaxvo.host.masks import overlay
+            from jaxvo.host.writers.masks import overlay
 
             tinted = overlay(frame.bgr, output.ids, self.overlay_cell)
             self._write(OVERLAY_TOPIC, "sensor_msgs/msg/Image", at,
                         self._image(stamp, tinted, "bgr8"))
 
     def _write_frame(self, frame) -> None:
-        from jaxvo.host.rosbag import TUM_TOPICS
+        from jaxvo.host.readers.rosbag import TUM_TOPICS
 
         stamp, at = self.stamps_ns[frame.index], self.record_ns[frame.index]
         depth = np.where(frame.depth > 0, frame.depth, np.float32(np.nan)).astype("<f4")
@@ -468,8 +468,8 @@ class BagWriter:
 
         from rosbags.convert.converter import create_connections_converters
 
-        from jaxvo.host.realsense import is_realsense, standard_bytes
-        from jaxvo.host.rosbag import open_reader
+        from jaxvo.host.readers.realsense import is_realsense, standard_bytes
+        from jaxvo.host.readers.rosbag import open_reader
 
         count = 0
         with (contextlib.closing(open_reader(self.input_bag)) as reader,

@@ -31,8 +31,8 @@ import numpy as np
 
 from jaxvo.errors import InputError
 from jaxvo.errors import warn as warn_user
-from jaxvo.host.camera import Intrinsics
-from jaxvo.host.outputs import OutputFile
+from jaxvo.host.frontend.camera import Intrinsics
+from jaxvo.host.writers.outputs import OutputFile
 from jaxvo.trajectory import Trajectory
 
 # OpenCV is imported in the functions that use it: `jaxvo --help` reads the defaults below
@@ -515,7 +515,7 @@ def make_maps(seq, traj: Trajectory, dynamic, options: MapOptions, outputs: dict
       where: the trajectory, for messages; frames: the first frames only (a run's).
       warn: what is done with a warning line (default: printed to standard error).
     """
-    from jaxvo.host.outputs import write_image
+    from jaxvo.host.writers.outputs import write_image
 
     poses = matched_poses(seq, traj, where=where, max_diff=options.max_diff, frames=frames)
     fit = trajectory_fit(seq, poses)

@@ -9,7 +9,7 @@ from typing import NamedTuple
 import numpy as np
 
 from jaxvo.errors import InputError
-from jaxvo.host.distortion import DISTORTION_MODELS, Distortion, undistort
+from jaxvo.host.frontend.distortion import DISTORTION_MODELS, Distortion, undistort
 
 
 class Intrinsics(NamedTuple):
@@ -372,7 +372,7 @@ def camera_info_distortion(msg, *, where: str) -> tuple[Distortion | None, str |
     return distortion(model or "plumb_bob", D, where=where), None
 
 
-# Median depth of a frame, metres, outside which no RGB-D sensor reads (host.io's
+# Median depth of a frame, metres, outside which no RGB-D sensor reads (host.readers.io's
 # check_depth_scale); a depth scale that puts every 16-bit reading (1 to 65535 raw units)
 # outside it is no sensor's either.
 DEPTH_HARD_M = (0.1, 15.0)
@@ -481,7 +481,7 @@ def write_camera_file(path: str | Path, K: Intrinsics, *, comment: str = "") -> 
     if K.distortion is not None:
         lines.append(" ".join(["distortion", K.distortion.model]
                               + [f"{v:.9g}" for v in K.distortion.coeffs]))
-    from jaxvo.host.outputs import write_text  # host.outputs imports nothing of this module
+    from jaxvo.host.writers.outputs import write_text  # host.outputs imports nothing of this module
 
     write_text(path, "\n".join(lines) + "\n")
 
@@ -524,7 +524,7 @@ def backproject(uv: np.ndarray, z: np.ndarray, K: Intrinsics) -> np.ndarray:
     """Pixels ``(..., 2)`` (x right, y down) with depth ``(...)`` metres -> ``(..., 3)`` points.
 
     With ``K.distortion`` each pixel is first undistorted to the ray it was seen along
-    (:func:`jaxvo.host.distortion.undistort`), the depth being the reading at the pixel
+    (:func:`jaxvo.host.frontend.distortion.undistort`), the depth being the reading at the pixel
     itself (a registered depth image holds each colour pixel's depth where that pixel is).
     """
     if K.distortion is not None:

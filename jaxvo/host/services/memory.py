@@ -37,7 +37,7 @@ _OUTPUT_PER_POINT = 23.0
 # object) over 100,000 frames, peak resident.
 SYNTH_BYTES_PER_FRAME = 860.0
 SYNTH_BYTES_PER_OBJECT_FRAME = 135.0
-# A frame held in memory (jaxvo.host.io.InMemorySequence, jaxvo demo): BGR uint8, depth float32
+# A frame held in memory (jaxvo.host.readers.io.InMemorySequence, jaxvo demo): BGR uint8, depth float32
 # metres and a uint8 mask, bytes per pixel.
 FRAME_BYTES_PER_PIXEL = 8
 # What a jaxvo process holds before its own arrays: Python, JAX, XLA's compiler and

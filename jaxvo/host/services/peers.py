@@ -17,7 +17,7 @@ from typing import NamedTuple
 import cv2
 import numpy as np
 
-from jaxvo.host.camera import Intrinsics
+from jaxvo.host.frontend.camera import Intrinsics
 from jaxvo.trajectory import Trajectory
 
 OPENCV_PEERS = {

@@ -61,8 +61,8 @@ from jaxvo.core.inputs import (
     stack_flows,
 )
 from jaxvo.errors import InputError
-from jaxvo.host.camera import Intrinsics, backproject, grid_pixels
-from jaxvo.host.depth import (  # noqa: F401  (bilinear_depth, refine_depth: the flow's API)
+from jaxvo.host.frontend.camera import Intrinsics, backproject, grid_pixels
+from jaxvo.host.frontend.depth import (  # noqa: F401  (bilinear_depth, refine_depth: the flow's API)
     _depth_at,
     _depth_slope_at,
     _lookup,
@@ -72,9 +72,9 @@ from jaxvo.host.depth import (  # noqa: F401  (bilinear_depth, refine_depth: the
     refine_depth,
     smooth_depth,
 )
-from jaxvo.host.keyframes import KeyframeTracker
-from jaxvo.host.patches import lk_converged, similar
-from jaxvo.host.prefetch import READ_AHEAD, read_ahead
+from jaxvo.host.frontend.keyframes import KeyframeTracker
+from jaxvo.host.frontend.patches import lk_converged, similar
+from jaxvo.host.frontend.prefetch import READ_AHEAD, read_ahead
 from jaxvo.status import Status
 
 DEFAULT_CONFIG = Config()
@@ -135,7 +135,7 @@ def textured_points(grey: np.ndarray, depth: np.ndarray, centres: np.ndarray,
 
     Args:
         grey: (H, W) uint8; depth: (H, W) float metres (0 = no reading).
-        centres: (n, 2) the cells' centres (:func:`jaxvo.host.camera.grid_pixels`).
+        centres: (n, 2) the cells' centres (:func:`jaxvo.host.frontend.camera.grid_pixels`).
         grid: ``(rows, cols)``; cell: the cell's side, pixels (even).
         depth_jump: the largest depth change on one surface, a fraction of the depth
             (``Config.depth_jump``).
@@ -562,7 +562,7 @@ def sequence_flows(
             the first (``frames_total = len(seq) - 1``).
         max_dropped: most frames dropped in a row (:class:`FrameChain`).
         ahead: frames read (decoded, rendered) ahead on other threads while the flow of
-            the current pair is computed (:func:`jaxvo.host.prefetch.read_ahead`); 0 reads
+            the current pair is computed (:func:`jaxvo.host.frontend.prefetch.read_ahead`); 0 reads
             each frame when its turn comes.
 
     Returns:

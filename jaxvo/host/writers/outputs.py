@@ -529,7 +529,7 @@ class OutputFolder(_WholeOrNothing):
       what: how to name it in messages (default: the path).
       make_folder: create :attr:`temporary` here; False leaves it to a library that makes
         the folder at a path it is given and refuses one that exists (``rosbags``' bag
-        writer, :mod:`jaxvo.host.bagout`), as :class:`OutputFile`'s ``open_file`` leaves a
+        writer, :mod:`jaxvo.host.writers.bagout`), as :class:`OutputFile`'s ``open_file`` leaves a
         file to Rerun. Such a library may name its files after the folder (a bag's
         ``NAME/NAME.mcap``), so :attr:`temporary` then carries the target's own name, inside
         a hidden holder folder beside the target that :meth:`commit` and :meth:`discard`
