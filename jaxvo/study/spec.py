@@ -47,7 +47,6 @@ study starts, so the spec follows the pipeline's settings as they are renamed or
 
 from __future__ import annotations
 
-import dataclasses
 import functools
 import itertools
 import json
@@ -411,18 +410,14 @@ def group_config(settings: dict) -> Config:
 
     A study asks it of every run; the Configs are few, so each is made once (a study of
     many configurations spent most of its start building the same few again)."""
-    items = tuple((k, v) for k, v in settings.items() if k in _field_names(Config))
+    names = config_fields()  # every setting by name (a Config's own fields are its two sides)
+    items = tuple((k, v) for k, v in settings.items() if k in names)
     try:
-        return _config_of(Config, items)
+        return _config_of(items)
     except TypeError:  # a value that cannot key the memo: made afresh
-        return dataclasses.replace(Config(), **dict(items))
-
-
-@functools.lru_cache(maxsize=8)
-def _field_names(cls: type) -> frozenset[str]:
-    return frozenset(f.name for f in dataclasses.fields(cls))
+        return Config(**dict(items))
 
 
 @functools.lru_cache(maxsize=4096)
-def _config_of(cls: type, items: tuple) -> Config:
-    return dataclasses.replace(cls(), **dict(items))
+def _config_of(items: tuple) -> Config:
+    return Config(**dict(items))
