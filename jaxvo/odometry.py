@@ -29,6 +29,7 @@ from jaxvo.core.inputs import GridFlow, KeyframeFlow
 from jaxvo.core.pipeline import StepOutput, init_pipeline, jit_step, run_scan
 from jaxvo.errors import InputError
 from jaxvo.host.frontend.camera import Intrinsics, as_intrinsics, check_intrinsics, depth_metres
+from jaxvo.host.services.compile_cache import default_compile_cache
 from jaxvo.host.frontend.flow import (
     MAX_DROPPED,
     FrameChain,
@@ -115,6 +116,7 @@ class Odometry:
         logger=None,
         checked: bool = False,
     ):
+        default_compile_cache()  # before the first compile: the commands' cache, from Python
         intrinsics = as_intrinsics(intrinsics)
         cfg = as_config(cfg)
         if not checked:
@@ -452,6 +454,7 @@ def scan_flows(flows, keyframes, T_w_c0, *, cfg: Config, grid: tuple[int, int], 
     Returns:
       ``(final_state, outputs)`` of :func:`jaxvo.core.pipeline.run_scan`, not waited for.
     """
+    default_compile_cache()
     p = params_as_arrays(params if params is not None else Params())
     return run_scan(flows, jax.random.key(seed), p, jnp.asarray(T_w_c0, jnp.float32),
                     cfg=cfg.step, grid=grid, keyframes=keyframes)

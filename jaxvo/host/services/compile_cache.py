@@ -3,7 +3,10 @@
 
 Compiling the per-frame step takes 7-8 s on 2 cores and every ``jaxvo`` process paid it
 again; loading it from JAX's persistent cache takes about 0.3 s. The ``jaxvo`` commands turn
-the cache on by default (:func:`setup_compile_cache`), in a folder chosen by, first to last:
+the cache on by default (:func:`setup_compile_cache`), and so does the library on its first
+use from Python (``Odometry``, ``run_sequence``: :func:`default_compile_cache`) unless the
+program chose already (a JAX cache folder of its own, the cache turned off, or
+:func:`setup_compile_cache` called), in a folder chosen by, first to last:
 
 1. ``--compile-cache DIR`` or ``--no-compile-cache`` (``setup_compile_cache(option)``);
 2. the environment variable ``JAXVO_COMPILE_CACHE`` (``off``, or a folder);
@@ -143,6 +146,47 @@ def _drop_empty_entries(folder: Path) -> None:
                     entry.unlink()
 
 
+_chosen = False  # this process has chosen its compile cache (setup_compile_cache)
+
+
+def default_compile_cache(*, environ: Mapping[str, str] | None = None) -> CacheChoice | None:
+    """jaxvo's compile cache for a program that uses the library without choosing one:
+    what the commands use (:func:`setup_compile_cache` with no option), set up once a process,
+    on the library's first use (``Odometry``, ``run_sequence``).
+
+    Left as it is where the process chose already: :func:`setup_compile_cache` called (the
+    commands, or a user's ``setup_compile_cache("off")``), a JAX cache folder configured
+    (``JAX_COMPILATION_CACHE_DIR`` or ``jax_compilation_cache_dir``), or JAX's cache turned off
+    (``jax_enable_compilation_cache`` False). ``JAXVO_COMPILE_CACHE=off`` turns it off. A
+    folder that cannot be used is a warning, never an error: a library does not fail for its
+    cache. JAX decides whether a process uses its cache at the first compile; the decision is
+    taken again (``reset_cache``), so programs compiled before this call do not keep it off.
+
+    Returns:
+      the :class:`CacheChoice` set up, or None where the process had chosen.
+    """
+    global _chosen
+    if _chosen:
+        return None
+    _chosen = True
+    import jax
+
+    if jax.config.jax_compilation_cache_dir or not jax.config.jax_enable_compilation_cache:
+        return None
+    import warnings
+
+    try:
+        choice = setup_compile_cache(None, environ=environ)
+    except InputError as exc:  # JAXVO_COMPILE_CACHE names a folder that cannot be written
+        warnings.warn(f"{exc}; running without the compile cache", stacklevel=3)
+        use_compile_cache(None)
+        choice = CacheChoice(None, f"off ({ENV} folder not writable)")
+    from jax.experimental.compilation_cache import compilation_cache
+
+    compilation_cache.reset_cache()
+    return choice
+
+
 def setup_compile_cache(
     option: str | os.PathLike | None = None,
     *,
@@ -166,6 +210,8 @@ def setup_compile_cache(
       InputError: a folder given by the option or ``JAXVO_COMPILE_CACHE`` that cannot be
         created or written.
     """
+    global _chosen
+    _chosen = True
     choice = choose_compile_cache(option, environ=environ)
     if choice.source == "JAX_COMPILATION_CACHE_DIR":
         return choice  # JAX reads it itself; its size bound and thresholds are the user's
