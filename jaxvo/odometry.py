@@ -29,7 +29,7 @@ from jaxvo.core.inputs import GridFlow, KeyframeFlow
 from jaxvo.core.pipeline import StepOutput, init_pipeline, jit_step, run_scan
 from jaxvo.errors import InputError
 from jaxvo.host.frontend.camera import Intrinsics, as_intrinsics, check_intrinsics, depth_metres
-from jaxvo.host.services.compile_cache import default_compile_cache
+from jaxvo.host.services.compile_cache import default_compile_cache, exported_program
 from jaxvo.host.frontend.flow import (
     MAX_DROPPED,
     FrameChain,
@@ -145,6 +145,7 @@ class Odometry:
         self._index = 0
         self._last_t: float | None = None
         self._pending = None  # a frame dispatched by submit() whose result is not out yet
+        self._step = None  # the compiled step, from the first frame pair on
         self.timestamps: list[float] = []
         self.poses: list[np.ndarray] = []
         self.logger = None
@@ -252,11 +253,22 @@ class Odometry:
         images = (bgr, depth) if self.logger is not None else None
         if flow is None:  # the chain's first frame, or a dropped one: the pose stays
             return index, t, self._state.T_w_c, None, dropped, images
-        self._state, out = jit_step(
-            self._state, flow, self.key, self.params, cfg=self._step_options, grid=self._grid,
-            keyframe=self._chain.keyframe_flow,
-        )
+        args = (self._state, flow, self.key, self.params, self._chain.keyframe_flow)
+        if self._step is None:
+            self._step = self._compiled_step(args)
+        self._state, out = self._step(*args)
         return index, t, out.T_w_c, out, None, images
+
+    def _compiled_step(self, args):
+        """The per-frame step for arguments of the types of ``args``: exported in the compile
+        cache (:func:`jaxvo.host.services.compile_cache.exported_program`), so that a later process
+        neither traces nor lowers it; else :func:`jit_step` as it is."""
+        cfg, grid = self._step_options, self._grid
+
+        def step(state, flow, key, params, keyframe):
+            return jit_step(state, flow, key, params, cfg=cfg, grid=grid, keyframe=keyframe)
+
+        return exported_program("step", step, args, static=f"{cfg!r} {grid}") or step
 
     def _check_first(self, depth: np.ndarray, raw_units: bool) -> None:
         """The first frame's checks: its depth (a warning kept in :attr:`warnings`), the

@@ -267,9 +267,12 @@ def test_a_full_cache_disk_is_one_line(tmp_path):
 PYTHON_CHILD = """
 import json, sys
 import cv2, jax, numpy as np
-hits = []
+hits, traced = [], []
 jax.monitoring.register_event_listener(
     lambda event, **kw: hits.append(event) if event == "/jax/compilation_cache/cache_hits" else None)
+jax.monitoring.register_event_duration_secs_listener(
+    lambda event, s, **kw: traced.append(kw.get("fun_name"))
+    if event == "/jax/core/compile/jaxpr_trace_duration" else None)
 jax.jit(lambda x: x + 1)(1.0).block_until_ready()
 import jaxvo
 if sys.argv[1] == "off":
@@ -282,7 +285,8 @@ odo = jaxvo.Odometry((150.0, 150.0, 80.0, 60.0))
 if sys.argv[1] != "construct":
     for k in range(3):
         odo.process(np.roll(bgr, k, axis=1), depth, k / 30)
-print(json.dumps({"hits": len(hits), "folder": jax.config.jax_compilation_cache_dir,
+print(json.dumps({"hits": len(hits), "traced": traced,
+                  "folder": jax.config.jax_compilation_cache_dir,
                   "poses": np.asarray(odo.trajectory.poses).tolist()}))
 """
 
@@ -303,14 +307,17 @@ def python_child(how: str, **env: str | None) -> dict:
 @pytest.mark.slow  # the step compiled afresh in a child, then loaded in another
 def test_odometry_from_python_uses_the_cache_of_the_commands(tmp_path):
     """The second process loads the step the first one compiled and stored, with the same
-    poses, though neither called setup_compile_cache and each compiled a program first."""
+    poses, though neither called setup_compile_cache and each compiled a program first; it
+    loads the step exported, without tracing it again."""
     env = {ENV: str(tmp_path / "cache"), "JAX_COMPILATION_CACHE_DIR": None}
     cold = python_child("run", **env)
     folder = tmp_path / "cache" / VERSIONED
     assert cold["folder"] == str(folder)
-    assert sorted(folder.glob("*step*-cache"))  # the per-frame step's entry
+    assert sorted(folder.glob("jit_call*-cache"))  # the exported per-frame step's entry
+    assert sorted((folder / "jaxvo-exported").glob("step-*"))
     warm = python_child("run", **env)
     assert cold["hits"] == 0 and warm["hits"] >= 1
+    assert "jit_step" in cold["traced"] and "jit_step" not in warm["traced"]
     assert len(warm["poses"]) == 3
     np.testing.assert_array_equal(warm["poses"], cold["poses"])  # bit for bit
 

@@ -43,7 +43,7 @@ import os
 import sys
 import threading
 import time
-from collections.abc import Iterator, Mapping
+from collections.abc import Callable, Iterator, Mapping
 from pathlib import Path
 from typing import NamedTuple, TextIO
 
@@ -436,3 +436,152 @@ def announce_compile(
     finally:
         watch.close()
         _watch = outer
+
+
+# --- programs kept traced and lowered ------------------------------------------------------
+
+# JAX's cache keeps a compiled program, keyed on its lowered computation, so a later process
+# still traces and lowers the per-frame step before the cache can find it: two thirds of the
+# first pose's wait (bench/bench_first_pose.py). An exported program (jax.export: the lowered
+# computation and its argument types, serialised) skips both; it is kept beside JAX's entries,
+# keyed on what could change the computation (jaxvo's source, JAX's version and settings, the
+# static settings and the arguments' types), and compiled through JAX's cache as any program.
+_EXPORTED = "jaxvo-exported"
+_programs: dict[str, Callable] = {}  # key -> the program, loaded or exported in this process
+_registered: set[type] = set()  # NamedTuple types made known to jax.export's serialisation
+_source_digest: str | None = None
+
+
+def exported_program(name: str, fun: Callable, args: tuple, *, static: str) -> Callable | None:
+    """``jax.jit(fun)`` for arguments of the types of ``args``, kept exported in the compile
+    cache folder so that a later process loads it instead of tracing and lowering ``fun``.
+
+    Args:
+      name: what the program is, for its file's name (``"step"``).
+      fun: the function, of ``args`` positionally; its output a pytree of arrays.
+      args: example arguments (their types and shapes are the program's).
+      static: what else sets the computation (the static settings, in words: ``repr(cfg)``).
+    Returns:
+      a jitted callable of arguments of the same types, or None where the compile cache is
+      off (JAX's folder unset or disabled) or ``jax.export`` cannot serialise (no
+      ``flatbuffers``): then the caller runs ``fun`` as it would have.
+    """
+    import jax
+
+    if not (jax.config.jax_enable_compilation_cache and jax.config.jax_compilation_cache_dir):
+        return None
+    try:
+        from jax import export
+        from jax._src.export import serialization  # noqa: F401 (needs flatbuffers)
+    except ImportError:
+        return None
+    key = _program_key(name, args, static)
+    if key in _programs:
+        return _programs[key]
+    path = Path(jax.config.jax_compilation_cache_dir) / _EXPORTED / f"{name}-{key}"
+    exported = _read_exported(path)
+    if exported is None:
+        exported = export.export(jax.jit(fun))(*args)
+        _write_exported(path, exported)
+    program = _programs[key] = jax.jit(exported.call)
+    return program
+
+
+def _program_key(name: str, args: tuple, static: str) -> str:
+    """A digest of everything the exported computation depends on."""
+    import hashlib
+
+    import jax
+    import jaxlib
+    import numpy as np
+
+    def leaf(x) -> str:
+        sharding = getattr(x, "sharding", None)
+        return (f"{np.shape(x)} {getattr(x, 'dtype', type(x).__name__)} "
+                f"{getattr(x, 'weak_type', False)} {sharding}")
+
+    leaves, tree = jax.tree.flatten(args)
+    parts = [name, static, str(tree), *map(leaf, leaves), jax.__version__, jaxlib.__version__,
+             os.environ.get("XLA_FLAGS", ""), _jaxvo_source(),
+             repr(sorted((k, repr(v)) for k, v in jax.config.values.items()))]
+    return hashlib.sha256("\n".join(parts).encode()).hexdigest()[:32]
+
+
+def _jaxvo_source() -> str:
+    """A digest of jaxvo's Python source, read once a process: changed code never loads a
+    program exported from older code."""
+    global _source_digest
+    if _source_digest is None:
+        import hashlib
+
+        root = Path(__file__).resolve().parent.parent
+        h = hashlib.sha256()
+        for path in sorted(root.rglob("*.py")):
+            h.update(str(path.relative_to(root)).encode() + b"\0" + path.read_bytes())
+        _source_digest = h.hexdigest()
+    return _source_digest
+
+
+def _namedtuples(trees) -> list[type]:
+    """The NamedTuple types in pytree structures (jax.export serialises them by name)."""
+    found: list[type] = []
+
+    def walk(node) -> None:
+        data = node.node_data()
+        if data is not None and isinstance(data[0], type) and hasattr(data[0], "_fields"):
+            if data[0] not in found:
+                found.append(data[0])
+        for child in node.children():
+            walk(child)
+
+    for tree in trees:
+        walk(tree)
+    return found
+
+
+def _register(types) -> None:
+    from jax import export
+
+    for t in types:
+        if t not in _registered:
+            export.register_namedtuple_serialization(
+                t, serialized_name=f"{t.__module__}.{t.__qualname__}")
+            _registered.add(t)
+
+
+def _read_exported(path: Path):
+    """The program exported at ``path``, or None (absent, or unreadable: exported again)."""
+    import importlib
+    import json
+
+    from jax import export
+
+    try:
+        data = path.read_bytes()
+        header, blob = data.split(b"\n", 1)
+        types = []
+        for name in json.loads(header):
+            module, _, qualname = name.rpartition(".")
+            types.append(getattr(importlib.import_module(module), qualname))
+        _register(types)
+        return export.deserialize(bytearray(blob))
+    except (OSError, ValueError, ImportError, AttributeError):
+        return None
+
+
+def _write_exported(path: Path, exported) -> None:
+    """``exported`` at ``path``, whole or not at all; a folder that cannot be written only
+    leaves the next process to export it again."""
+    import json
+
+    types = _namedtuples((exported.in_tree, exported.out_tree))
+    _register(types)
+    header = json.dumps([f"{t.__module__}.{t.__qualname__}" for t in types]).encode()
+    tmp = path.with_name(f".{path.name}.{os.getpid()}.tmp")
+    try:
+        path.parent.mkdir(exist_ok=True)
+        tmp.write_bytes(header + b"\n" + exported.serialize())
+        os.replace(tmp, path)
+    except OSError:
+        with contextlib.suppress(OSError):
+            tmp.unlink()
