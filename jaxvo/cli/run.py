@@ -23,9 +23,6 @@ from jaxvo.errors import InputError
 if TYPE_CHECKING:
     from jaxvo.run import PreparedRun, RunOptions
 
-# A one-line answer (a missing SEQ_DIR, a bad option) comes before NumPy loads: the parser
-# and the first checks import no module of the run, which all import NumPy (0.15-0.4 s).
-
 # command-line option -> the Config field it sets (named so in error messages)
 _CONFIG_OPTIONS = {"cell": "--cell", "num_hypotheses": "--hypotheses"}
 
@@ -72,10 +69,9 @@ output: the trajectory is camera-to-world in TUM format, one pose per frame kept
 
 class _Later:
     """A host module's constant read when argparse first uses it (the help printed, a value
-    checked against its choices), not when the parser is built: those modules import NumPy.
-    argparse fills a help's ``%(name)s`` from the option's attributes, so an option's help
-    takes one as ``action.name = _Later(...)``; as ``choices`` it needs a ``metavar``, which
-    keeps the usage line from listing them."""
+    checked against its choices), not when the parser is built: the run's modules import
+    NumPy, which a one-line answer need not wait for. A help's ``%(name)s`` is filled from
+    the option's attribute ``name``; as ``choices``, a ``metavar`` keeps it off the usage."""
 
     def __init__(self, module: str, name: str, show=None):
         self.module, self.name, self.show = module, name, show
