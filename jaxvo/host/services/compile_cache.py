@@ -463,8 +463,9 @@ def exported_program(name: str, fun: Callable, args: tuple, *, static: str) -> C
       static: what else sets the computation (the static settings, in words: ``repr(cfg)``).
     Returns:
       a jitted callable of arguments of the same types, or None where the compile cache is
-      off (JAX's folder unset or disabled) or ``jax.export`` cannot serialise (no
-      ``flatbuffers``): then the caller runs ``fun`` as it would have.
+      off (JAX's folder unset or disabled), the arguments are not on the CPU, or
+      ``jax.export`` cannot serialise (no ``flatbuffers``): then the caller runs ``fun`` as
+      it would have.
     """
     import jax
 
@@ -475,13 +476,19 @@ def exported_program(name: str, fun: Callable, args: tuple, *, static: str) -> C
         from jax._src.export import serialization  # noqa: F401 (needs flatbuffers)
     except ImportError:
         return None
+    # the CPU's programs alone: Odometry's step runs there unless told otherwise, and an
+    # export is for a platform named as jax.export names it, not as a device does (gpu)
+    on = {d.platform for x in jax.tree.leaves(args) if isinstance(x, jax.Array)
+          for d in x.devices()} or {jax.default_backend()}
+    if on != {"cpu"}:
+        return None
     key = _program_key(name, args, static)
     if key in _programs:
         return _programs[key]
     path = Path(jax.config.jax_compilation_cache_dir) / _EXPORTED / f"{name}-{key}"
     exported = _read_exported(path)
     if exported is None:
-        exported = export.export(jax.jit(fun))(*args)
+        exported = export.export(jax.jit(fun), platforms=["cpu"])(*args)
         _write_exported(path, exported)
     program = _programs[key] = jax.jit(exported.call)
     return program
