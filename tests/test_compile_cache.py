@@ -317,7 +317,7 @@ def test_odometry_from_python_uses_the_cache_of_the_commands(tmp_path):
     assert sorted((folder / "jaxvo-exported").glob("step-*"))
     warm = python_child("run", **env)
     assert cold["hits"] == 0 and warm["hits"] >= 1
-    assert "jit_step" in cold["traced"] and "jit_step" not in warm["traced"]
+    assert "step" in cold["traced"] and "step" not in warm["traced"]  # Odometry._compiled_step
     assert len(warm["poses"]) == 3
     np.testing.assert_array_equal(warm["poses"], cold["poses"])  # bit for bit
 
