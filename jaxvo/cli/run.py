@@ -11,13 +11,13 @@ on a machine and loaded from the persistent compile cache afterwards
 from __future__ import annotations
 
 import argparse
-import importlib
 import json
 import os
 import sys
 from pathlib import Path
 from typing import TYPE_CHECKING
 
+from jaxvo.cli.later import Later
 from jaxvo.errors import InputError
 
 if TYPE_CHECKING:
@@ -67,28 +67,6 @@ output: the trajectory is camera-to-world in TUM format, one pose per frame kept
 """
 
 
-class _Later:
-    """A host module's constant read when argparse first uses it (the help printed, a value
-    checked against its choices), not when the parser is built: the run's modules import
-    NumPy, which a one-line answer need not wait for. A help's ``%(name)s`` is filled from
-    the option's attribute ``name``; as ``choices``, a ``metavar`` keeps it off the usage."""
-
-    def __init__(self, module: str, name: str, show=None):
-        self.module, self.name, self.show = module, name, show
-
-    def value(self):
-        return getattr(importlib.import_module(self.module), self.name)
-
-    def __str__(self) -> str:
-        return str(self.value() if self.show is None else self.show(self.value()))
-
-    def __contains__(self, item) -> bool:
-        return item in self.value()
-
-    def __iter__(self):
-        return iter(self.value())
-
-
 def add_arguments(p: argparse.ArgumentParser) -> None:
     from jaxvo.cli.main import EXIT_STATUSES, add_seed_option, add_summary_options
 
@@ -112,8 +90,7 @@ def add_arguments(p: argparse.ArgumentParser) -> None:
         "--camera", metavar="PRESET|FILE", help="intrinsics preset (%(presets)s) or a camera "
         "file (a camera.txt, an OpenCV calibration YAML with its distortion); overrides the "
         "folder's camera.txt, with a warning where they differ")
-    presets.presets = _Later("jaxvo.host.frontend.camera", "PRESETS",
-                             lambda d: ", ".join(sorted(d)))
+    presets.presets = Later("jaxvo.host.frontend.camera", "PRESETS", lambda d: ", ".join(sorted(d)))
     camera.add_argument("--intrinsics", metavar="FX,FY,CX,CY",
                         help="the camera's intrinsics in pixels (a negative FY: a camera whose "
                         "y axis points up, as ICL-NUIM's); overrides camera.txt like --camera")
@@ -172,17 +149,17 @@ def _add_bag_arguments(g) -> None:
                    help="also write a ROS 2 bag (a new folder): the odometry "
                    "(nav_msgs/Odometry), /tf and the dynamic masks, stamped with each frame's "
                    "own time; with --map the static map (PointCloud2) at the end")
-    g.add_argument("--bag-storage", choices=_Later("jaxvo.host.writers.bagout", "STORAGES"),
+    g.add_argument("--bag-storage", choices=Later("jaxvo.host.writers.bagout", "STORAGES"),
                    metavar="STORAGE",
                    help="the bag's storage: %(choices)s (default mcap)")
     world = g.add_argument(
         "--world-frame", metavar="NAME", help="the odometry's fixed frame (default "
         "%(frame)s, REP 105; its axes: the first camera's, or the ground truth's)")
-    world.frame = _Later("jaxvo.host.writers.bagout", "WORLD_FRAME")
+    world.frame = Later("jaxvo.host.writers.bagout", "WORLD_FRAME")
     camera = g.add_argument(
         "--camera-frame", metavar="NAME", help="the colour camera's optical frame (default "
         "%(frame)s: z forward, x right, y down, REP 103)")
-    camera.frame = _Later("jaxvo.host.writers.bagout", "CAMERA_FRAME")
+    camera.frame = Later("jaxvo.host.writers.bagout", "CAMERA_FRAME")
     g.add_argument("--bag-overlay", action="store_true",
                    help="also the image tinted by identifier (/jaxvo/overlay)")
     g.add_argument("--with-input", action="store_true",
