@@ -56,20 +56,6 @@ def test_a_missing_sequence_is_answered_before_numpy_loads(tmp_path):
     assert not (tmp_path / "t.txt").exists()
 
 
-def test_a_missing_trajectory_is_answered_before_numpy_loads(tmp_path):
-    """``jaxvo eval`` says a missing file in read_trajectory's words, NumPy not loaded."""
-    from jaxvo.errors import InputError
-    from jaxvo.trajectory import read_trajectory
-
-    (tmp_path / "gt.txt").write_text("0 0 0 0 0 0 0 1\n")
-    with pytest.raises(InputError) as exc:
-        read_trajectory(tmp_path / "est.txt")
-    status, heavy, _, err = answer("eval", "ate", str(tmp_path / "gt.txt"),
-                                   str(tmp_path / "est.txt"))
-    assert (status, heavy) == (2, [])
-    assert err.strip() == f"jaxvo: error: {exc.value}"
-
-
 def test_the_early_answer_says_what_open_sequence_says(tmp_path):
     """One wording for a missing folder, whichever of the two finds it."""
     from jaxvo.errors import InputError

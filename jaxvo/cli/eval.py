@@ -173,18 +173,14 @@ def run(args: argparse.Namespace) -> int:
     import math
 
     from jaxvo.errors import InputError
+    from jaxvo.evaluation import evo_results, metrics
+    from jaxvo.host.writers.outputs import write_bytes
+    from jaxvo.trajectory import read_trajectory
 
     if not (math.isfinite(args.max_diff) and args.max_diff >= 0):
         raise InputError(f"--max-diff must be a number of seconds >= 0, got {args.max_diff}")
     align, scale = _alignment(args)
     delta, unit = _delta(args) if args.metric == "rpe" else (None, None)
-    for path in (args.gt, args.est):  # said before NumPy loads, as read_trajectory says it
-        if not _is_stdin(path) and not Path(path).exists():
-            raise InputError(f"file not found: {Path(path)}")
-    from jaxvo.evaluation import evo_results, metrics
-    from jaxvo.host.writers.outputs import write_bytes
-    from jaxvo.trajectory import read_trajectory
-
     _outputs(args)
     if sum(_is_stdin(p) for p in (args.gt, args.est)) > 1:
         raise InputError("only one of the trajectories can come from standard input (-)")
