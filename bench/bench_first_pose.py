@@ -46,7 +46,7 @@ import jax
 import jaxvo.odometry
 from jaxvo.odometry import Odometry
 t_import = time.perf_counter() - t0
-from jaxvo.host.compile_cache import setup_compile_cache
+from jaxvo.host.services.compile_cache import setup_compile_cache
 setup_compile_cache()  # as the commands do (JAXVO_COMPILE_CACHE): older code lacks the default
 parts, on = {}, [False]
 def note(event, seconds, **kw):
@@ -82,7 +82,7 @@ def first_frames(n: int):
     sys.path.insert(0, str(Path(__file__).resolve().parent))
     from _common import SEVEN_SCENES
 
-    from jaxvo.host.io import InMemorySequence, data_root, open_sequence
+    from jaxvo.host.readers.io import InMemorySequence, data_root, open_sequence
 
     folder = data_root() / SEVEN_SCENES
     if (folder / "associations.txt").is_file():

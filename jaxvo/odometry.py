@@ -29,7 +29,6 @@ from jaxvo.core.inputs import GridFlow, KeyframeFlow
 from jaxvo.core.pipeline import StepOutput, init_pipeline, jit_step, run_scan
 from jaxvo.errors import InputError
 from jaxvo.host.frontend.camera import Intrinsics, as_intrinsics, check_intrinsics, depth_metres
-from jaxvo.host.services.compile_cache import default_compile_cache, exported_program
 from jaxvo.host.frontend.flow import (
     MAX_DROPPED,
     FrameChain,
@@ -38,6 +37,7 @@ from jaxvo.host.frontend.flow import (
     sequence_flows,
 )
 from jaxvo.host.readers.io import DepthScaleWarning, check_depth_scale
+from jaxvo.host.services.compile_cache import default_compile_cache, exported_program
 from jaxvo.host.services.memory import check_memory, run_bytes
 from jaxvo.status import Status
 from jaxvo.trajectory import Trajectory, pose_at

@@ -268,15 +268,15 @@ PYTHON_CHILD = """
 import json, sys
 import cv2, jax, numpy as np
 hits, traced = [], []
-jax.monitoring.register_event_listener(
-    lambda event, **kw: hits.append(event) if event == "/jax/compilation_cache/cache_hits" else None)
+jax.monitoring.register_event_listener(lambda event, **kw: hits.append(event)
+                                       if event == "/jax/compilation_cache/cache_hits" else None)
 jax.monitoring.register_event_duration_secs_listener(
     lambda event, s, **kw: traced.append(kw.get("fun_name"))
     if event == "/jax/core/compile/jaxpr_trace_duration" else None)
 jax.jit(lambda x: x + 1)(1.0).block_until_ready()
 import jaxvo
 if sys.argv[1] == "off":
-    from jaxvo.host.compile_cache import setup_compile_cache
+    from jaxvo.host.services.compile_cache import setup_compile_cache
     setup_compile_cache("off")
 rng = np.random.default_rng(0)
 bgr = cv2.GaussianBlur((rng.random((120, 160, 3)) * 255).astype(np.uint8), (5, 5), 1.5)

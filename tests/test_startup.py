@@ -59,7 +59,7 @@ def test_a_missing_sequence_is_answered_before_numpy_loads(tmp_path):
 def test_the_early_answer_says_what_open_sequence_says(tmp_path):
     """One wording for a missing folder, whichever of the two finds it."""
     from jaxvo.errors import InputError
-    from jaxvo.host.io import open_sequence
+    from jaxvo.host.readers.io import open_sequence
 
     with pytest.raises(InputError) as exc:
         open_sequence(tmp_path / "missing")
@@ -76,8 +76,8 @@ def test_argparse_answers_load_nothing_heavy(argv):
 def test_run_help_lists_what_its_modules_hold():
     """The presets, storages and frame names in ``jaxvo run --help`` come from their
     modules when the help is printed."""
-    from jaxvo.host.bagout import CAMERA_FRAME, STORAGES, WORLD_FRAME
-    from jaxvo.host.camera import PRESETS
+    from jaxvo.host.writers.bagout import CAMERA_FRAME, STORAGES, WORLD_FRAME
+    from jaxvo.host.frontend.camera import PRESETS
 
     done = subprocess.run([sys.executable, "-m", "jaxvo.cli.main", "run", "--help"],
                           capture_output=True, text=True, timeout=120, check=True)

@@ -12,7 +12,7 @@ class Later:
     option's attribute ``name``; as ``choices``, a ``metavar`` keeps it off the usage line.
 
     Args:
-      module: the module that holds it (``"jaxvo.host.camera"``).
+      module: the module that holds it (``"jaxvo.host.frontend.camera"``).
       name: its name there (``"PRESETS"``).
       show: what the help prints of it and the choices list (default: the value).
     """

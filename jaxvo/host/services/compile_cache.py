@@ -521,7 +521,9 @@ def _jaxvo_source() -> str:
     if _source_digest is None:
         import hashlib
 
-        root = Path(__file__).resolve().parent.parent
+        import jaxvo
+
+        root = Path(jaxvo.__file__).resolve().parent
         h = hashlib.sha256()
         for path in sorted(root.rglob("*.py")):
             h.update(str(path.relative_to(root)).encode() + b"\0" + path.read_bytes())
