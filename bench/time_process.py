@@ -8,10 +8,15 @@ times each ``Odometry.process`` call with the clock around it (the step's output
 arrays, so the call returns when the frame is done); the first calls, which compile or load
 the compiled step, are reported apart.
 
+Each call's time is also split in two: the host's grid flow (``FrameChain.push``: the LK
+tracking, the checks, the depth lookups) and the rest (the step dispatched and waited for,
+its outputs brought to the host), medians ``flow_median_ms`` and ``step_median_ms``.
+
 Usage: ``python bench/time_process.py [--frames 120] [--step 1] [--skip 10]
 [--config NAME=VALUE ...]``; prints one JSON line: ``{"code": ..., "config": ..., "first_s":
-..., "median_ms": ..., "p90_ms": ..., "frames": ...}``. ``--config`` sets ``Config`` fields
-(``_options.config_from``), for a setting's cost on the same code.
+..., "median_ms": ..., "p90_ms": ..., "flow_median_ms": ..., "step_median_ms": ...,
+"frames": ...}``. ``--config`` sets ``Config`` fields (``_options.config_from``), for a
+setting's cost on the same code.
 """
 
 from __future__ import annotations
@@ -33,6 +38,25 @@ from jaxvo.host.readers.io import InMemorySequence, data_root, open_sequence
 from jaxvo.odometry import Odometry
 
 
+def timed_flow() -> list[float]:
+    """The seconds of every ``FrameChain.push`` from now on (the host's share of a frame),
+    appended to the list returned, one a frame."""
+    from jaxvo.host import flow
+
+    seconds: list[float] = []
+    push = flow.FrameChain.push
+
+    def timed(self, *args, **kwargs):
+        t0 = time.perf_counter()
+        try:
+            return push(self, *args, **kwargs)
+        finally:
+            seconds.append(time.perf_counter() - t0)
+
+    flow.FrameChain.push = timed
+    return seconds
+
+
 def main(argv=None) -> int:
     ap = argparse.ArgumentParser(description=__doc__.split("\n\n")[0])
     ap.add_argument("--frames", type=count(2), default=120)
@@ -50,17 +74,21 @@ def main(argv=None) -> int:
         ap.error(f"argument --skip: {args.skip} leaves no frame to time of the {read} read")
     seq = InMemorySequence(real, frames=args.frames, step=args.step)
     odo = Odometry(seq.intrinsics, cfg=config_from(args.config), seed=0)
+    flow_times = timed_flow()
     times = []
     for frame in seq:
         t0 = time.perf_counter()
         odo.process(frame.bgr, frame.depth, frame.timestamp)
         times.append(time.perf_counter() - t0)
     steady = 1e3 * np.asarray(times[args.skip:])
+    flow = 1e3 * np.asarray(flow_times[args.skip:len(times)])
     print(json.dumps({"code": str(Path(jaxvo.__file__).resolve().parent.parent),
                       "config": args.config,
                       "first_s": round(times[0] + times[1], 3),
                       "median_ms": round(float(np.median(steady)), 3),
                       "p90_ms": round(float(np.percentile(steady, 90)), 3),
+                      "flow_median_ms": round(float(np.median(flow)), 3),
+                      "step_median_ms": round(float(np.median(steady - flow)), 3),
                       "frames": len(steady), "load": load_average()}))
     return 0
 

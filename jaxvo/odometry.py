@@ -37,6 +37,7 @@ from jaxvo.host.frontend.flow import (
     sequence_flows,
 )
 from jaxvo.host.readers.io import DepthScaleWarning, check_depth_scale
+from jaxvo.host.services.compile_cache import default_compile_cache, exported_program
 from jaxvo.host.services.memory import check_memory, run_bytes
 from jaxvo.status import Status
 from jaxvo.trajectory import Trajectory, pose_at
@@ -115,6 +116,7 @@ class Odometry:
         logger=None,
         checked: bool = False,
     ):
+        default_compile_cache()  # before the first compile: the commands' cache, from Python
         intrinsics = as_intrinsics(intrinsics)
         cfg = as_config(cfg)
         if not checked:
@@ -143,6 +145,7 @@ class Odometry:
         self._index = 0
         self._last_t: float | None = None
         self._pending = None  # a frame dispatched by submit() whose result is not out yet
+        self._step = None  # the compiled step, from the first frame pair on
         self.timestamps: list[float] = []
         self.poses: list[np.ndarray] = []
         self.logger = None
@@ -250,11 +253,22 @@ class Odometry:
         images = (bgr, depth) if self.logger is not None else None
         if flow is None:  # the chain's first frame, or a dropped one: the pose stays
             return index, t, self._state.T_w_c, None, dropped, images
-        self._state, out = jit_step(
-            self._state, flow, self.key, self.params, cfg=self._step_options, grid=self._grid,
-            keyframe=self._chain.keyframe_flow,
-        )
+        args = (self._state, flow, self.key, self.params, self._chain.keyframe_flow)
+        if self._step is None:
+            self._step = self._compiled_step(args)
+        self._state, out = self._step(*args)
         return index, t, out.T_w_c, out, None, images
+
+    def _compiled_step(self, args):
+        """The per-frame step for arguments of the types of ``args``: exported in the compile
+        cache (:func:`jaxvo.host.services.compile_cache.exported_program`), so that a later process
+        neither traces nor lowers it; else :func:`jit_step` as it is."""
+        cfg, grid = self._step_options, self._grid
+
+        def step(state, flow, key, params, keyframe):
+            return jit_step(state, flow, key, params, cfg=cfg, grid=grid, keyframe=keyframe)
+
+        return exported_program("step", step, args, static=f"{cfg!r} {grid}") or step
 
     def _check_first(self, depth: np.ndarray, raw_units: bool) -> None:
         """The first frame's checks: its depth (a warning kept in :attr:`warnings`), the
@@ -452,6 +466,7 @@ def scan_flows(flows, keyframes, T_w_c0, *, cfg: Config, grid: tuple[int, int], 
     Returns:
       ``(final_state, outputs)`` of :func:`jaxvo.core.pipeline.run_scan`, not waited for.
     """
+    default_compile_cache()
     p = params_as_arrays(params if params is not None else Params())
     return run_scan(flows, jax.random.key(seed), p, jnp.asarray(T_w_c0, jnp.float32),
                     cfg=cfg.step, grid=grid, keyframes=keyframes)

@@ -256,3 +256,82 @@ def test_a_full_cache_disk_is_one_line(tmp_path):
     assert err[0] == (f"jaxvo: warning: compile cache {tmp_path / VERSIONED}: writing an entry "
                       "failed (OSError: [Errno 28] No space left on device); going on without "
                       "it (further cache errors not shown)"), err
+
+
+# --- the library from Python: the same cache as the commands, unless the program chose ---
+
+# A child that uses the library as docs/python.md shows it, without setup_compile_cache:
+# a program compiled first (JAX decides at its first compile whether the process uses a
+# cache), then Odometry over three frames; prints the cache hits, JAX's cache folder and
+# the poses.
+PYTHON_CHILD = """
+import json, sys
+import cv2, jax, numpy as np
+hits, traced = [], []
+jax.monitoring.register_event_listener(lambda event, **kw: hits.append(event)
+                                       if event == "/jax/compilation_cache/cache_hits" else None)
+jax.monitoring.register_event_duration_secs_listener(
+    lambda event, s, **kw: traced.append(kw.get("fun_name"))
+    if event == "/jax/core/compile/jaxpr_trace_duration" else None)
+jax.jit(lambda x: x + 1)(1.0).block_until_ready()
+import jaxvo
+if sys.argv[1] == "off":
+    from jaxvo.host.services.compile_cache import setup_compile_cache
+    setup_compile_cache("off")
+rng = np.random.default_rng(0)
+bgr = cv2.GaussianBlur((rng.random((120, 160, 3)) * 255).astype(np.uint8), (5, 5), 1.5)
+depth = np.full((120, 160), 2.0, np.float32)
+odo = jaxvo.Odometry((150.0, 150.0, 80.0, 60.0))
+if sys.argv[1] != "construct":
+    for k in range(3):
+        odo.process(np.roll(bgr, k, axis=1), depth, k / 30)
+print(json.dumps({"hits": len(hits), "traced": traced,
+                  "folder": jax.config.jax_compilation_cache_dir,
+                  "poses": np.asarray(odo.trajectory.poses).tolist()}))
+"""
+
+
+def python_child(how: str, **env: str | None) -> dict:
+    """PYTHON_CHILD with ``env`` set on this environment (None: unset); its JSON line."""
+    environ = dict(os.environ)
+    for name, value in env.items():
+        environ.pop(name, None)
+        if value is not None:
+            environ[name] = value
+    done = subprocess.run([sys.executable, "-c", PYTHON_CHILD, how], capture_output=True,
+                          text=True, timeout=600, env=environ, check=False)
+    assert done.returncode == 0, done.stderr[-3000:]
+    return json.loads(done.stdout.strip().splitlines()[-1])
+
+
+@pytest.mark.slow  # the step compiled afresh in a child, then loaded in another
+def test_odometry_from_python_uses_the_cache_of_the_commands(tmp_path):
+    """The second process loads the step the first one compiled and stored, with the same
+    poses, though neither called setup_compile_cache and each compiled a program first; it
+    loads the step exported, without tracing it again."""
+    env = {ENV: str(tmp_path / "cache"), "JAX_COMPILATION_CACHE_DIR": None}
+    cold = python_child("run", **env)
+    folder = tmp_path / "cache" / VERSIONED
+    assert cold["folder"] == str(folder)
+    assert sorted(folder.glob("jit_call*-cache"))  # the exported per-frame step's entry
+    assert sorted((folder / "jaxvo-exported").glob("step-*"))
+    warm = python_child("run", **env)
+    assert cold["hits"] == 0 and warm["hits"] >= 1
+    assert "step" in cold["traced"] and "step" not in warm["traced"]  # Odometry._compiled_step
+    assert len(warm["poses"]) == 3
+    np.testing.assert_array_equal(warm["poses"], cold["poses"])  # bit for bit
+
+
+def test_a_program_that_chose_its_cache_keeps_it(tmp_path):
+    """JAX's own folder, JAXVO_COMPILE_CACHE=off or setup_compile_cache("off") before: the
+    library leaves the choice as it is (and writes no folder of its own)."""
+    xdg = {"XDG_CACHE_HOME": str(tmp_path / "xdg"), ENV: None}
+    jax_dir = str(tmp_path / "jax")
+    assert python_child("construct", **xdg, JAX_COMPILATION_CACHE_DIR=jax_dir)["folder"] == (
+        jax_dir)
+    assert python_child("construct", **{**xdg, ENV: "off"},
+                        JAX_COMPILATION_CACHE_DIR=None)["folder"] is None
+    assert python_child("off", **xdg, JAX_COMPILATION_CACHE_DIR=None)["folder"] is None
+    assert not (tmp_path / "xdg").exists()
+    default = python_child("construct", **xdg, JAX_COMPILATION_CACHE_DIR=None)
+    assert default["folder"] == str(tmp_path / "xdg" / "jaxvo" / "xla" / VERSIONED)

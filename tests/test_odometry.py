@@ -1,12 +1,19 @@
-"""``jaxvo.Odometry`` and ``jaxvo.run_sequence``: what users pass them as settings."""
+"""``jaxvo.Odometry`` and ``jaxvo.run_sequence``: what users pass them as settings, and the
+compiled step the streaming odometry runs."""
 
 from __future__ import annotations
 
+import cv2
+import jax
+import numpy as np
 import pytest
 
 import jaxvo
+import jaxvo.odometry as odometry
+from jaxvo.config import Config
 from jaxvo.errors import InputError
-from jaxvo.odometry import as_config
+from jaxvo.odometry import Odometry, as_config
+from jaxvo.status import Status
 
 
 def test_settings_may_be_a_mapping_of_config_fields():
@@ -27,3 +34,48 @@ def test_a_mapping_meets_the_config_checks_before_any_work():
         jaxvo.run_sequence(seq, cfg={"cel": 16})
     with pytest.raises(TypeError, match="cfg must be a jaxvo.Config or a mapping"):
         jaxvo.Odometry("tum_fr3", cfg=16)
+
+
+def frames(n: int = 6):
+    """A textured wall 2 m away, the camera sliding a pixel a frame, and a box moving
+    faster: (bgr, depth, t) per frame."""
+    rng = np.random.default_rng(0)
+    wall = cv2.GaussianBlur((rng.random((120, 200, 3)) * 255).astype(np.uint8), (5, 5), 1.5)
+    box = cv2.GaussianBlur((rng.random((30, 30, 3)) * 255).astype(np.uint8), (5, 5), 1.5)
+    out = []
+    for k in range(n):
+        bgr = wall[:, k:k + 160].copy()
+        depth = np.full((120, 160), 2.0, np.float32)
+        x = 40 + 4 * k
+        bgr[40:70, x:x + 30] = box
+        depth[40:70, x:x + 30] = 1.5
+        out.append((bgr, depth, k / 30))
+    return out
+
+
+def run(cfg: Config, monkeypatch, *, exported: bool):
+    """Odometry over :func:`frames`, its step exported or :func:`jit_step` as it is."""
+    assert jax.config.jax_compilation_cache_dir  # the session's cache (conftest): exported
+    if not exported:
+        monkeypatch.setattr(odometry, "exported_program", lambda *a, **k: None)
+    odo = Odometry((150.0, 150.0, 80.0, 60.0), cfg=cfg, seed=3)
+    results = [odo.process(*f) for f in frames()]
+    monkeypatch.undo()
+    return odo, results
+
+
+@pytest.mark.parametrize("keyframes", [False, pytest.param(True, marks=pytest.mark.slow)])
+def test_the_exported_step_gives_the_bits_of_jit_step(keyframes, monkeypatch):
+    """The step exported in the compile cache (what a later process loads without tracing
+    it) gives the bits of jit_step called as it is, frame by frame."""
+    pytest.importorskip("flatbuffers")
+    cfg = Config(keyframes=keyframes)
+    odo_a, exported = run(cfg, monkeypatch, exported=True)
+    odo_b, plain = run(cfg, monkeypatch, exported=False)
+    # the exported program (jitted, traced once over the frames) against jit_step's closure
+    assert odo_a._step._cache_size() == 1 and not hasattr(odo_b._step, "lower")
+    assert sum(r.status == Status.OK for r in plain) >= 3  # motions were estimated
+    for a, b in zip(exported, plain, strict=True):
+        np.testing.assert_array_equal(a.T_w_c, b.T_w_c)  # bit for bit
+        assert a.status == b.status
+        jax.tree.map(np.testing.assert_array_equal, a.output, b.output)

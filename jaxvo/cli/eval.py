@@ -16,7 +16,7 @@ _STAT_FIELDS = ("rmse", "mean", "median", "std", "min", "max")
 
 
 def add_arguments(parser: argparse.ArgumentParser) -> None:
-    from jaxvo.evaluation.evo_results import RELATIONS
+    from jaxvo.cli.later import Later
 
     parser.epilog = (
         "examples:\n"
@@ -64,7 +64,8 @@ def add_arguments(parser: argparse.ArgumentParser) -> None:
         help="unit of --delta: frames (evo's f, the default) or seconds; evo's d, r, m "
         "(degrees, radians, metres travelled) are not offered",
     )
-    p.add_argument("-r", "--pose_relation", choices=sorted(RELATIONS), default="trans_part",
+    p.add_argument("-r", "--pose_relation", default="trans_part", metavar="RELATION",
+                   choices=Later("jaxvo.evaluation.evo_results", "RELATIONS", sorted),
                    help="the error --save_results and --plot carry: trans_part (m, the "
                    "default) or angle_deg (evo's names); the table shows both")
     pairs = p.add_mutually_exclusive_group()
@@ -85,7 +86,7 @@ def add_arguments(parser: argparse.ArgumentParser) -> None:
 
 
 def _common(p: argparse.ArgumentParser) -> None:
-    from jaxvo.evaluation.evo_results import PLOT_MODES
+    from jaxvo.cli.later import Later
 
     p.add_argument("gt", metavar="GT", help="ground-truth trajectory, TUM format")
     p.add_argument("est", metavar="EST", help="estimated trajectory, TUM format; - (or "
@@ -109,8 +110,9 @@ def _common(p: argparse.ArgumentParser) -> None:
                    help="draw evo's figures (errors over time, trajectory coloured by error) "
                    "into an image whose extension gives the format (.png, .pdf, .svg, .jpg, .eps, "
                    ".tiff, ...: matplotlib's); needs matplotlib (jaxvo[plot])")
-    p.add_argument("--plot_mode", "--plot-mode", choices=PLOT_MODES, default="xyz",
-                   help="axes of the trajectory panel (default xyz, 3D, as evo)")
+    p.add_argument("--plot_mode", "--plot-mode", default="xyz", metavar="MODE",
+                   choices=Later("jaxvo.evaluation.evo_results", "PLOT_MODES"),
+                   help="axes of the trajectory panel: %(choices)s (default xyz, 3D, as evo)")
 
 
 def _alignment(args) -> tuple[bool, bool]:

@@ -21,7 +21,7 @@ import importlib
 import os
 import signal
 import sys
-from collections.abc import Iterator
+from collections.abc import Iterable, Iterator
 
 from jaxvo import __version__
 from jaxvo.errors import InputError
@@ -70,7 +70,10 @@ def add_summary_options(p: argparse.ArgumentParser, *, summary: str, quiet: str)
     p.add_argument("--quiet", "-q", action="store_true", help=quiet)
 
 
-def build_parser() -> argparse.ArgumentParser:
+def build_parser(commands: Iterable[str] = tuple(COMMANDS)) -> argparse.ArgumentParser:
+    """The ``jaxvo`` parser; ``commands``: the subcommands whose options it takes (their
+    modules imported), the others listed by name alone. :func:`main` asks for the one its
+    arguments name, so that a one-line answer imports no other command's module."""
     parser = argparse.ArgumentParser(
         prog="jaxvo",
         description="Robust RGB-D visual odometry for dynamic scenes (rigid motion "
@@ -84,6 +87,8 @@ def build_parser() -> argparse.ArgumentParser:
     for name, (module, help_text) in COMMANDS.items():
         p = sub.add_parser(name, help=help_text, description=help_text)
         p.set_defaults(_module=module)
+        if name not in commands:
+            continue
         importlib.import_module(module).add_arguments(p)
         if name in COMPILING:
             add_compile_cache_options(p)
@@ -146,8 +151,6 @@ def interrupt_at_safe_points(*, safe: bool = True) -> Iterator[StopRequest]:
     if _CURRENT is not None:
         yield _CURRENT
         return
-    from jaxvo.host.writers.outputs import abort_pending
-
     stop = StopRequest()
 
     def on_signal(signum, frame) -> None:
@@ -157,7 +160,9 @@ def interrupt_at_safe_points(*, safe: bool = True) -> Iterator[StopRequest]:
             with contextlib.suppress(OSError, ValueError):
                 print("jaxvo: interrupted again: stopping at once", file=sys.stderr,
                       flush=True)
-            abort_pending()
+            outputs = sys.modules.get("jaxvo.host.writers.outputs")  # not loaded: nothing written
+            if outputs is not None:
+                outputs.abort_pending()
             os._exit(128 + signum)
         stop.requested, stop.signum = True, signum
         if not safe:
@@ -214,9 +219,8 @@ def _standard_streams() -> None:
     """Standard input, output and error that are closed (``>&-``) become the null device,
     so that no file this command opens takes their descriptor (a library's message on fd 2
     would land in it) and printing ends nowhere quietly. A closed standard output is
-    remembered: ``--out -`` is refused then (:func:`jaxvo.host.writers.outputs.output_file`)."""
-    from jaxvo.host.writers import outputs
-
+    remembered: ``--out -`` is refused then (:func:`jaxvo.host.writers.outputs.output_file`), whose
+    module (and NumPy) loads only then."""
     for fd in (0, 1, 2):
         try:
             os.fstat(fd)
@@ -226,12 +230,18 @@ def _standard_streams() -> None:
                 os.dup2(null, fd)
                 os.close(null)
             if fd == 1:
-                outputs.STDOUT_CLOSED = True
+                _stdout_closed()
     if sys.stdout is None:
-        outputs.STDOUT_CLOSED = True
+        _stdout_closed()
         sys.stdout = open(os.devnull, "w")  # noqa: SIM115 (for the process's life)
     if sys.stderr is None:
         sys.stderr = open(os.devnull, "w")  # noqa: SIM115 (for the process's life)
+
+
+def _stdout_closed() -> None:
+    from jaxvo.host.writers import outputs
+
+    outputs.STDOUT_CLOSED = True
 
 
 def _one_line_warning(message, category, filename, lineno, file=None, line=None) -> None:
@@ -254,6 +264,13 @@ def _quiet_end_of_pipe() -> int:
     return EXIT_PIPE
 
 
+def _named_command(argv: list[str] | None) -> tuple[str, ...]:
+    """The subcommand the arguments name (the first word that is no option: the top level
+    takes no option with a value), or none (``jaxvo --help``, a misspelt command)."""
+    words = [a for a in (sys.argv[1:] if argv is None else argv) if not a.startswith("-")]
+    return tuple(words[:1]) if words and words[0] in COMMANDS else ()
+
+
 def main(argv: list[str] | None = None) -> int:
     import warnings
 
@@ -266,7 +283,7 @@ def main(argv: list[str] | None = None) -> int:
         warnings.showwarning = _one_line_warning
         try:
             try:  # --help, --version and usage errors end in SystemExit, as argparse's do
-                args = build_parser().parse_args(argv)
+                args = build_parser(_named_command(argv)).parse_args(argv)
             except SystemExit:
                 sys.stdout.flush()  # a closed pipe (jaxvo --help | head -1) is found here
                 raise

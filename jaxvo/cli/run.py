@@ -12,10 +12,16 @@ from __future__ import annotations
 
 import argparse
 import json
+import os
 import sys
+from pathlib import Path
+from typing import TYPE_CHECKING
 
-from jaxvo.host.writers.bagout import BagOptions
-from jaxvo.run import PreparedRun, RunOptions, prepare_run, record_run, summary_lines
+from jaxvo.cli.later import Later
+from jaxvo.errors import InputError
+
+if TYPE_CHECKING:
+    from jaxvo.run import PreparedRun, RunOptions
 
 # command-line option -> the Config field it sets (named so in error messages)
 _CONFIG_OPTIONS = {"cell": "--cell", "num_hypotheses": "--hypotheses"}
@@ -63,7 +69,6 @@ output: the trajectory is camera-to-world in TUM format, one pose per frame kept
 
 def add_arguments(p: argparse.ArgumentParser) -> None:
     from jaxvo.cli.main import EXIT_STATUSES, add_seed_option, add_summary_options
-    from jaxvo.host.frontend.camera import PRESETS
 
     p.epilog = EPILOG + "\n" + EXIT_STATUSES
     p.formatter_class = argparse.RawDescriptionHelpFormatter
@@ -81,10 +86,11 @@ def add_arguments(p: argparse.ArgumentParser) -> None:
                    help="trajectory to write (TUM format, camera-to-world; evo reads it); "
                    "'-' writes it to standard output, and the summary to standard error")
     camera = p.add_mutually_exclusive_group()
-    camera.add_argument("--camera", metavar="PRESET|FILE",
-                        help="intrinsics preset (" + ", ".join(sorted(PRESETS)) + ") or a camera "
-                        "file (a camera.txt, an OpenCV calibration YAML with its distortion); "
-                        "overrides the folder's camera.txt, with a warning where they differ")
+    presets = camera.add_argument(
+        "--camera", metavar="PRESET|FILE", help="intrinsics preset (%(presets)s) or a camera "
+        "file (a camera.txt, an OpenCV calibration YAML with its distortion); overrides the "
+        "folder's camera.txt, with a warning where they differ")
+    presets.presets = Later("jaxvo.host.frontend.camera", "PRESETS", lambda d: ", ".join(sorted(d)))
     camera.add_argument("--intrinsics", metavar="FX,FY,CX,CY",
                         help="the camera's intrinsics in pixels (a negative FY: a camera whose "
                         "y axis points up, as ICL-NUIM's); overrides camera.txt like --camera")
@@ -139,17 +145,21 @@ def add_arguments(p: argparse.ArgumentParser) -> None:
 
 
 def _add_bag_arguments(g) -> None:
-    from jaxvo.host.writers.bagout import CAMERA_FRAME, STORAGES, WORLD_FRAME
-
     g.add_argument("--out-bag", metavar="DIR",
                    help="also write a ROS 2 bag (a new folder): the odometry "
                    "(nav_msgs/Odometry), /tf and the dynamic masks, stamped with each frame's "
                    "own time; with --map the static map (PointCloud2) at the end")
-    g.add_argument("--bag-storage", choices=STORAGES, help="the bag's storage (default mcap)")
-    g.add_argument("--world-frame", metavar="NAME", help=f"the odometry's fixed frame (default {WORLD_FRAME}, "
-                   "REP 105; its axes: the first camera's, or the ground truth's)")
-    g.add_argument("--camera-frame", metavar="NAME", help="the colour camera's optical frame (default "
-                   f"{CAMERA_FRAME}: z forward, x right, y down, REP 103)")
+    g.add_argument("--bag-storage", choices=Later("jaxvo.host.writers.bagout", "STORAGES"),
+                   metavar="STORAGE",
+                   help="the bag's storage: %(choices)s (default mcap)")
+    world = g.add_argument(
+        "--world-frame", metavar="NAME", help="the odometry's fixed frame (default "
+        "%(frame)s, REP 105; its axes: the first camera's, or the ground truth's)")
+    world.frame = Later("jaxvo.host.writers.bagout", "WORLD_FRAME")
+    camera = g.add_argument(
+        "--camera-frame", metavar="NAME", help="the colour camera's optical frame (default "
+        "%(frame)s: z forward, x right, y down, REP 103)")
+    camera.frame = Later("jaxvo.host.writers.bagout", "CAMERA_FRAME")
     g.add_argument("--bag-overlay", action="store_true",
                    help="also the image tinted by identifier (/jaxvo/overlay)")
     g.add_argument("--with-input", action="store_true",
@@ -161,8 +171,9 @@ def options(args: argparse.Namespace) -> RunOptions:
     """The run the command line asks for (the options that need no file checked later, by
     :func:`jaxvo.run.prepare_run`)."""
     from jaxvo.config import Config
-    from jaxvo.errors import InputError
+    from jaxvo.host.writers.bagout import BagOptions
     from jaxvo.host.frontend.camera import intrinsics_option
+    from jaxvo.run import RunOptions
 
     if args.window is not None:
         raise InputError("--window was removed: --keyframes refines a window over the latest "
@@ -183,12 +194,18 @@ def options(args: argparse.Namespace) -> RunOptions:
 
 def prepare(args: argparse.Namespace) -> PreparedRun:
     """Every option and file checked, the sequence opened and the outputs made ready, before
-    JAX loads (:func:`run` takes it)."""
+    JAX loads (:func:`run` takes it). A SEQ_DIR that does not exist is said first, before
+    NumPy loads, in the words :func:`jaxvo.host.readers.io.open_sequence` says it."""
+    if not (args.rgb_topic or args.depth_topic) and not os.path.exists(args.sequence):
+        raise InputError(f"sequence folder not found: {Path(args.sequence)}")
+    from jaxvo.run import prepare_run
+
     return prepare_run(options(args), names=_CONFIG_OPTIONS)
 
 
 def run(args: argparse.Namespace, prepared: PreparedRun | None = None) -> int:
     from jaxvo.cli.main import EXIT_INTERRUPTED, EXIT_NOTHING_ESTIMATED, interrupt_at_safe_points
+    from jaxvo.run import record_run, summary_lines
 
     prepared = prepared or prepare(args)
     with interrupt_at_safe_points() as stop:  # main()'s, where main() runs the command

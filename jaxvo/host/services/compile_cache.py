@@ -3,7 +3,10 @@
 
 Compiling the per-frame step takes 7-8 s on 2 cores and every ``jaxvo`` process paid it
 again; loading it from JAX's persistent cache takes about 0.3 s. The ``jaxvo`` commands turn
-the cache on by default (:func:`setup_compile_cache`), in a folder chosen by, first to last:
+the cache on by default (:func:`setup_compile_cache`), and so does the library on its first
+use from Python (``Odometry``, ``run_sequence``: :func:`default_compile_cache`) unless the
+program chose already (a JAX cache folder of its own, the cache turned off, or
+:func:`setup_compile_cache` called), in a folder chosen by, first to last:
 
 1. ``--compile-cache DIR`` or ``--no-compile-cache`` (``setup_compile_cache(option)``);
 2. the environment variable ``JAXVO_COMPILE_CACHE`` (``off``, or a folder);
@@ -40,7 +43,7 @@ import os
 import sys
 import threading
 import time
-from collections.abc import Iterator, Mapping
+from collections.abc import Callable, Iterator, Mapping
 from pathlib import Path
 from typing import NamedTuple, TextIO
 
@@ -143,6 +146,47 @@ def _drop_empty_entries(folder: Path) -> None:
                     entry.unlink()
 
 
+_chosen = False  # this process has chosen its compile cache (setup_compile_cache)
+
+
+def default_compile_cache(*, environ: Mapping[str, str] | None = None) -> CacheChoice | None:
+    """jaxvo's compile cache for a program that uses the library without choosing one:
+    what the commands use (:func:`setup_compile_cache` with no option), set up once a process,
+    on the library's first use (``Odometry``, ``run_sequence``).
+
+    Left as it is where the process chose already: :func:`setup_compile_cache` called (the
+    commands, or a user's ``setup_compile_cache("off")``), a JAX cache folder configured
+    (``JAX_COMPILATION_CACHE_DIR`` or ``jax_compilation_cache_dir``), or JAX's cache turned off
+    (``jax_enable_compilation_cache`` False). ``JAXVO_COMPILE_CACHE=off`` turns it off. A
+    folder that cannot be used is a warning, never an error: a library does not fail for its
+    cache. JAX decides whether a process uses its cache at the first compile; the decision is
+    taken again (``reset_cache``), so programs compiled before this call do not keep it off.
+
+    Returns:
+      the :class:`CacheChoice` set up, or None where the process had chosen.
+    """
+    global _chosen
+    if _chosen:
+        return None
+    _chosen = True
+    import jax
+
+    if jax.config.jax_compilation_cache_dir or not jax.config.jax_enable_compilation_cache:
+        return None
+    import warnings
+
+    try:
+        choice = setup_compile_cache(None, environ=environ)
+    except InputError as exc:  # JAXVO_COMPILE_CACHE names a folder that cannot be written
+        warnings.warn(f"{exc}; running without the compile cache", stacklevel=3)
+        use_compile_cache(None)
+        choice = CacheChoice(None, f"off ({ENV} folder not writable)")
+    from jax.experimental.compilation_cache import compilation_cache
+
+    compilation_cache.reset_cache()
+    return choice
+
+
 def setup_compile_cache(
     option: str | os.PathLike | None = None,
     *,
@@ -166,6 +210,8 @@ def setup_compile_cache(
       InputError: a folder given by the option or ``JAXVO_COMPILE_CACHE`` that cannot be
         created or written.
     """
+    global _chosen
+    _chosen = True
     choice = choose_compile_cache(option, environ=environ)
     if choice.source == "JAX_COMPILATION_CACHE_DIR":
         return choice  # JAX reads it itself; its size bound and thresholds are the user's
@@ -390,3 +436,161 @@ def announce_compile(
     finally:
         watch.close()
         _watch = outer
+
+
+# --- programs kept traced and lowered ------------------------------------------------------
+
+# JAX's cache keeps a compiled program, keyed on its lowered computation, so a later process
+# still traces and lowers the per-frame step before the cache can find it: two thirds of the
+# first pose's wait (bench/bench_first_pose.py). An exported program (jax.export: the lowered
+# computation and its argument types, serialised) skips both; it is kept beside JAX's entries,
+# keyed on what could change the computation (jaxvo's source, JAX's version and settings, the
+# static settings and the arguments' types), and compiled through JAX's cache as any program.
+_EXPORTED = "jaxvo-exported"
+_programs: dict[str, Callable] = {}  # key -> the program, loaded or exported in this process
+_registered: set[type] = set()  # NamedTuple types made known to jax.export's serialisation
+_source_digest: str | None = None
+
+
+def exported_program(name: str, fun: Callable, args: tuple, *, static: str) -> Callable | None:
+    """``jax.jit(fun)`` for arguments of the types of ``args``, kept exported in the compile
+    cache folder so that a later process loads it instead of tracing and lowering ``fun``.
+
+    Args:
+      name: what the program is, for its file's name (``"step"``).
+      fun: the function, of ``args`` positionally; its output a pytree of arrays.
+      args: example arguments (their types and shapes are the program's).
+      static: what else sets the computation (the static settings, in words: ``repr(cfg)``).
+    Returns:
+      a jitted callable of arguments of the same types, or None where the compile cache is
+      off (JAX's folder unset or disabled), the arguments are not on the CPU, or
+      ``jax.export`` cannot serialise (no ``flatbuffers``): then the caller runs ``fun`` as
+      it would have.
+    """
+    import jax
+
+    if not (jax.config.jax_enable_compilation_cache and jax.config.jax_compilation_cache_dir):
+        return None
+    try:
+        from jax import export
+        from jax._src.export import serialization  # noqa: F401 (needs flatbuffers)
+    except ImportError:
+        return None
+    # the CPU's programs alone: Odometry's step runs there unless told otherwise, and an
+    # export is for a platform named as jax.export names it, not as a device does (gpu)
+    on = {d.platform for x in jax.tree.leaves(args) if isinstance(x, jax.Array)
+          for d in x.devices()} or {jax.default_backend()}
+    if on != {"cpu"}:
+        return None
+    key = _program_key(name, args, static)
+    if key in _programs:
+        return _programs[key]
+    path = Path(jax.config.jax_compilation_cache_dir) / _EXPORTED / f"{name}-{key}"
+    exported = _read_exported(path)
+    if exported is None:
+        exported = export.export(jax.jit(fun), platforms=["cpu"])(*args)
+        _write_exported(path, exported)
+    program = _programs[key] = jax.jit(exported.call)
+    return program
+
+
+def _program_key(name: str, args: tuple, static: str) -> str:
+    """A digest of everything the exported computation depends on."""
+    import hashlib
+
+    import jax
+    import jaxlib
+    import numpy as np
+
+    def leaf(x) -> str:
+        sharding = getattr(x, "sharding", None)
+        return (f"{np.shape(x)} {getattr(x, 'dtype', type(x).__name__)} "
+                f"{getattr(x, 'weak_type', False)} {sharding}")
+
+    leaves, tree = jax.tree.flatten(args)
+    parts = [name, static, str(tree), *map(leaf, leaves), jax.__version__, jaxlib.__version__,
+             os.environ.get("XLA_FLAGS", ""), _jaxvo_source(),
+             repr(sorted((k, repr(v)) for k, v in jax.config.values.items()))]
+    return hashlib.sha256("\n".join(parts).encode()).hexdigest()[:32]
+
+
+def _jaxvo_source() -> str:
+    """A digest of jaxvo's Python source, read once a process: changed code never loads a
+    program exported from older code."""
+    global _source_digest
+    if _source_digest is None:
+        import hashlib
+
+        import jaxvo
+
+        root = Path(jaxvo.__file__).resolve().parent
+        h = hashlib.sha256()
+        for path in sorted(root.rglob("*.py")):
+            h.update(str(path.relative_to(root)).encode() + b"\0" + path.read_bytes())
+        _source_digest = h.hexdigest()
+    return _source_digest
+
+
+def _namedtuples(trees) -> list[type]:
+    """The NamedTuple types in pytree structures (jax.export serialises them by name)."""
+    found: list[type] = []
+
+    def walk(node) -> None:
+        data = node.node_data()
+        if data is not None and isinstance(data[0], type) and hasattr(data[0], "_fields"):
+            if data[0] not in found:
+                found.append(data[0])
+        for child in node.children():
+            walk(child)
+
+    for tree in trees:
+        walk(tree)
+    return found
+
+
+def _register(types) -> None:
+    from jax import export
+
+    for t in types:
+        if t not in _registered:
+            export.register_namedtuple_serialization(
+                t, serialized_name=f"{t.__module__}.{t.__qualname__}")
+            _registered.add(t)
+
+
+def _read_exported(path: Path):
+    """The program exported at ``path``, or None (absent, or unreadable: exported again)."""
+    import importlib
+    import json
+
+    from jax import export
+
+    try:
+        data = path.read_bytes()
+        header, blob = data.split(b"\n", 1)
+        types = []
+        for name in json.loads(header):
+            module, _, qualname = name.rpartition(".")
+            types.append(getattr(importlib.import_module(module), qualname))
+        _register(types)
+        return export.deserialize(bytearray(blob))
+    except (OSError, ValueError, ImportError, AttributeError):
+        return None
+
+
+def _write_exported(path: Path, exported) -> None:
+    """``exported`` at ``path``, whole or not at all; a folder that cannot be written only
+    leaves the next process to export it again."""
+    import json
+
+    types = _namedtuples((exported.in_tree, exported.out_tree))
+    _register(types)
+    header = json.dumps([f"{t.__module__}.{t.__qualname__}" for t in types]).encode()
+    tmp = path.with_name(f".{path.name}.{os.getpid()}.tmp")
+    try:
+        path.parent.mkdir(exist_ok=True)
+        tmp.write_bytes(header + b"\n" + exported.serialize())
+        os.replace(tmp, path)
+    except OSError:
+        with contextlib.suppress(OSError):
+            tmp.unlink()

@@ -1,0 +1,110 @@
+"""What the command line loads before it answers: a one-line answer (a missing input, a bad
+option, ``--help``) imports neither JAX nor OpenCV nor NumPy, checked in a fresh interpreter
+by the modules it holds when the answer is out (the time this saves is bench/'s to measure,
+not a test's)."""
+
+from __future__ import annotations
+
+import json
+import subprocess
+import sys
+
+import pytest
+
+HEAVY = ("numpy", "jax", "cv2")
+
+# main() in a fresh interpreter; prints the exit status and the heavy modules it loaded
+CHILD = """
+import json, sys
+from jaxvo.cli.main import main
+status = main(sys.argv[1:])
+sys.stdout.flush()
+print(json.dumps([status, sorted(m for m in {heavy!r} if m in sys.modules)]), file=sys.stderr)
+"""
+
+
+def answer(*argv: str) -> tuple[int, list[str], str, str]:
+    """``jaxvo ARGV`` in a child: its status, the heavy modules it loaded, its stdout and
+    stderr (the last line, the child's report, taken off)."""
+    done = subprocess.run([sys.executable, "-c", CHILD.format(heavy=HEAVY), *argv],
+                          capture_output=True, text=True, timeout=120, check=False)
+    *err, report = done.stderr.rstrip("\n").split("\n")
+    try:
+        status, heavy = json.loads(report)
+    except ValueError:  # argparse's exits (usage errors, --help) end main() with SystemExit
+        status, heavy, err = done.returncode, None, [*err, report]
+    return status, heavy, done.stdout, "\n".join(err)
+
+
+def loaded_by(*argv: str) -> list[str]:
+    """The heavy modules ``jaxvo ARGV`` had loaded when it exited through SystemExit or
+    returned (argparse's own answers exit inside main())."""
+    code = ("import sys\nfrom jaxvo.cli.main import main\n"
+            "try:\n    main(sys.argv[1:])\nexcept SystemExit:\n    pass\n"
+            f"import json; print(json.dumps(sorted(m for m in {HEAVY!r} if m in sys.modules)))")
+    done = subprocess.run([sys.executable, "-c", code, *argv], capture_output=True, text=True,
+                          timeout=120, check=False)
+    return json.loads(done.stdout.strip().splitlines()[-1])
+
+
+def test_a_missing_sequence_is_answered_before_numpy_loads(tmp_path):
+    status, heavy, _, err = answer("run", str(tmp_path / "missing"), "--out",
+                                   str(tmp_path / "t.txt"))
+    assert status == 2
+    assert err.strip() == f"jaxvo: error: sequence folder not found: {tmp_path / 'missing'}"
+    assert heavy == []
+    assert not (tmp_path / "t.txt").exists()
+
+
+def test_the_early_answer_says_what_open_sequence_says(tmp_path):
+    """One wording for a missing folder, whichever of the two finds it."""
+    from jaxvo.errors import InputError
+    from jaxvo.host.readers.io import open_sequence
+
+    with pytest.raises(InputError) as exc:
+        open_sequence(tmp_path / "missing")
+    _, _, _, err = answer("run", str(tmp_path / "missing"), "--out", str(tmp_path / "t.txt"))
+    assert err.strip() == f"jaxvo: error: {exc.value}"
+
+
+@pytest.mark.parametrize("argv", [("--help",), ("--version",), ("run",), ("nonsense",),
+                                  ("run", "x", "--out", "y", "--hypotheses", "many")])
+def test_argparse_answers_load_nothing_heavy(argv):
+    assert loaded_by(*argv) == []
+
+
+def test_run_help_lists_what_its_modules_hold():
+    """The presets, storages and frame names in ``jaxvo run --help`` come from their
+    modules when the help is printed."""
+    from jaxvo.host.writers.bagout import CAMERA_FRAME, STORAGES, WORLD_FRAME
+    from jaxvo.host.frontend.camera import PRESETS
+
+    done = subprocess.run([sys.executable, "-m", "jaxvo.cli.main", "run", "--help"],
+                          capture_output=True, text=True, timeout=120, check=True)
+    text = " ".join(done.stdout.split())
+    assert "intrinsics preset (" + ", ".join(sorted(PRESETS)) + ")" in text
+    assert "the bag's storage: " + ", ".join(STORAGES) + " (default" in text
+    assert f"(default {WORLD_FRAME}," in text and f"(default {CAMERA_FRAME}:" in text
+
+
+def test_a_bag_storage_is_still_checked_against_the_writers():
+    status, _, _, err = answer("run", "x", "--out", "y", "--bag-storage", "zip")
+    assert status == 2
+    assert "invalid choice: 'zip' (choose from 'mcap', 'sqlite3')" in err
+
+
+def test_the_parser_of_one_command_parses_as_the_whole_one():
+    from jaxvo.cli.main import build_parser
+
+    argv = ["run", "s", "--out", "t", "--camera", "tum_fr3", "--bag-storage", "sqlite3",
+            "--no-compile-cache"]
+    assert vars(build_parser(("run",)).parse_args(argv)) == vars(build_parser().parse_args(argv))
+
+
+def test_evals_choices_are_still_checked_against_evo_results():
+    from jaxvo.evaluation.evo_results import PLOT_MODES, RELATIONS
+
+    _, _, _, err = answer("eval", "rpe", "a", "b", "-r", "x")
+    assert f"(choose from {', '.join(map(repr, sorted(RELATIONS)))})" in err
+    _, _, _, err = answer("eval", "rpe", "a", "b", "--plot_mode", "q")
+    assert f"(choose from {', '.join(map(repr, PLOT_MODES))})" in err
