@@ -65,22 +65,24 @@ def params_from(pairs: list[str]) -> Params:
     return Params()._replace(**{k: float(v) for k, v in (_setting(Params(), a) for a in pairs)})
 
 
-def config_setting(text: str) -> str:
-    """An argparse ``type`` for a ``--config NAME=VALUE``: checked alone, kept as given."""
+def _checked(text: str, build: Callable, check: Callable) -> str:
+    """``text`` (``NAME=VALUE``) kept as given once ``check(build([text]))`` passes, else
+    argparse's one-line error."""
     try:
-        check_config(config_from([text]))
+        check(build([text]))
     except (ValueError, InputError) as e:
         raise argparse.ArgumentTypeError(str(e)) from None
     return text
+
+
+def config_setting(text: str) -> str:
+    """An argparse ``type`` for a ``--config NAME=VALUE``: checked alone, kept as given."""
+    return _checked(text, config_from, check_config)
 
 
 def params_setting(text: str) -> str:
     """An argparse ``type`` for a ``--set NAME=VALUE`` (a Params value): checked alone, kept."""
-    try:
-        check_params(params_from([text]))
-    except (ValueError, InputError) as e:
-        raise argparse.ArgumentTypeError(str(e)) from None
-    return text
+    return _checked(text, params_from, check_params)
 
 
 def check_options(ap: argparse.ArgumentParser, args: argparse.Namespace, *,

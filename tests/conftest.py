@@ -11,14 +11,15 @@ from __future__ import annotations
 import os
 import shutil
 import signal
+import subprocess
 import sys
 import tempfile
 from pathlib import Path
 
 import pytest
 
-from jaxvo.host.services.compile_cache import ENV, OFF, setup_compile_cache, use_compile_cache
 from jaxvo.host.readers.io import data_root as _data_root
+from jaxvo.host.services.compile_cache import ENV, OFF, setup_compile_cache, use_compile_cache
 
 # Folder (under pytest's cache, .pytest_cache/d/) of the compiled programs the tests share
 XLA_CACHE = "jaxvo-xla"
@@ -129,3 +130,10 @@ def random_groundtruth():
         return Trajectory(t, pose_from_tq(np.cumsum(rng.normal(size=(n, 3)) * 0.02, 0), q))
 
     return make
+
+
+def python_code(code: str, *, timeout: float = 120) -> subprocess.CompletedProcess:
+    """``code`` run in a fresh interpreter (what it imports, how it exits), its output
+    captured as text; never raises on its exit status."""
+    return subprocess.run([sys.executable, "-c", code], capture_output=True, text=True,
+                          timeout=timeout, check=False)

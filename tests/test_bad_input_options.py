@@ -10,13 +10,15 @@ from __future__ import annotations
 
 import json
 import os
-import subprocess
-import sys
 
 import pytest
-
-from bad_input import assert_one_line_error, cli, copy_seq
-from bad_input import base  # noqa: F401 (fixtures)
+from bad_input import (
+    assert_one_line_error,
+    base,  # noqa: F401 (fixtures)
+    cli,
+    copy_seq,
+)
+from conftest import python_code
 
 
 @pytest.mark.parametrize(
@@ -99,8 +101,7 @@ def test_one_line_answers_about_options_and_files_come_before_jax_loads(base, tm
     code = ("import json, sys\nfrom jaxvo.cli.main import main\n"
             f"codes = [main(argv) for argv in {cases!r}]\n"
             "print(json.dumps([codes, sorted(m for m in ('jax', 'jaxlib') if m in sys.modules)]))\n")
-    done = subprocess.run([sys.executable, "-c", code], capture_output=True, text=True,
-                          timeout=120, check=False)
+    done = python_code(code)
     codes, loaded = json.loads(done.stdout.splitlines()[-1])
     assert codes == [2] * len(cases) and loaded == [], (codes, loaded, done.stderr)
     lines = done.stderr.splitlines()

@@ -12,6 +12,7 @@ from pathlib import Path
 import jax
 import numpy as np
 import pytest
+from conftest import python_code
 
 from jaxvo import __version__
 from jaxvo.cli.main import build_parser, main
@@ -200,8 +201,7 @@ def test_the_command_line_starts_without_jax_or_opencv():
             "assert not heavy, heavy\n"
             "assert jaxvo.Odometry.__name__ == 'Odometry' and 'jax' in sys.modules\n"
             "assert set(jaxvo.__all__) <= set(dir(jaxvo))\n")
-    done = subprocess.run([sys.executable, "-c", code], capture_output=True, text=True,
-                          timeout=120, check=False)
+    done = python_code(code)
     assert done.returncode == 0, done.stderr[-2000:]
 
 

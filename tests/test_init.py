@@ -3,10 +3,9 @@
 from __future__ import annotations
 
 import importlib
-import subprocess
-import sys
 
 import pytest
+from conftest import python_code
 
 import jaxvo
 
@@ -39,8 +38,7 @@ def test_a_from_import_of_a_moved_name_warns_and_loads_no_jax_before():
             "ours = [x for x in w if 'jaxvo.write_ply moved' in str(x.message)]\n"
             "assert [x.category for x in ours] == [DeprecationWarning], w\n"
             "assert 'jaxvo.host.writers.mapping' in str(ours[0].message)\n")
-    done = subprocess.run([sys.executable, "-c", code], capture_output=True, text=True,
-                          timeout=120, check=False)
+    done = python_code(code)
     assert done.returncode == 0, done.stderr[-2000:]
 
 

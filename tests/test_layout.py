@@ -8,10 +8,10 @@ import ast
 import io
 import pkgutil
 import re
-import subprocess
-import sys
 import tokenize
 from pathlib import Path
+
+from conftest import python_code
 
 import jaxvo.core
 
@@ -41,8 +41,7 @@ def test_importing_the_traced_pipeline_loads_no_opencv():
     assert "jaxvo.core.pipeline" in modules
     code = (f"import importlib, sys\nfor m in {modules!r}: importlib.import_module(m)\n"
             "assert 'cv2' not in sys.modules\n")
-    done = subprocess.run([sys.executable, "-c", code], capture_output=True, text=True,
-                          timeout=120, check=False)
+    done = python_code(code)
     assert done.returncode == 0, done.stderr[-2000:]
 
 
@@ -104,8 +103,7 @@ def test_scoring_a_run_loads_no_host_module_and_no_opencv():
             "tum_lines(t.timestamps, t.poses)\n"
             "host = sorted(m for m in sys.modules if m.startswith('jaxvo.host'))\n"
             "assert not host and 'cv2' not in sys.modules, (host, 'cv2' in sys.modules)\n")
-    done = subprocess.run([sys.executable, "-c", code], capture_output=True, text=True,
-                          timeout=120, check=False)
+    done = python_code(code)
     assert done.returncode == 0, done.stderr[-2000:]
 
 

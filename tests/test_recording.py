@@ -19,6 +19,7 @@ from pathlib import Path
 
 import numpy as np
 import pytest
+from conftest import python_code
 
 from jaxvo.cli.main import main
 from jaxvo.errors import InputError
@@ -151,8 +152,7 @@ def test_a_logger_never_closed_keeps_every_pose(tmp_path):
     """docs/cli.md showed RerunLogger without close(): the recording held 5 of 6 poses."""
     _rerun()
     code = _FAKE_RUN + f"frames(RerunLogger(save={str(tmp_path / 'r.rrd')!r}), 6)\n"
-    done = subprocess.run([sys.executable, "-c", code], capture_output=True, text=True,
-                          timeout=120, check=False)
+    done = python_code(code)
     assert done.returncode == 0, done.stderr[-2000:]
     assert _camera_poses(tmp_path / "r.rrd") == 6
     assert [p.name for p in tmp_path.iterdir()] == ["r.rrd"]  # no temporary left

@@ -16,6 +16,7 @@ import jax
 import jax.numpy as jnp
 import numpy as np
 import pytest
+from conftest import python_code
 
 from jaxvo.cli.main import main
 from jaxvo.config import Config, Params
@@ -519,8 +520,7 @@ def test_a_ctrl_c_in_jax_s_clean_up_at_exit_prints_no_traceback():
             "from jaxvo.cli.main import quiet_interrupts_at_exit\n"
             "atexit.register(lambda: (os.kill(os.getpid(), signal.SIGINT), time.sleep(5)))\n"
             "quiet_interrupts_at_exit()\n")
-    done = subprocess.run([sys.executable, "-c", code], capture_output=True, text=True,
-                          timeout=120, check=False)
+    done = python_code(code)
     assert done.returncode == 130 and "Traceback" not in done.stderr, done.stderr[-2000:]
 
 
