@@ -18,7 +18,7 @@ import time
 import warnings
 from collections.abc import Callable, Mapping
 from pathlib import Path
-from typing import NamedTuple
+from typing import Any, NamedTuple
 
 import jax
 import jax.numpy as jnp
@@ -40,7 +40,7 @@ from jaxvo.host.readers.io import DepthScaleWarning, check_depth_scale
 from jaxvo.host.services.compile_cache import default_compile_cache, exported_program
 from jaxvo.host.services.memory import check_memory, run_bytes
 from jaxvo.status import Status
-from jaxvo.trajectory import Trajectory, pose_at
+from jaxvo.trajectory import Trajectory, pose_at, timestamp_seconds
 
 
 class FrameResult(NamedTuple):
@@ -54,6 +54,17 @@ class FrameResult(NamedTuple):
     static: np.ndarray  # (n,) bool grid points used for the ego-motion
     output: StepOutput | None  # every per-step output (None on the first or a dropped frame)
     dropped: str | None = None  # why the frame was dropped (it has no pose), None if kept
+
+
+class _Dispatched(NamedTuple):
+    """A frame handed to the device (:meth:`Odometry._dispatch`), its result not yet read."""
+
+    index: int  # the frame's index among those given
+    t: float  # its time, seconds
+    T_w_c: Any  # (4, 4) its pose, on the device until read
+    out: Any  # the step's StepOutput, on the device; None: no pair (first or dropped frame)
+    dropped: str | None  # why the frame was dropped, None: kept
+    images: tuple | None  # (bgr, depth) for the logger, None: no logger attached
 
 
 class Odometry:
@@ -225,7 +236,7 @@ class Odometry:
         previous, self._pending = self._pending, None
         return None if previous is None else self._finish(previous)
 
-    def _dispatch(self, bgr, depth, timestamp):
+    def _dispatch(self, bgr, depth, timestamp) -> _Dispatched:
         """Host flow of this frame's pair and the (asynchronous) device step."""
         t = float(self._index) / 30.0 if timestamp is None else timestamp_seconds(timestamp)
         if self._last_t is not None and t <= self._last_t:
@@ -252,12 +263,12 @@ class Odometry:
         self._index += 1
         images = (bgr, depth) if self.logger is not None else None
         if flow is None:  # the chain's first frame, or a dropped one: the pose stays
-            return index, t, self._state.T_w_c, None, dropped, images
+            return _Dispatched(index, t, self._state.T_w_c, None, dropped, images)
         args = (self._state, flow, self.key, self.params, self._chain.keyframe_flow)
         if self._step is None:
             self._step = self._compiled_step(args)
         self._state, out = self._step(*args)
-        return index, t, out.T_w_c, out, None, images
+        return _Dispatched(index, t, out.T_w_c, out, None, images)
 
     def _compiled_step(self, args):
         """The per-frame step for arguments of the types of ``args``: exported in the compile
@@ -284,16 +295,17 @@ class Odometry:
         check_memory(run_bytes(self.cfg, height=h, width=w),
                      what=f"Odometry with {_shape_settings(self.cfg)}")
 
-    def _finish(self, pending) -> FrameResult:
+    def _finish(self, pending: _Dispatched) -> FrameResult:
         """Wait for a dispatched frame, record its pose, log it (:meth:`attach`) and return
         its result."""
-        r = self._result(*pending[:5])
-        if pending[5] is not None and self.logger is not None:
-            self.logger.log_frame(r, *pending[5])
+        r = self._result(pending)
+        if pending.images is not None and self.logger is not None:
+            self.logger.log_frame(r, *pending.images)
         return r
 
-    def _result(self, index, t, T, out, dropped) -> FrameResult:
+    def _result(self, pending: _Dispatched) -> FrameResult:
         """A dispatched frame's result, its pose recorded (waits for the device)."""
+        index, t, T, out, dropped, _ = pending
         T = np.asarray(T, np.float64)
         if dropped is None:
             self.timestamps.append(t)
@@ -305,76 +317,6 @@ class Odometry:
                                None, dropped)
         out = jax.tree.map(np.asarray, out)
         return FrameResult(index, t, T, Status(int(out.status)), out.ids, out.static, out)
-
-
-# A number of seconds at or above this is no time (3170 years); at or above NS_FROM it is
-# nanoseconds, as ROS stamps and np.datetime64 count them (1e17 ns: 1973); between the two
-# (milli- or microseconds) it is refused rather than guessed.
-_MAX_SECONDS = 1e11
-_NS_FROM = 1e17
-
-
-def timestamp_seconds(timestamp) -> float:
-    """Seconds from what users hold for a frame's time.
-
-    Args:
-      timestamp: a float or int of seconds; an int (or float) of nanoseconds, from 1e17 on
-        (ROS's ``header.stamp`` as one number: ``1305031102175304000``); an
-        ``np.datetime64`` (any unit; since the epoch) or ``np.timedelta64``; an object with
-        ``sec`` and ``nanosec`` (ROS 2, rosbags) or ``secs`` and ``nsecs`` (ROS 1).
-    Returns:
-      seconds, float64.
-    Raises:
-      ValueError: anything else, a value that is not finite, or a number in between (1e11
-        to 1e17: milli- or microseconds?), saying what is accepted.
-    """
-    accepted = ("timestamp must be seconds (a float), nanoseconds (an int from 1e17 on, as "
-                "ROS stamps), an np.datetime64 or a ROS Time")
-    if isinstance(timestamp, np.datetime64 | np.timedelta64):
-        if np.isnat(timestamp):
-            raise ValueError(f"{accepted}; got NaT")
-        seconds = _datetime_seconds(timestamp)
-        if abs(seconds) >= _MAX_SECONDS:
-            raise ValueError(f"timestamp {timestamp} is {seconds:.3g} s from 1970, beyond any "
-                             f"recording; {accepted}")
-        return seconds
-    for sec, nsec in (("sec", "nanosec"), ("secs", "nsecs")):
-        if hasattr(timestamp, sec) and hasattr(timestamp, nsec):
-            return int(getattr(timestamp, sec)) + int(getattr(timestamp, nsec)) * 1e-9
-    if isinstance(timestamp, bool | str | bytes) or not isinstance(
-            timestamp, int | float | np.integer | np.floating):
-        raise ValueError(f"{accepted}; got {type(timestamp).__name__} {timestamp!r}")  # noqa: TRY004 (the API says ValueError for any bad input)
-    if not np.isfinite(timestamp):
-        raise ValueError(f"timestamp must be a finite number of seconds, got {timestamp}")
-    if abs(timestamp) >= _NS_FROM:
-        return int(timestamp) * 1e-9 if isinstance(timestamp, int | np.integer) else (
-            float(timestamp) * 1e-9)
-    if abs(timestamp) >= _MAX_SECONDS:
-        raise ValueError(f"timestamp {timestamp} is neither seconds nor nanoseconds (milli- or "
-                         f"microseconds?); {accepted}")
-    return float(timestamp)
-
-
-# seconds in one tick of each linear unit of np.datetime64 / np.timedelta64
-_TICK_SECONDS = {"W": 604800.0, "D": 86400.0, "h": 3600.0, "m": 60.0, "s": 1.0, "ms": 1e-3,
-                 "us": 1e-6, "ns": 1e-9, "ps": 1e-12, "fs": 1e-15, "as": 1e-18}
-
-
-def _datetime_seconds(timestamp) -> float:
-    """Seconds since the epoch of an ``np.datetime64`` (or in an ``np.timedelta64``), in its
-    own unit: going through nanoseconds wrapped a date past 2262 to about 1830."""
-    unit, count = np.datetime_data(timestamp.dtype)
-    if unit in ("Y", "M"):  # years and months are not of one length: as days
-        if isinstance(timestamp, np.timedelta64):
-            raise ValueError(f"a time of {timestamp} has no fixed length in seconds")
-        timestamp, unit, count = timestamp.astype("datetime64[D]"), "D", 1
-    if unit not in _TICK_SECONDS:
-        raise ValueError(f"timestamp {timestamp!r} has no unit of time")
-    ticks = int(timestamp.astype(np.int64)) * count
-    ns = ticks * round(_TICK_SECONDS[unit] * 1e9) if _TICK_SECONDS[unit] >= 1e-9 else None
-    if ns is not None and abs(ns) < 2**63:  # as before for every date NumPy holds in ns
-        return ns * 1e-9
-    return ticks * _TICK_SECONDS[unit]
 
 
 def _frame_arrays(bgr, depth, K: Intrinsics) -> tuple[np.ndarray, np.ndarray]:

@@ -7,6 +7,9 @@ TUM file are made here (:func:`tum_header`, :func:`tum_lines`) and written by th
 two writers, :func:`jaxvo.host.readers.io.write_trajectory` and
 :class:`jaxvo.host.readers.io.TrajectoryWriter`, whole or not at all.
 
+A frame's time as users hold it (seconds, nanoseconds, ``np.datetime64``, a ROS stamp) is
+read here too (:func:`timestamp_seconds`).
+
 TUM format: one line a pose, ``timestamp tx ty tz qx qy qz qw`` (seconds, metres, the
 camera-to-world rotation's quaternion, scalar last); ``#`` starts a comment.
 """
@@ -239,3 +242,73 @@ def _time_range(t: np.ndarray) -> str:
     if len(t) == 0:
         return "nothing (0 stamps)"
     return f"{t.min():.6f} .. {t.max():.6f} s ({len(t)} stamps)"
+
+
+# A number of seconds at or above this is no time (3170 years); at or above NS_FROM it is
+# nanoseconds, as ROS stamps and np.datetime64 count them (1e17 ns: 1973); between the two
+# (milli- or microseconds) it is refused rather than guessed.
+_MAX_SECONDS = 1e11
+_NS_FROM = 1e17
+
+
+def timestamp_seconds(timestamp) -> float:
+    """Seconds from what users hold for a frame's time.
+
+    Args:
+      timestamp: a float or int of seconds; an int (or float) of nanoseconds, from 1e17 on
+        (ROS's ``header.stamp`` as one number: ``1305031102175304000``); an
+        ``np.datetime64`` (any unit; since the epoch) or ``np.timedelta64``; an object with
+        ``sec`` and ``nanosec`` (ROS 2, rosbags) or ``secs`` and ``nsecs`` (ROS 1).
+    Returns:
+      seconds, float64.
+    Raises:
+      ValueError: anything else, a value that is not finite, or a number in between (1e11
+        to 1e17: milli- or microseconds?), saying what is accepted.
+    """
+    accepted = ("timestamp must be seconds (a float), nanoseconds (an int from 1e17 on, as "
+                "ROS stamps), an np.datetime64 or a ROS Time")
+    if isinstance(timestamp, np.datetime64 | np.timedelta64):
+        if np.isnat(timestamp):
+            raise ValueError(f"{accepted}; got NaT")
+        seconds = _datetime_seconds(timestamp)
+        if abs(seconds) >= _MAX_SECONDS:
+            raise ValueError(f"timestamp {timestamp} is {seconds:.3g} s from 1970, beyond any "
+                             f"recording; {accepted}")
+        return seconds
+    for sec, nsec in (("sec", "nanosec"), ("secs", "nsecs")):
+        if hasattr(timestamp, sec) and hasattr(timestamp, nsec):
+            return int(getattr(timestamp, sec)) + int(getattr(timestamp, nsec)) * 1e-9
+    if isinstance(timestamp, bool | str | bytes) or not isinstance(
+            timestamp, int | float | np.integer | np.floating):
+        raise ValueError(f"{accepted}; got {type(timestamp).__name__} {timestamp!r}")  # noqa: TRY004 (the API says ValueError for any bad input)
+    if not np.isfinite(timestamp):
+        raise ValueError(f"timestamp must be a finite number of seconds, got {timestamp}")
+    if abs(timestamp) >= _NS_FROM:
+        return int(timestamp) * 1e-9 if isinstance(timestamp, int | np.integer) else (
+            float(timestamp) * 1e-9)
+    if abs(timestamp) >= _MAX_SECONDS:
+        raise ValueError(f"timestamp {timestamp} is neither seconds nor nanoseconds (milli- or "
+                         f"microseconds?); {accepted}")
+    return float(timestamp)
+
+
+# seconds in one tick of each linear unit of np.datetime64 / np.timedelta64
+_TICK_SECONDS = {"W": 604800.0, "D": 86400.0, "h": 3600.0, "m": 60.0, "s": 1.0, "ms": 1e-3,
+                 "us": 1e-6, "ns": 1e-9, "ps": 1e-12, "fs": 1e-15, "as": 1e-18}
+
+
+def _datetime_seconds(timestamp) -> float:
+    """Seconds since the epoch of an ``np.datetime64`` (or in an ``np.timedelta64``), in its
+    own unit: going through nanoseconds wrapped a date past 2262 to about 1830."""
+    unit, count = np.datetime_data(timestamp.dtype)
+    if unit in ("Y", "M"):  # years and months are not of one length: as days
+        if isinstance(timestamp, np.timedelta64):
+            raise ValueError(f"a time of {timestamp} has no fixed length in seconds")
+        timestamp, unit, count = timestamp.astype("datetime64[D]"), "D", 1
+    if unit not in _TICK_SECONDS:
+        raise ValueError(f"timestamp {timestamp!r} has no unit of time")
+    ticks = int(timestamp.astype(np.int64)) * count
+    ns = ticks * round(_TICK_SECONDS[unit] * 1e9) if _TICK_SECONDS[unit] >= 1e-9 else None
+    if ns is not None and abs(ns) < 2**63:  # as before for every date NumPy holds in ns
+        return ns * 1e-9
+    return ticks * _TICK_SECONDS[unit]

@@ -172,7 +172,7 @@ def test_odometry_takes_the_times_numpy_and_ros_users_hold(base_seq):
     """np.datetime64 was taken as seconds and came out as nanoseconds written as seconds."""
     from types import SimpleNamespace
 
-    from jaxvo.odometry import timestamp_seconds
+    from jaxvo.trajectory import timestamp_seconds
 
     t_ns = 1305031102175304000
     for t in (np.datetime64(t_ns, "ns"), np.datetime64(t_ns // 1000, "us"), t_ns,
@@ -197,7 +197,7 @@ def test_odometry_takes_the_times_numpy_and_ros_users_hold(base_seq):
 def test_a_date_past_2262_is_not_wrapped():
     """np.datetime64 went through nanoseconds, which hold dates up to 2262: 2300 came back
     as about 1830 and was taken."""
-    from jaxvo.odometry import timestamp_seconds
+    from jaxvo.trajectory import timestamp_seconds
 
     want = (np.datetime64("2300-01-01", "D") - np.datetime64("1970-01-01", "D")).astype(int)
     for t in (np.datetime64("2300-01-01", "D"), np.datetime64("2300-01-01T00:00:00", "s")):
