@@ -335,3 +335,16 @@ def test_a_program_that_chose_its_cache_keeps_it(tmp_path):
     assert not (tmp_path / "xdg").exists()
     default = python_child("construct", **xdg, JAX_COMPILATION_CACHE_DIR=None)
     assert default["folder"] == str(tmp_path / "xdg" / "jaxvo" / "xla" / VERSIONED)
+
+
+@pytest.mark.parametrize("data", [b"", b"[]\n", b'["jaxvo.core.pipeline.StepOutput"]\n\x00\x01',
+                                  b'["no.such.Module"]\nxx', b"\xff\xfe not json\nxx"])
+def test_a_broken_exported_program_is_read_as_none_and_exported_again(tmp_path, data):
+    """A cut, empty or foreign file where an exported step was kept: read as absent (the
+    step is exported again), never an error of the run."""
+    from jaxvo.host.services.compile_cache import _read_exported
+
+    path = tmp_path / "step-broken"
+    path.write_bytes(data)
+    assert _read_exported(path) is None
+    assert _read_exported(tmp_path / "absent") is None

@@ -488,7 +488,10 @@ def exported_program(name: str, fun: Callable, args: tuple, *, static: str) -> C
     path = Path(jax.config.jax_compilation_cache_dir) / _EXPORTED / f"{name}-{key}"
     exported = _read_exported(path)
     if exported is None:
-        exported = export.export(jax.jit(fun), platforms=["cpu"])(*args)
+        try:
+            exported = export.export(jax.jit(fun), platforms=["cpu"])(*args)
+        except Exception:  # noqa: BLE001 (what cannot be exported runs as it is: jit, traced)
+            return None
         _write_exported(path, exported)
     program = _programs[key] = jax.jit(exported.call)
     return program
@@ -537,9 +540,9 @@ def _namedtuples(trees) -> list[type]:
 
     def walk(node) -> None:
         data = node.node_data()
-        if data is not None and isinstance(data[0], type) and hasattr(data[0], "_fields"):
-            if data[0] not in found:
-                found.append(data[0])
+        if (data is not None and isinstance(data[0], type) and hasattr(data[0], "_fields")
+                and data[0] not in found):
+            found.append(data[0])
         for child in node.children():
             walk(child)
 
@@ -574,7 +577,7 @@ def _read_exported(path: Path):
             types.append(getattr(importlib.import_module(module), qualname))
         _register(types)
         return export.deserialize(bytearray(blob))
-    except (OSError, ValueError, ImportError, AttributeError):
+    except Exception:  # noqa: BLE001 (a broken entry, whatever the fault: exported again)
         return None
 
 
