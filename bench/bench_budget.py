@@ -96,8 +96,8 @@ from jaxvo.core.points import frame_points
 from jaxvo.evaluation.metrics import align_umeyama, ate
 from jaxvo.evaluation.scores import trajectory_scores
 from jaxvo.host.readers.io import write_trajectory
-from jaxvo.host.writers.outputs import write_text
 from jaxvo.host.services.peers import OPEN3D_PEERS, OPENCV_PEERS, available_peers
+from jaxvo.host.writers.outputs import write_text
 from jaxvo.status import Status
 from jaxvo.trajectory import Trajectory, pose_at, read_trajectory
 from jaxvo.transforms import invert_pose, relative_pose, rotation_angle

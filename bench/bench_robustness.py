@@ -44,8 +44,8 @@ from jaxvo.core.pipeline import final_moving, init_pipeline, jit_step
 from jaxvo.evaluation.metrics import SegmentationScores
 from jaxvo.evaluation.scores import moving_at_grid, trajectory_scores
 from jaxvo.host.frontend.flow import sequence_flows
-from jaxvo.host.writers.outputs import write_text
 from jaxvo.host.services.peers import OPENCV_PEERS
+from jaxvo.host.writers.outputs import write_text
 from jaxvo.host.writers.plugin import iter_dynamic_masks
 from jaxvo.status import Status
 from jaxvo.study import runner as study

@@ -438,8 +438,7 @@ def main(argv=None) -> int:
     if why:
         print(f"orbslam3_peer: {why}", file=sys.stderr)
         return 2
-    from jaxvo.host.readers.io import open_sequence
-    from jaxvo.host.readers.io import write_trajectory
+    from jaxvo.host.readers.io import open_sequence, write_trajectory
 
     seq = open_sequence(args.sequence)
     keep = None

@@ -23,8 +23,8 @@ import numpy as np
 import jaxvo
 from jaxvo.config import PARAM_SPANS, Params, grid_shape
 from jaxvo.core.pipeline import batch_params, run_study
-from jaxvo.host.services.compile_cache import setup_compile_cache
 from jaxvo.host.frontend.flow import flows_for_sequence
+from jaxvo.host.services.compile_cache import setup_compile_cache
 
 SCENES = ("fixed_camera_1", "fixed_camera_2", "handheld_fast", "handheld_slow", "enter_leave",
           "stop_start")

@@ -54,8 +54,8 @@ from jaxvo.evaluation.metrics import SegmentationScores, ate
 from jaxvo.evaluation.scores import segmentation_scores, trajectory_scores
 from jaxvo.host.frontend.flow import GridFlowTracker
 from jaxvo.host.readers.io import data_root, first_pose, open_sequence, write_trajectory
-from jaxvo.host.writers.masks import overlay_panel
 from jaxvo.host.services.peers import OPEN3D_PEERS
+from jaxvo.host.writers.masks import overlay_panel
 from jaxvo.host.writers.plugin import dynamic_masks
 from jaxvo.status import Status
 from jaxvo.synth.scenes import SCENARIOS, composite_sequence, make_sequence

@@ -13,8 +13,8 @@ from pathlib import Path
 import cv2
 
 import jaxvo
-from jaxvo.host.services.compile_cache import setup_compile_cache
 from jaxvo.host.readers.io import data_root
+from jaxvo.host.services.compile_cache import setup_compile_cache
 from jaxvo.host.writers.masks import overlay_panel
 
 default = data_root() / "tum_fr3_walking_halfsphere_50"

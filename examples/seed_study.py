@@ -13,8 +13,8 @@ import numpy as np
 import jaxvo
 from jaxvo.config import grid_shape
 from jaxvo.core.pipeline import batch_params, run_study
-from jaxvo.host.services.compile_cache import setup_compile_cache
 from jaxvo.host.frontend.flow import flows_for_sequence
+from jaxvo.host.services.compile_cache import setup_compile_cache
 
 setup_compile_cache()  # later runs load the compiled programs (~20 s saved)
 cfg = jaxvo.Config()

@@ -39,8 +39,8 @@ import numpy as np
 from jaxvo.config import Config, check_config
 from jaxvo.errors import InputError, check_seed
 from jaxvo.errors import warn as warn_user
-from jaxvo.host.writers.bagout import BagOptions, check_bag_options, check_bag_target, open_bag
 from jaxvo.host.frontend.camera import Intrinsics, check_depth_scale_value, describe_distortion
+from jaxvo.host.writers.bagout import BagOptions, check_bag_options, check_bag_target, open_bag
 from jaxvo.host.writers.mapping import MapOptions, make_maps, map_outputs
 
 
@@ -184,9 +184,9 @@ def record_run(run: PreparedRun, *, stop=None,
     Raises:
       InputError: no frame can be read, or the first one's depth no sensor reads.
     """
-    from jaxvo.host.services.compile_cache import announce_compile
-    from jaxvo.host.readers.io import TrajectoryWriter, check_depth_scale, first_readable
     from jaxvo.host.frontend.prefetch import BackgroundWriter, read_ahead
+    from jaxvo.host.readers.io import TrajectoryWriter, check_depth_scale, first_readable
+    from jaxvo.host.services.compile_cache import announce_compile
     from jaxvo.host.services.progress import Progress
     from jaxvo.odometry import Odometry, choose_start_pose
 

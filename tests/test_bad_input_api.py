@@ -10,6 +10,7 @@ from __future__ import annotations
 
 import numpy as np
 import pytest
+from bad_input import FRAMES, base, base_seq  # noqa: F401 (fixtures)
 
 from jaxvo.config import Config, Params
 from jaxvo.errors import InputError
@@ -17,9 +18,6 @@ from jaxvo.evaluation.metrics import ate
 from jaxvo.host.frontend.camera import Intrinsics
 from jaxvo.odometry import Odometry
 from jaxvo.status import Status
-
-from bad_input import FRAMES
-from bad_input import base, base_seq  # noqa: F401 (fixtures)
 
 
 def poses_of(odo: Odometry, frames, depth_of) -> np.ndarray:

@@ -15,21 +15,20 @@ from pathlib import Path
 import cv2
 import numpy as np
 import pytest
-
-from jaxvo.host.frontend.camera import read_camera_file
-from jaxvo.host.readers.io import open_sequence
-from jaxvo.trajectory import read_trajectory
-
 from bad_input import (
     FRAMES,
     GOOD_CAMERA,
     assert_one_line_error,
     assert_usable_trajectory,
+    base,  # noqa: F401 (fixtures)
     cli,
     copy_seq,
     run_json,
 )
-from bad_input import base  # noqa: F401 (fixtures)
+
+from jaxvo.host.frontend.camera import read_camera_file
+from jaxvo.host.readers.io import open_sequence
+from jaxvo.trajectory import read_trajectory
 
 
 def test_an_implausible_median_depth_is_warned_about(base, tmp_path, capsys):

@@ -13,11 +13,13 @@ import shutil
 
 import numpy as np
 import pytest
+from bad_input import (
+    assert_one_line_error,
+    base,  # noqa: F401 (fixtures)
+    cli,
+)
 
 from jaxvo.cli.main import main
-
-from bad_input import assert_one_line_error, cli
-from bad_input import base  # noqa: F401 (fixtures)
 
 
 def test_eval_on_astronomical_coordinates(tmp_path, capsys):

@@ -13,15 +13,12 @@ from pathlib import Path
 import cv2
 import numpy as np
 import pytest
-
-from jaxvo.host.frontend.camera import Intrinsics, read_camera_file
-from jaxvo.trajectory import read_trajectory
-
 from bad_input import (
     FRAMES,
     GOOD_CAMERA,
     assert_one_line_error,
     assert_usable_trajectory,
+    base,  # noqa: F401 (fixtures)
     cli,
     copy_seq,
     data_lines,
@@ -29,7 +26,9 @@ from bad_input import (
     run_json,
     swap_lines,
 )
-from bad_input import base  # noqa: F401 (fixtures)
+
+from jaxvo.host.frontend.camera import Intrinsics, read_camera_file
+from jaxvo.trajectory import read_trajectory
 
 
 @pytest.mark.parametrize(

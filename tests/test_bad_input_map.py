@@ -7,8 +7,7 @@ The answers every case expects and the sequence each breaks: tests/bad_input.py.
 
 from __future__ import annotations
 
-from bad_input import FRAMES, assert_one_line_error, cli
-from bad_input import base, unwritable  # noqa: F401 (fixtures)
+from bad_input import FRAMES, assert_one_line_error, base, cli, unwritable  # noqa: F401 (fixtures)
 
 
 def test_map_with_a_trajectory_of_another_sequence(base, tmp_path, capsys):

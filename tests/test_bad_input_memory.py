@@ -12,14 +12,12 @@ import time
 
 import numpy as np
 import pytest
+from bad_input import FRAMES, assert_one_line_error, base, base_seq, cli  # noqa: F401 (fixtures)
 
 from jaxvo.config import Config
 from jaxvo.errors import InputError
 from jaxvo.odometry import Odometry
 from jaxvo.synth.scenes import make_sequence
-
-from bad_input import FRAMES, assert_one_line_error, cli
-from bad_input import base, base_seq  # noqa: F401 (fixtures)
 
 
 @pytest.mark.parametrize("args, needle", [

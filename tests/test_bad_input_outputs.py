@@ -18,13 +18,20 @@ from pathlib import Path
 import cv2
 import numpy as np
 import pytest
+from bad_input import (  # noqa: F401 (fixtures)
+    FRAMES,
+    assert_one_line_error,
+    base,
+    cli,
+    copy_seq,
+    data_lines,
+    run_json,
+    unwritable,
+)
 
 from jaxvo.cli.main import main
 from jaxvo.errors import InputError
 from jaxvo.trajectory import read_trajectory
-
-from bad_input import FRAMES, assert_one_line_error, cli, copy_seq, data_lines, run_json
-from bad_input import base, unwritable  # noqa: F401 (fixtures)
 
 
 @pytest.mark.parametrize("option", ["--masks", "--dynamic-masks", "--overlays"])

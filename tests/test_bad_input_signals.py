@@ -18,12 +18,13 @@ from pathlib import Path
 
 import numpy as np
 import pytest
+from bad_input import (
+    FRAMES,
+    base,  # noqa: F401 (fixtures)
+)
 
 from jaxvo.cli.main import interrupt_at_safe_points, main
 from jaxvo.trajectory import read_trajectory
-
-from bad_input import FRAMES
-from bad_input import base  # noqa: F401 (fixtures)
 
 
 def test_version_help_and_exit_statuses(capsys):

@@ -23,6 +23,10 @@ from test_rosbag import image_msg, info_msg, write_bag
 
 from jaxvo.cli.main import main
 from jaxvo.errors import InputError
+from jaxvo.host.frontend.camera import Intrinsics
+from jaxvo.host.readers.io import open_sequence
+from jaxvo.host.readers.realsense import image_message
+from jaxvo.host.readers.rosbag import TUM_TOPICS
 from jaxvo.host.writers import bagout
 from jaxvo.host.writers.bagout import (
     INFO_TOPIC,
@@ -34,10 +38,6 @@ from jaxvo.host.writers.bagout import (
     check_frame_id,
     frame_times,
 )
-from jaxvo.host.frontend.camera import Intrinsics
-from jaxvo.host.readers.io import open_sequence
-from jaxvo.host.readers.realsense import image_message
-from jaxvo.host.readers.rosbag import TUM_TOPICS
 from jaxvo.synth.scenes import make_sequence, write_sequence
 from jaxvo.trajectory import read_trajectory
 from jaxvo.transforms import rotation_to_quat

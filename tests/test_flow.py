@@ -23,8 +23,8 @@ from jaxvo.host.frontend.flow import (
     refine_depth,
     sequence_flows,
 )
-from jaxvo.host.readers.io import data_root
 from jaxvo.host.frontend.patches import patch_correlation, sample_patches
+from jaxvo.host.readers.io import data_root
 from jaxvo.status import Status
 
 H, W = 480, 640

@@ -76,8 +76,8 @@ def test_argparse_answers_load_nothing_heavy(argv):
 def test_run_help_lists_what_its_modules_hold():
     """The presets, storages and frame names in ``jaxvo run --help`` come from their
     modules when the help is printed."""
-    from jaxvo.host.writers.bagout import CAMERA_FRAME, STORAGES, WORLD_FRAME
     from jaxvo.host.frontend.camera import PRESETS
+    from jaxvo.host.writers.bagout import CAMERA_FRAME, STORAGES, WORLD_FRAME
 
     done = subprocess.run([sys.executable, "-m", "jaxvo.cli.main", "run", "--help"],
                           capture_output=True, text=True, timeout=120, check=True)

@@ -171,8 +171,8 @@ def options(args: argparse.Namespace) -> RunOptions:
     """The run the command line asks for (the options that need no file checked later, by
     :func:`jaxvo.run.prepare_run`)."""
     from jaxvo.config import Config
-    from jaxvo.host.writers.bagout import BagOptions
     from jaxvo.host.frontend.camera import intrinsics_option
+    from jaxvo.host.writers.bagout import BagOptions
     from jaxvo.run import RunOptions
 
     if args.window is not None:

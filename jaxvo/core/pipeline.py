@@ -150,7 +150,7 @@ def step(state: PipelineState, flow: GridFlow, key, params: Params, *, cfg: Step
     if cfg.keyframes != (keyframe is not None):
         raise ValueError("the step takes a KeyframeFlow exactly when cfg.keyframes is set "
                          f"(cfg.keyframes={cfg.keyframes}, keyframe given: {keyframe is not None})")
-    stage = dict(cfg=cfg, grid=grid)
+    stage = {"cfg": cfg, "grid": grid}
     pts = frame_points(flow.pts_prev, flow.pts_cur, flow.valid & (flow.status == Status.OK),
                        params, focal=flow.focal, scale=state.noise, fb_error=flow.fb_error,
                        depth_slope=flow.depth_slope)

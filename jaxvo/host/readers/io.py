@@ -29,6 +29,7 @@ from jaxvo.host.frontend.frames import (
     given_camera,
     preset_from_name,
 )
+from jaxvo.host.readers.rosbag import BagSequence, is_bag
 
 # the output checks, in a module of their own; their names stay importable from here too
 from jaxvo.host.writers.outputs import (  # noqa: F401 (re-exported)
@@ -40,7 +41,6 @@ from jaxvo.host.writers.outputs import (  # noqa: F401 (re-exported)
     write_image,
     write_text,
 )
-from jaxvo.host.readers.rosbag import BagSequence, is_bag
 from jaxvo.trajectory import (
     Trajectory,
     associate,

@@ -39,7 +39,13 @@ from jaxvo.host.frontend.camera import (
     depth_metres,
     preset,
 )
-from jaxvo.host.frontend.frames import Frame, check_frame_size, frame_index, given_camera, preset_from_name
+from jaxvo.host.frontend.frames import (
+    Frame,
+    check_frame_size,
+    frame_index,
+    given_camera,
+    preset_from_name,
+)
 from jaxvo.host.readers.realsense import find_streams, image_message, is_realsense, register_depth
 from jaxvo.trajectory import associate
 

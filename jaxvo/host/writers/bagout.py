@@ -58,8 +58,8 @@ from typing import NamedTuple, Self
 import numpy as np
 
 from jaxvo.errors import InputError
-from jaxvo.host.writers.outputs import OutputFolder
 from jaxvo.host.frontend.prefetch import BackgroundWriter
+from jaxvo.host.writers.outputs import OutputFolder
 
 ODOMETRY_TOPIC = "/jaxvo/odometry"
 TF_TOPIC = "/tf"

@@ -41,9 +41,9 @@ import numpy as np
 
 from jaxvo.errors import InputError
 from jaxvo.host.frontend.camera import Intrinsics, grid_pixels
+from jaxvo.host.frontend.prefetch import BackgroundWriter
 from jaxvo.host.writers.masks import _PALETTE
 from jaxvo.host.writers.outputs import OutputFile, output_file
-from jaxvo.host.frontend.prefetch import BackgroundWriter
 
 EXTRA = "pip install 'jaxvo[viz]'"
 # The images (colour, depth, identifiers) are logged at SCALE times their size, the colour
