@@ -132,7 +132,8 @@ def test_a_keyframe_taken_where_the_ego_motion_was_not_measured_keeps_nothing():
     """A keyframe the host renews on a frame whose ego-motion failed (no background in
     view: a near object filling the image) holds no static point and reads none of the
     window's: its cells' evidence says nothing of the world, and its readings would tie
-    the window's poses to the object. Its pose is the carried one, unrefined."""
+    the window's poses to the object. Its pose is the carried one, unrefined, and the
+    window starts anew with it."""
     n = GRID[0] * GRID[1]
     static = np.ones(n, bool)
     first, _, p0, T = _first_keyframe(2, 0.5, static)
@@ -144,6 +145,15 @@ def test_a_keyframe_taken_where_the_ego_motion_was_not_measured_keeps_nothing():
     blind, out = _update(first, kf, T, static, ok=False)
     assert int(out.count) == 2 and bool(blind.taken[-1])
     assert not bool(blind.static[-1].any()) and not bool(blind.seen[-1].any())
+    np.testing.assert_array_equal(np.asarray(out.T_w_c), T)
+    # nothing ties the window across it: the keyframe after starts the window anew (as a
+    # new chain does on the host), no link, no reading of the keyframes before
+    only_latest = [False] * (blind.taken.shape[0] - 1) + [True]
+    assert list(np.asarray(blind.taken)) == only_latest and bool(blind.blind)
+    after, out = _update(blind, kf, T, static, ok=True)
+    assert list(np.asarray(after.taken)) == only_latest and not bool(after.blind)
+    read = after.seen & after.taken[None, :, None]  # readings of keyframes in the window
+    assert bool(after.static[-1].all()) and not bool(read.any())
     np.testing.assert_array_equal(np.asarray(out.T_w_c), T)
 
 

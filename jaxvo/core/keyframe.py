@@ -38,6 +38,7 @@ from typing import NamedTuple
 
 import jax
 import jax.numpy as jnp
+import numpy as np
 import optax
 
 from jaxvo.config import Params, StepOptions
@@ -69,6 +70,9 @@ class KeyframeState(NamedTuple):
     link_T: jax.Array  # (K, 4, 4) float32
     link_H: jax.Array  # (K, 6, 6) float32
     link_g: jax.Array  # (K, 6) float32
+    # () bool a frame since the latest keyframe (or that keyframe's own) had no measured
+    # ego-motion: the next keyframe starts a new window, as a new chain does on the host
+    blind: jax.Array = np.bool_(False)
 
 
 class KeyframeOut(NamedTuple):
@@ -442,9 +446,14 @@ def update_keyframe(state: KeyframeState, inputs: KeyframeInputs, params: Params
     kf, T_w_c, static, T_cur_prev, T_w_prev, pts, used, noise, focal, ok = inputs
 
     def take(st):  # on keyframe frames only (lax.cond): the pair's factor is built here
+        # after frames whose ego-motion was not measured (no background in view) nothing
+        # ties this keyframe to the window's: neither the chain of carried poses nor its
+        # readings of their points (found on whatever filled the view); it starts anew
+        anew = st.blind | ~ok
+        st = st._replace(taken=st.taken & ~anew, seen=st.seen & ~anew)
         T_cur_kf = T_cur_prev @ invert_pose(T_w_prev) @ st.T_w_kf[-1]
         link = (T_cur_kf, *pair_factor(T_cur_prev, pts, used, pts.thr))
-        st = _take(st, kf, T_w_c, static & ok, index, link, ok)
+        st = _take(st, kf, T_w_c, static & ok, index, link, ok)._replace(blind=~ok)
         if cfg.keyframe_window < 2 or not cfg.keyframe_iters:
             return st
         fixed = jnp.argmax(st.taken)
@@ -457,7 +466,7 @@ def update_keyframe(state: KeyframeState, inputs: KeyframeInputs, params: Params
 
     state = jax.lax.cond(state.fresh, lambda st: _learn_first(st, kf, index), lambda st: st,
                          state)
-    new = jax.lax.cond(kf.renew, take, lambda st: st, state)
+    new = jax.lax.cond(kf.renew, take, lambda st: st._replace(blind=st.blind | ~ok), state)
     T_out = jnp.where(kf.renew, new.T_w_kf[-1], T_w_c)
     return new, KeyframeOut(T_out, new.count)
 
