@@ -13,7 +13,14 @@ import numpy as np
 from temporal_frames import N, params, random_state
 
 from jaxvo.config import Config, Params, params_as_arrays
-from jaxvo.core.background import choose_background, depth_order, order_loglik
+from jaxvo.core.background import (
+    BackgroundState,
+    challenge,
+    challenge_loglik,
+    choose_background,
+    depth_order,
+    order_loglik,
+)
 from jaxvo.core.grid_model import update_grid_model
 from jaxvo.core.identifiers import permute_identifiers, swap_perm
 
@@ -246,3 +253,65 @@ def test_background_support_is_the_surface_explained_and_its_share_that_follows(
     _, consistency = background_support(*args, jnp.bool_(False), jnp.float32(11.345),
                                         jnp.float32(0.1))
     np.testing.assert_allclose(np.asarray(consistency), [1.1, 1.1, 0.0], rtol=1e-6)
+
+
+def _two_motions(cross: int, *, behind: float, front: float, surfaces):
+    """The background (identifier 1, segment 1) and a challenger (identifier 3, segment 2),
+    10 points each; the background's motion explains ``cross`` of the challenger's points
+    and the challenger's as many of the background's."""
+    n = 20
+    member = np.zeros((S, n), bool)
+    member[0, :10] = member[1, 10:] = True
+    explained = member.copy()
+    explained[0, 10:10 + cross] = explained[1, :cross] = True
+    order = np.zeros((S, S), np.float32)
+    order_front = np.zeros((S, S), np.float32)
+    order[1, 0], order_front[1, 0] = behind, front
+    return (_pad([1, 3], 0, jnp.int32), jnp.asarray(explained), jnp.asarray(member),
+            jnp.asarray(order), jnp.asarray(order_front), _pad(surfaces))
+
+
+def test_the_challenge_counts_the_order_and_the_surface_of_two_motions_told_apart():
+    """Told apart: the challenger's log-likelihood ratio is logit(p) per net pair behind
+    plus log of the surfaces' ratio, within the frame's bound, at its identifier; in front
+    of a larger background it is negative; a motion that explains most of the other's
+    points (two motions still one, as in the first frames of a carried mover) says
+    nothing."""
+    p = Params()
+    logit = np.log(p.order_reliability / (1 - p.order_reliability))
+    llr = challenge_loglik(*_two_motions(0, behind=1.0, front=0.0, surfaces=[1.0, 2.0]),
+                           params(), cfg=CFG)
+    expected = np.zeros(M)
+    expected[2] = logit + np.log(2.0)
+    np.testing.assert_allclose(np.asarray(llr), expected, rtol=1e-5)
+    llr = challenge_loglik(*_two_motions(0, behind=4.0, front=0.0, surfaces=[1.0, 4.0]),
+                           params(), cfg=CFG)
+    assert float(llr[2]) == p.evidence_step
+    llr = challenge_loglik(*_two_motions(0, behind=0.0, front=3.0, surfaces=[4.0, 1.0]),
+                           params(), cfg=CFG)
+    assert float(llr[2]) == -p.evidence_step
+    llr = challenge_loglik(*_two_motions(5, behind=4.0, front=0.0, surfaces=[1.0, 4.0]),
+                           params(), cfg=CFG)
+    np.testing.assert_array_equal(np.asarray(llr), np.zeros(M))
+
+
+def test_the_challenge_is_a_cusum_that_switches_past_the_confidence():
+    """One frame at the bound does not cross logit(confidence); two in a row do (the
+    first decays by evidence_decay); a negative ratio floors the sum at 0, and the
+    background's own entry stays 0."""
+    p = Params()
+    step = np.zeros(M, np.float32)
+    step[2] = p.evidence_step
+    state = BackgroundState(challenge=jnp.zeros(M, jnp.float32))
+    score, winner = challenge(state, jnp.asarray(step), params())
+    assert int(winner) == 0
+    assert float(score[2]) == p.evidence_step
+    score, winner = challenge(BackgroundState(challenge=score), jnp.asarray(step), params())
+    assert int(winner) == 3
+    np.testing.assert_allclose(float(score[2]), p.evidence_step * (1 + p.evidence_decay))
+    score, winner = challenge(BackgroundState(challenge=score), jnp.asarray(-4 * step),
+                              params())
+    assert float(score[2]) == 0.0 and int(winner) == 0
+    step[0] = 10.0
+    score, _ = challenge(state, jnp.asarray(step), params())
+    assert float(score[0]) == 0.0

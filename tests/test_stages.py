@@ -22,9 +22,10 @@ from jaxvo.core.temporal import update_temporal
 PIPELINE = Path(pipeline.__file__)
 
 # stages that carry a state: update_x(state, XInputs, params, *, cfg, grid) -> (state, out)
-STATEFUL = (update_occlusion, update_temporal, update_keyframe, keyframe_support)
+STATEFUL = (update_occlusion, update_background, update_temporal, update_keyframe,
+            keyframe_support)
 # one frame's measurements, with nothing to carry: x(XInputs, params, *, cfg, grid) -> out
-MEASURES = (update_background, moving_evidence)
+MEASURES = (moving_evidence,)
 
 
 def _positional(fn):

@@ -20,6 +20,17 @@ covering more than half the view took the background's. Here a mover cannot win 
 The chosen segment's identifier becomes 1 by one permutation of the identifiers
 (:func:`choose_background`: the background is re-acquired in that frame, never lost),
 which the later stages apply to their own states (``BackgroundOut.permutation``).
+
+The belief and the consistency carry what earlier frames decided, under the background
+chosen then: a choice made while two motions were still one (a near mover over most of the
+first frame) would feed itself. So the commitment stays open to a challenge that does not
+depend on it (:func:`challenge_loglik`, :class:`BackgroundState`): every frame in which
+another identifier's motion is told apart from the background's, what lies behind and
+which surface is larger speak for one of the two, and a one-sided sequential test (Page's
+CUSUM of those log-likelihood ratios) switches the background to that identifier once the
+sum crosses the confidence of every test. A switch discards what was established under the
+old choice (``BackgroundOut.switched``, ``forget``: the two motions' moving evidence and the
+occlusion memory start afresh).
 """
 
 from __future__ import annotations
@@ -138,6 +149,61 @@ def choose_background(segment_ids, support, consistency, initialised, *, max_ids
     return segment_ids.astype(jnp.int32), background, reacquired, perm
 
 
+class BackgroundState(NamedTuple):
+    """What the background choice carries from frame to frame (:func:`update_background`)."""
+
+    # (max_ids,) float32 for each identifier, the evidence that its motion and not the
+    # background's (identifier 1, always 0 here) is the camera's: a CUSUM of this frame's
+    # log-likelihood ratios (challenge_loglik), decaying as the moving evidence does
+    challenge: jax.Array
+
+
+def init_background(*, cfg: StepOptions) -> BackgroundState:
+    """No challenge to any identifier."""
+    return BackgroundState(challenge=jnp.zeros((cfg.max_ids,), jnp.float32))
+
+
+def challenge_loglik(segment_ids, explained, member, behind, front, surface, params: Params, *,
+                     cfg: StepOptions):
+    """(max_ids,) float32 this frame's log-likelihood ratio, for each identifier, that its
+    motion is the camera's rather than the background's (identifier 1), from what does not
+    depend on which of the two was chosen before.
+
+    Counted only where the two motions are told apart in this frame: most of neither's
+    points (``member`` (S, n) bool) lie within the other's inlier test (``explained`` (S, n)
+    bool, every point under every segment's motion), so that what two motions explain alike
+    (the first frames of a near mover carried with the camera) is evidence for neither.
+    Then two observations speak: the depth order at their common boundary (``behind``,
+    ``front`` (S, S), :func:`depth_order`: the static side lies behind with probability
+    ``params.order_reliability``, each net pair ``logit`` of it), and which motion explains
+    the larger surface (``surface`` (S,), square metres of the points each motion explains,
+    unweighted by belief: the thesis's "the background is the largest region" as the odds
+    ``surface_k / surface_1``, a view of the scene that changes as the camera moves). The
+    sum is kept within ``+-params.evidence_step``, as every evidence of one frame.
+    ``segment_ids`` (S,) int32: the identifiers of the segments before the choice."""
+    m = cfg.max_ids
+    is_bg = segment_ids == STATIC_ID
+    c = jnp.argmax(is_bg)
+    apart = (~explains(explained[c][None, :], member, MOST)
+             & ~explains(explained, member[c][None, :], MOST))
+    size = jnp.log(jnp.maximum(surface, tiny()) / jnp.maximum(surface[c], tiny()))
+    llr = jnp.clip(size, -params.evidence_step, params.evidence_step)
+    counted = jnp.any(is_bg) & apart & (segment_ids > STATIC_ID) & (surface > 0)
+    idx = jnp.clip(segment_ids - 1, 0, m - 1)
+    return jnp.zeros((m,), jnp.float32).at[idx].add(jnp.where(counted, llr, 0.0))
+
+
+def challenge(state: BackgroundState, llr, params: Params):
+    """``(challenge (max_ids,), winner () int32)``: one frame of Page's CUSUM per identifier,
+    ``S <- max(0, decay S + llr)`` (``params.evidence_decay``, as the moving evidence fades),
+    and the identifier whose sum crossed ``logit(params.confidence)`` (the largest; 0 none):
+    a false switch at most as likely as a false moving cell."""
+    score = jnp.maximum(params.evidence_decay * state.challenge + llr, 0.0).at[0].set(0.0)
+    best = jnp.argmax(score)
+    winner = jnp.where(score[best] > moving_logodds(params), best + 1, 0).astype(jnp.int32)
+    return score, winner
+
+
 class BackgroundOut(NamedTuple):
     """The background choice of one frame (:func:`update_background`)."""
 
@@ -156,6 +222,12 @@ class BackgroundOut(NamedTuple):
     # jaxvo.core.evidence counts it for the points the ego-motion does not explain
     in_front: jax.Array
     occluded: jax.Array  # (n,) bool points the occlusion memory holds nearer than what was seen
+    # () bool the challenge switched the background this frame: the occlusion memory, kept
+    # under the old one, is discarded
+    switched: jax.Array
+    # (n,) bool the points of the two swapped motions, whose moving evidence was established
+    # under the old background: it is discarded
+    forget: jax.Array
 
 
 def belief_weights(prior, params: Params):
@@ -219,8 +291,8 @@ class BackgroundInputs(NamedTuple):
     occluded: jax.Array | None = None
 
 
-def update_background(inputs: BackgroundInputs, params: Params, *, cfg: StepOptions,
-                      grid: tuple[int, int]):
+def update_background(state: BackgroundState, inputs: BackgroundInputs, params: Params, *,
+                      cfg: StepOptions, grid: tuple[int, int]):
     """The background of this frame and the points the ego-motion may use.
 
     Among the segments not made mostly of known movers (established moving, or held
@@ -233,18 +305,24 @@ def update_background(inputs: BackgroundInputs, params: Params, *, cfg: StepOpti
     segment that took in the background beside a mover). Where no segment is a candidate
     no background is in view: the status says so and the camera's motion is carried.
 
+    Unless the challenge (:func:`challenge_loglik`, :func:`challenge`) switches it: an
+    identifier whose motion the choice-independent evidence of several frames prefers to
+    the background's becomes the background, chosen as in a first frame (no belief, no
+    prediction: both were established under the old choice).
+
     The ego-motion may use every valid point, weighted by its belief, but those in a
     segment that moves unlike the background (Algorithm 1's refinement on all points, for
     the background; a segment the background's motion explains is a piece of the
     background that fast motion or depth distortion split off) and the occluders.
 
     Args:
+      state: the challenge carried (:class:`BackgroundState`, identifiers as entering).
       inputs: the frame's :class:`BackgroundInputs`; params: numeric settings.
       cfg: static settings; grid: static ``(rows, cols)``.
 
     Returns:
-      ``BackgroundOut``; its ``permutation`` renumbers the identifiers of the later stages'
-      states so that the background's is 1.
+      ``(BackgroundState, BackgroundOut)``; the output's ``permutation`` renumbers the
+      identifiers of the later stages' states so that the background's is 1.
     """
     (seg, pts, T_pred, have_last, labels, identifiers, evidence, scale, occluded) = inputs
     segment_ids = identify(identifiers, labels, params, cfg=cfg)
@@ -253,20 +331,32 @@ def update_background(inputs: BackgroundInputs, params: Params, *, cfg: StepOpti
                             pts.noise)[0]
     d2_pred, d2_seg = d2_all[0], d2_all[1:]
     z = jnp.maximum(pts.src[2], pts.dst[2])
-    occluded = jnp.zeros_like(valid) if occluded is None else occluded & valid
-    belief = jnp.where(valid & ~occluded, belief_weights(evidence, params), 0.0)
-    support, consistency = background_support(d2_seg, seg.sizes, belief, z, d2_pred,
-                                              have_last, pts.thr, params.unpredicted_support)
     z_prev = pts.src[2]
     explained = (d2_seg <= pts.thr) & valid
     behind, front = depth_order(jnp.where(valid, seg.labels, 0), z_prev,
                                 scale.depth_coeff * z_prev * z_prev, explained, pts.tie,
                                 grid=grid, cfg=cfg)
-    order = order_loglik(behind, front, params)
     member = (seg.labels[None, :] == jnp.arange(1, cfg.max_segments + 1)[:, None]) & valid
+    surface = jnp.sum(explained * (z * z)[None, :], axis=1)
+    score, winner = challenge(state, challenge_loglik(
+        segment_ids, explained, member, behind, front, surface, params, cfg=cfg), params)
+    switched = (winner > 0) & jnp.any(segment_ids == winner) & identifiers.initialised
+    # a switch chooses as a first frame would: what the old choice established of the two
+    # motions' points is not read (other movers keep their evidence)
+    swapped = (segment_ids == winner) | (segment_ids == STATIC_ID)
+    forget = switched & valid & swapped[jnp.clip(seg.labels - 1, 0, cfg.max_segments - 1)] & (
+        seg.labels > 0)
+    evidence = jnp.where(forget, 0.0, evidence)
+    occluded = (jnp.zeros_like(valid) if occluded is None else occluded & valid) & ~switched
+    belief = jnp.where(valid & ~occluded, belief_weights(evidence, params), 0.0)
+    support, consistency = background_support(d2_seg, seg.sizes, belief, z, d2_pred,
+                                              have_last & ~switched, pts.thr,
+                                              params.unpredicted_support)
+    order = order_loglik(behind, front, params)
     mover = (evidence > moving_logodds(params)) | occluded
     candidate = (~explains(mover[None, :], member, MOST)
                  | enough_points(explained & (belief >= 1.0), params))
+    candidate = jnp.where(switched, segment_ids == winner, candidate)
     segment_ids, bg, reacquired, perm = choose_background(
         segment_ids, support, consistency, identifiers.initialised, max_ids=cfg.max_ids,
         candidate=candidate)
@@ -279,6 +369,9 @@ def update_background(inputs: BackgroundInputs, params: Params, *, cfg: StepOpti
                        jnp.int32(Status.OK))
     own = order[jnp.clip(seg.labels - 1, 0, cfg.max_segments - 1)]
     in_front = jnp.where((seg.labels > 0) & valid & (own < 0), -own, 0.0)
-    return BackgroundOut(segment_ids=segment_ids, background=bg, reacquired=reacquired,
-                         use=use, belief=belief, d2_seg=d2_seg, permutation=perm,
-                         status=status, in_front=in_front, occluded=occluded)
+    # the challenge follows the identifiers' renumbering; the new background's is 0
+    score = jnp.where(switched, 0.0, score[perm]).at[0].set(0.0)
+    return BackgroundState(challenge=score), BackgroundOut(
+        segment_ids=segment_ids, background=bg, reacquired=reacquired, use=use, belief=belief,
+        d2_seg=d2_seg, permutation=perm, status=status, in_front=in_front, occluded=occluded,
+        switched=switched, forget=forget)

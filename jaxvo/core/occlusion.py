@@ -44,6 +44,12 @@ def init_occlusion(*, grid: tuple[int, int]) -> OcclusionState:
                           jnp.eye(4, dtype=jnp.float32))
 
 
+def forget_occlusion(state: OcclusionState, forget) -> OcclusionState:
+    """The memory with its marks cleared where ``forget`` () bool: they were accumulated
+    under a background that has been switched (:mod:`jaxvo.core.background`)."""
+    return state._replace(nearer=jnp.where(forget, 0.0, state.nearer))
+
+
 class OcclusionInputs(NamedTuple):
     """What one image gives the occlusion memory (:func:`update_occlusion`)."""
 

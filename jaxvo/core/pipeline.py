@@ -33,7 +33,13 @@ import jax
 import jax.numpy as jnp
 
 from jaxvo.config import Params, StepOptions
-from jaxvo.core.background import BackgroundInputs, BackgroundOut, update_background
+from jaxvo.core.background import (
+    BackgroundInputs,
+    BackgroundOut,
+    BackgroundState,
+    init_background,
+    update_background,
+)
 from jaxvo.core.egomotion import (
     EgoInputs,
     EgoState,
@@ -63,6 +69,7 @@ from jaxvo.core.noise import NoiseInputs, NoiseScale, init_noise, transfer, upda
 from jaxvo.core.occlusion import (
     OcclusionInputs,
     OcclusionState,
+    forget_occlusion,
     init_occlusion,
     update_occlusion,
 )
@@ -87,6 +94,7 @@ class PipelineState(NamedTuple):
     noise: NoiseScale  # the sensor noise model (jaxvo.core.noise; calibrated with cfg.noise_calibration)
     keyframe: KeyframeState | None = None  # the latest keyframe (cfg.keyframes), None: off
     occlusion: OcclusionState | None = None  # the occlusion memory of the last image
+    background: BackgroundState | None = None  # the challenge to the background's choice
 
     @property
     def T_w_c(self):
@@ -115,6 +123,9 @@ class StepOutput(NamedTuple):
     reacquired: jax.Array  # () bool the background took its identifier back this frame
     noise: NoiseScale  # the sensor noise model after this frame
     keyframes: jax.Array | None = None  # () int32 keyframes taken so far (cfg.keyframes)
+    # () bool the background was switched to another motion this frame (its challenge,
+    # jaxvo.core.background): the pose chain follows the new background from here
+    switched: jax.Array | None = None
 
 
 def init_pipeline(*, cfg: StepOptions, grid: tuple[int, int], T_w_c0=None,
@@ -126,7 +137,8 @@ def init_pipeline(*, cfg: StepOptions, grid: tuple[int, int], T_w_c0=None,
     return PipelineState(temporal=init_temporal(cfg=cfg, grid=grid),
                          ego=init_ego(T0),
                          frame=jnp.int32(0), noise=init_noise(Params() if params is None else params),
-                         keyframe=keyframe, occlusion=init_occlusion(grid=grid))
+                         keyframe=keyframe, occlusion=init_occlusion(grid=grid),
+                         background=init_background(cfg=cfg))
 
 
 @full_precision
@@ -159,7 +171,7 @@ def step(state: PipelineState, flow: GridFlow, key, params: Params, *, cfg: Step
     occlusion, occ = update_occlusion(state.occlusion, OcclusionInputs(
         depth=flow.depth_prev, uv=flow.uv_prev, T_w_c=state.ego.T_w_c, camera=flow.camera,
         scale=state.noise, tie=pts.tie), params, **stage)
-    bg = update_background(BackgroundInputs(
+    background, bg = update_background(state.background, BackgroundInputs(
         seg=seg, pts=pts, T_pred=predicted_motion(state.ego), have_last=state.ego.have_last,
         labels=labels, identifiers=state.temporal.identifiers,
         evidence=state.temporal.evidence, scale=state.noise, occluded=occ.occluded),
@@ -173,7 +185,8 @@ def step(state: PipelineState, flow: GridFlow, key, params: Params, *, cfg: Step
     temporal, tout = update_temporal(state.temporal, TemporalInputs(
         labels=labels, disp=flow.uv_cur - flow.uv_prev, flow_valid=pts.valid,
         segment_ids=bg.segment_ids, explained=ev.explained, evidence_delta=ev.delta,
-        depth_prev=flow.depth_prev, permutation=bg.permutation), params, **stage)
+        depth_prev=flow.depth_prev, permutation=bg.permutation, forget=bg.forget),
+        params, **stage)
     noise = state.noise
     if cfg.noise_calibration:
         noise = update_noise(noise, NoiseInputs(
@@ -184,12 +197,13 @@ def step(state: PipelineState, flow: GridFlow, key, params: Params, *, cfg: Step
         kf_state, kout = update_keyframe(kf_state, KeyframeInputs(
             kf=keyframe, T_w_c=ego.T_w_c, static=temporal.evidence <= moving_logodds(params),
             T_cur_prev=eo.T_cur_prev, T_w_prev=state.ego.T_w_c, pts=pts, used=eo.used,
-            noise=noise, focal=flow.focal, ok=eo.ok), params, **stage)
+            noise=noise, focal=flow.focal, ok=eo.ok & ~bg.switched), params, **stage)
         ego = ego._replace(T_w_c=kout.T_w_c)
     out = _output(ego, eo, seg, bg, tout, noise, pts.valid, params, **stage)
-    return PipelineState(temporal=temporal, ego=ego, frame=state.frame + 1, noise=noise,
-                         keyframe=kf_state, occlusion=occlusion), out._replace(
-        keyframes=None if kout is None else kout.count)
+    return PipelineState(
+        temporal=temporal, ego=ego, frame=state.frame + 1, noise=noise, keyframe=kf_state,
+        occlusion=forget_occlusion(occlusion, bg.switched), background=background), out._replace(
+        keyframes=None if kout is None else kout.count, switched=bg.switched)
 
 
 def _ego_inputs(state: PipelineState, flow: GridFlow, keyframe: KeyframeFlow | None, pts,
