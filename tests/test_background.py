@@ -255,7 +255,7 @@ def test_background_support_is_the_surface_explained_and_its_share_that_follows(
     np.testing.assert_allclose(np.asarray(consistency), [1.1, 1.1, 0.0], rtol=1e-6)
 
 
-def _two_motions(cross: int, *, behind: float, front: float, surfaces):
+def _two_motions(cross: int, *, surfaces):
     """The background (identifier 1, segment 1) and a challenger (identifier 3, segment 2),
     10 points each; the background's motion explains ``cross`` of the challenger's points
     and the challenger's as many of the background's."""
@@ -264,34 +264,28 @@ def _two_motions(cross: int, *, behind: float, front: float, surfaces):
     member[0, :10] = member[1, 10:] = True
     explained = member.copy()
     explained[0, 10:10 + cross] = explained[1, :cross] = True
-    order = np.zeros((S, S), np.float32)
-    order_front = np.zeros((S, S), np.float32)
-    order[1, 0], order_front[1, 0] = behind, front
     return (_pad([1, 3], 0, jnp.int32), jnp.asarray(explained), jnp.asarray(member),
-            jnp.asarray(order), jnp.asarray(order_front), _pad(surfaces))
+            _pad(surfaces))
 
 
-def test_the_challenge_counts_the_order_and_the_surface_of_two_motions_told_apart():
-    """Told apart: the challenger's log-likelihood ratio is logit(p) per net pair behind
-    plus log of the surfaces' ratio, within the frame's bound, at its identifier; in front
-    of a larger background it is negative; a motion that explains most of the other's
-    points (two motions still one, as in the first frames of a carried mover) says
-    nothing."""
+def test_the_challenge_counts_the_surfaces_of_two_motions_told_apart():
+    """Told apart: the challenger's log-likelihood ratio is the log of the surfaces' ratio,
+    within the frame's bound, at its identifier; a smaller challenger's is negative; a
+    motion that explains most of the other's points (two motions still one, as in the first
+    frames of a carried mover) says nothing, nor does a frame without the background."""
     p = Params()
-    logit = np.log(p.order_reliability / (1 - p.order_reliability))
-    llr = challenge_loglik(*_two_motions(0, behind=1.0, front=0.0, surfaces=[1.0, 2.0]),
-                           params(), cfg=CFG)
+    llr = challenge_loglik(*_two_motions(0, surfaces=[1.0, 2.0]), params(), cfg=CFG)
     expected = np.zeros(M)
-    expected[2] = logit + np.log(2.0)
+    expected[2] = np.log(2.0)
     np.testing.assert_allclose(np.asarray(llr), expected, rtol=1e-5)
-    llr = challenge_loglik(*_two_motions(0, behind=4.0, front=0.0, surfaces=[1.0, 4.0]),
-                           params(), cfg=CFG)
+    llr = challenge_loglik(*_two_motions(0, surfaces=[1.0, 100.0]), params(), cfg=CFG)
     assert float(llr[2]) == p.evidence_step
-    llr = challenge_loglik(*_two_motions(0, behind=0.0, front=3.0, surfaces=[4.0, 1.0]),
-                           params(), cfg=CFG)
-    assert float(llr[2]) == -p.evidence_step
-    llr = challenge_loglik(*_two_motions(5, behind=4.0, front=0.0, surfaces=[1.0, 4.0]),
-                           params(), cfg=CFG)
+    llr = challenge_loglik(*_two_motions(4, surfaces=[4.0, 1.0]), params(), cfg=CFG)
+    np.testing.assert_allclose(float(llr[2]), -np.log(4.0), rtol=1e-5)
+    llr = challenge_loglik(*_two_motions(5, surfaces=[1.0, 4.0]), params(), cfg=CFG)
+    np.testing.assert_array_equal(np.asarray(llr), np.zeros(M))
+    ids, explained, member, surface = _two_motions(0, surfaces=[1.0, 4.0])
+    llr = challenge_loglik(ids.at[0].set(2), explained, member, surface, params(), cfg=CFG)
     np.testing.assert_array_equal(np.asarray(llr), np.zeros(M))
 
 

@@ -25,10 +25,10 @@ The belief and the consistency carry what earlier frames decided, under the back
 chosen then: a choice made while two motions were still one (a near mover over most of the
 first frame) would feed itself. So the commitment stays open to a challenge that does not
 depend on it (:func:`challenge_loglik`, :class:`BackgroundState`): every frame in which
-another identifier's motion is told apart from the background's, what lies behind and
-which surface is larger speak for one of the two, and a one-sided sequential test (Page's
-CUSUM of those log-likelihood ratios) switches the background to that identifier once the
-sum crosses the confidence of every test. A switch discards what was established under the
+another identifier's motion is told apart from the background's, which of the two explains
+the larger surface speaks for one of them, and a one-sided sequential test (Page's CUSUM of
+those log-likelihood ratios) switches the background to that identifier once the sum
+crosses the confidence of every test. A switch discards what was established under the
 old choice (``BackgroundOut.switched``, ``forget``: the two motions' moving evidence and the
 occlusion memory start afresh).
 """
@@ -163,7 +163,7 @@ def init_background(*, cfg: StepOptions) -> BackgroundState:
     return BackgroundState(challenge=jnp.zeros((cfg.max_ids,), jnp.float32))
 
 
-def challenge_loglik(segment_ids, explained, member, behind, front, surface, params: Params, *,
+def challenge_loglik(segment_ids, explained, member, surface, params: Params, *,
                      cfg: StepOptions):
     """(max_ids,) float32 this frame's log-likelihood ratio, for each identifier, that its
     motion is the camera's rather than the background's (identifier 1), from what does not
@@ -173,13 +173,12 @@ def challenge_loglik(segment_ids, explained, member, behind, front, surface, par
     points (``member`` (S, n) bool) lie within the other's inlier test (``explained`` (S, n)
     bool, every point under every segment's motion), so that what two motions explain alike
     (the first frames of a near mover carried with the camera) is evidence for neither.
-    Then two observations speak: the depth order at their common boundary (``behind``,
-    ``front`` (S, S), :func:`depth_order`: the static side lies behind with probability
-    ``params.order_reliability``, each net pair ``logit`` of it), and which motion explains
-    the larger surface (``surface`` (S,), square metres of the points each motion explains,
-    unweighted by belief: the thesis's "the background is the largest region" as the odds
-    ``surface_k / surface_1``, a view of the scene that changes as the camera moves). The
-    sum is kept within ``+-params.evidence_step``, as every evidence of one frame.
+    Then the thesis's "the background is the largest region", made independent of the
+    choice: the odds ``surface_k / surface_1`` of the surfaces the two motions explain
+    (``surface`` (S,), square metres, unweighted by belief), a view that changes as the
+    camera moves; within ``+-params.evidence_step``, as every evidence of one frame. The
+    depth order is not counted: a mover partly behind the static scene (a box behind a
+    table) lies behind it at their boundary (docs/report/cover_carried.md).
     ``segment_ids`` (S,) int32: the identifiers of the segments before the choice."""
     m = cfg.max_ids
     is_bg = segment_ids == STATIC_ID
@@ -339,7 +338,7 @@ def update_background(state: BackgroundState, inputs: BackgroundInputs, params: 
     member = (seg.labels[None, :] == jnp.arange(1, cfg.max_segments + 1)[:, None]) & valid
     surface = jnp.sum(explained * (z * z)[None, :], axis=1)
     score, winner = challenge(state, challenge_loglik(
-        segment_ids, explained, member, behind, front, surface, params, cfg=cfg), params)
+        segment_ids, explained, member, surface, params, cfg=cfg), params)
     switched = (winner > 0) & jnp.any(segment_ids == winner) & identifiers.initialised
     # a switch chooses as a first frame would: what the old choice established of the two
     # motions' points is not read (other movers keep their evidence)
