@@ -47,6 +47,7 @@ from jaxvo.core.pipeline import (
     frame_key,
     init_pipeline,
     jit_step,
+    revised_poses,
     run_scan,
 )
 from jaxvo.core.spatial import segment
@@ -197,7 +198,8 @@ def run_jaxvo(seq: CachedSequence, cfg: Config, seed: int, repeats: int):
     final_ids = np.asarray(final_moving(final, params))
     rss_after_scan = peak_rss_mib()
     stage_ms, stage_compile = time_stages(flows_dev, key, params, cfg, grid)
-    poses = np.concatenate([np.asarray(T0, np.float64)[None], outs.T_w_c.astype(np.float64)])
+    committed = revised_poses(outs.T_w_c, outs.switched, outs.chains, outs.permutation)
+    poses = np.concatenate([np.asarray(T0, np.float64)[None], np.asarray(committed, np.float64)])
     timing = {
         "flow_ms": 1e3 * float(np.median(flow_times)),
         **{f"{k}_ms": v for k, v in stage_ms.items()},

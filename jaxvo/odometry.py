@@ -26,7 +26,7 @@ import numpy as np
 
 from jaxvo.config import Config, Params, check_config, check_params, grid_shape, params_as_arrays
 from jaxvo.core.inputs import GridFlow, KeyframeFlow
-from jaxvo.core.pipeline import StepOutput, init_pipeline, jit_step, run_scan
+from jaxvo.core.pipeline import StepOutput, init_pipeline, jit_step, revised_poses, run_scan
 from jaxvo.errors import InputError
 from jaxvo.host.frontend.camera import Intrinsics, as_intrinsics, check_intrinsics, depth_metres
 from jaxvo.host.frontend.flow import (
@@ -54,6 +54,10 @@ class FrameResult(NamedTuple):
     static: np.ndarray  # (n,) bool grid points used for the ego-motion
     output: StepOutput | None  # every per-step output (None on the first or a dropped frame)
     dropped: str | None = None  # why the frame was dropped (it has no pose), None if kept
+    # (k, 4, 4) float64 the k poses before this one, revised: the background switched to
+    # another motion in this pair (StepOutput.switched), and the camera's path so far is
+    # redrawn along that motion's chain (Odometry.trajectory holds them); None: none
+    revised: np.ndarray | None = None
 
 
 class _Dispatched(NamedTuple):
@@ -159,6 +163,10 @@ class Odometry:
         self._step = None  # the compiled step, from the first frame pair on
         self.timestamps: list[float] = []
         self.poses: list[np.ndarray] = []
+        # every pair's pose chains and renumbering (StepOutput.chains, .permutation): what
+        # a switch of the background revises the earlier poses from
+        self._chains: list[np.ndarray] = []
+        self._permutations: list[np.ndarray] = []
         self.logger = None
         if logger is not None:
             self.attach(logger)
@@ -186,7 +194,8 @@ class Odometry:
     @property
     def trajectory(self) -> Trajectory:
         """Every pose so far (camera-to-world), dropped frames left out: each as it was
-        when its frame was processed."""
+        when its frame was processed, or as a later switch of the background revised it
+        (:attr:`FrameResult.revised`)."""
         return Trajectory(np.asarray(self.timestamps, np.float64),
                           np.asarray(self.poses).reshape(-1, 4, 4))
 
@@ -295,6 +304,24 @@ class Odometry:
         check_memory(run_bytes(self.cfg, height=h, width=w),
                      what=f"Odometry with {_shape_settings(self.cfg)}")
 
+    def _revise(self, winner: int) -> np.ndarray:
+        """Redraw the poses before the last one along the chain of the ``winner`` the
+        background switched to in the last pair (:func:`jaxvo.core.pipeline.revised_poses`);
+        the revised poses, (k, 4, 4) float64. The pairs are padded in front to a power of
+        two, so that a long stream compiles the walk a few times, not at every switch."""
+        pairs = len(self._chains)
+        size = 1 << max(pairs - 1, 0).bit_length()
+        eye = np.eye(4, dtype=np.float32)
+        switched = np.zeros(size, np.int32)
+        switched[-1] = winner
+        after = revised_poses(
+            _padded([p.astype(np.float32) for p in self.poses[-pairs:]], size, eye), switched,
+            _padded(self._chains, size, np.broadcast_to(eye, self._chains[0].shape)),
+            _padded(self._permutations, size, np.arange(len(self._permutations[0]))))
+        revised = np.asarray(after, np.float64)[size - pairs:-1]
+        self.poses[len(self.poses) - pairs:-1] = list(revised)
+        return revised
+
     def _finish(self, pending: _Dispatched) -> FrameResult:
         """Wait for a dispatched frame, record its pose, log it (:meth:`attach`) and return
         its result."""
@@ -316,7 +343,18 @@ class Odometry:
             return FrameResult(index, t, T, status, np.zeros(n, np.int32), np.zeros(n, bool),
                                None, dropped)
         out = jax.tree.map(np.asarray, out)
-        return FrameResult(index, t, T, Status(int(out.status)), out.ids, out.static, out)
+        self._chains.append(out.chains)
+        self._permutations.append(out.permutation)
+        revised = None
+        if int(out.switched):
+            revised = self._revise(int(out.switched))
+        return FrameResult(index, t, T, Status(int(out.status)), out.ids, out.static, out,
+                           revised=revised)
+
+
+def _padded(items: list[np.ndarray], size: int, fill: np.ndarray) -> np.ndarray:
+    """``items`` stacked after ``size - len(items)`` copies of ``fill``."""
+    return np.stack([fill] * (size - len(items)) + items)
 
 
 def _frame_arrays(bgr, depth, K: Intrinsics) -> tuple[np.ndarray, np.ndarray]:
@@ -473,7 +511,8 @@ def run_sequence(
     outs = jax.tree.map(np.asarray, jax.block_until_ready(outs))
     scan_s = time.perf_counter() - t0
 
-    poses = np.concatenate([T0[None], outs.T_w_c.astype(np.float64)])
+    committed = revised_poses(outs.T_w_c, outs.switched, outs.chains, outs.permutation)
+    poses = np.concatenate([T0[None], np.asarray(committed, np.float64)])
     return SequenceResult(Trajectory(stamps, poses), outs, chain.flows, flow_s, scan_s, grid,
                           chain.frames, chain.dropped, start, chain.keyframes)
 

@@ -325,6 +325,9 @@ class Recorder:
         self.recent: dict[int, object] = {}  # submitted frames whose results are not out yet
         self.labels = LabelAnchor()  # which image each pair's labels lie on
         self.reacquired = 0  # pairs in which the background took its identifier back
+        # switches of the background to another motion, the poses they redrew in the file,
+        # and those already printed (standard output) or published (the bag) as they were
+        self.switches = self.revised = self.unrevised = 0
         self.keyframes = 1 if cfg.keyframes else 0  # keyframes taken (the first frame is one)
         self.first_unreadable = ""  # the first unreadable frame's error, for the summary
         self.interrupted = False
@@ -390,6 +393,10 @@ class Recorder:
             self.dropped[r.dropped] += 1
             return
         self.writer.write(r.timestamp, r.T_w_c)
+        if r.revised is not None:  # the background switched: the path so far redrawn
+            self.switches += 1
+            self.revised += len(r.revised)
+            self.unrevised += self.writer.revise(r.revised)
         if self.bag is not None:
             self.submit(self.bag.write_pose, frame.index, r.T_w_c)
         self.written += 1
@@ -501,6 +508,10 @@ def _summary(o: RunOptions, seq, n: int, start: str, rec: Recorder, compiling, w
         "pairs_ok": rec.pairs_ok,
         "skipped": dict(rec.skipped),
         "background_reacquired": rec.reacquired,
+        # switches of the background to another motion (its challenge), the earlier poses
+        # they redrew in the trajectory file, and those printed or published before
+        "background_switched": {"times": rec.switches, "poses_revised": rec.revised,
+                                "poses_left_as_printed": rec.unrevised},
         "dropped": {(f"{k} (first: {rec.first_unreadable})" if k == "unreadable frame" else k):
                     v for k, v in rec.dropped.items()},
         "warnings": warnings,
@@ -560,6 +571,12 @@ def summary_lines(summary: dict) -> list[str]:
                   for reason, count in sorted(counts.items(), key=lambda kv: -kv[1])]
     lines.append(f"  background re-acquired in {s['background_reacquired']} frame pairs (the "
                  "segment the evidence gave the background had another identifier)")
+    switched = s["background_switched"]
+    if switched["times"]:
+        lines.append(f"  background switched to another motion {switched['times']} time(s): "
+                     f"{switched['poses_revised']} earlier poses redrawn along it" + (
+                         f" ({switched['poses_left_as_printed']} already printed stay as "
+                         "they were)" if switched["poses_left_as_printed"] else ""))
     lines.append(f"  memory     {s['peak_rss_mib']:.0f} MiB peak resident")
     lines += [f"  warning    {w}" for w in s["warnings"]]
     return lines + _outcome_lines(s)

@@ -264,8 +264,9 @@ def _two_motions(cross: int, *, surfaces):
     member[0, :10] = member[1, 10:] = True
     explained = member.copy()
     explained[0, 10:10 + cross] = explained[1, :cross] = True
+    no_order = jnp.zeros((S, S), jnp.float32)
     return (_pad([1, 3], 0, jnp.int32), jnp.asarray(explained), jnp.asarray(member),
-            _pad(surfaces))
+            _pad(surfaces), no_order, no_order)
 
 
 def test_the_challenge_counts_the_surfaces_of_two_motions_told_apart():
@@ -284,9 +285,18 @@ def test_the_challenge_counts_the_surfaces_of_two_motions_told_apart():
     np.testing.assert_allclose(float(llr[2]), -np.log(4.0), rtol=1e-5)
     llr = challenge_loglik(*_two_motions(5, surfaces=[1.0, 4.0]), params(), cfg=CFG)
     np.testing.assert_array_equal(np.asarray(llr), np.zeros(M))
-    ids, explained, member, surface = _two_motions(0, surfaces=[1.0, 4.0])
-    llr = challenge_loglik(ids.at[0].set(2), explained, member, surface, params(), cfg=CFG)
+    ids, explained, member, surface, behind, front = _two_motions(0, surfaces=[1.0, 4.0])
+    llr = challenge_loglik(ids.at[0].set(2), explained, member, surface, behind, front,
+                           params(), cfg=CFG)
     np.testing.assert_array_equal(np.asarray(llr), np.zeros(M))
+    # in front of the background in more decisive pairs than behind: vetoed; behind: counted
+    in_front = front.at[1, 0].set(3.0).at[0, 1].set(0.0)
+    llr = challenge_loglik(ids, explained, member, surface, behind.at[1, 0].set(2.0),
+                           in_front, params(), cfg=CFG)
+    np.testing.assert_array_equal(np.asarray(llr), np.zeros(M))
+    llr = challenge_loglik(ids, explained, member, surface, behind.at[1, 0].set(4.0),
+                           in_front, params(), cfg=CFG)
+    np.testing.assert_allclose(float(llr[2]), np.log(4.0), rtol=1e-5)
 
 
 def test_the_challenge_is_a_cusum_that_switches_past_the_confidence():
@@ -296,16 +306,42 @@ def test_the_challenge_is_a_cusum_that_switches_past_the_confidence():
     p = Params()
     step = np.zeros(M, np.float32)
     step[2] = p.evidence_step
-    state = BackgroundState(challenge=jnp.zeros(M, jnp.float32))
+    state = BackgroundState(challenge=jnp.zeros(M, jnp.float32), chains=jnp.zeros((M, 4, 4)))
     score, winner = challenge(state, jnp.asarray(step), params())
     assert int(winner) == 0
     assert float(score[2]) == p.evidence_step
-    score, winner = challenge(BackgroundState(challenge=score), jnp.asarray(step), params())
+    score, winner = challenge(state._replace(challenge=score), jnp.asarray(step), params())
     assert int(winner) == 3
     np.testing.assert_allclose(float(score[2]), p.evidence_step * (1 + p.evidence_decay))
-    score, winner = challenge(BackgroundState(challenge=score), jnp.asarray(-4 * step),
+    score, winner = challenge(state._replace(challenge=score), jnp.asarray(-4 * step),
                               params())
     assert float(score[2]) == 0.0 and int(winner) == 0
     step[0] = 10.0
     score, _ = challenge(state, jnp.asarray(step), params())
     assert float(score[0]) == 0.0
+
+
+def test_each_identifier_chain_follows_its_segment_and_identifier_1_the_committed_pose():
+    """Identifier 3 carried by segment 2 moves by that segment's motion, identifier 1 starts
+    from the committed pose and moves by segment 1's, an identifier out of view moves with
+    the predicted camera motion."""
+    from jaxvo.core.background import follow_chains
+    from jaxvo.core.geometry import invert_pose
+
+    def shift(x):
+        T = np.eye(4, dtype=np.float32)
+        T[0, 3] = x
+        return T
+
+    motions = np.stack([shift(0.1), shift(0.5)] + [np.eye(4, dtype=np.float32)] * (S - 2))
+    chains = np.stack([shift(10.0 * (k + 1)) for k in range(M)])
+    committed, T_pred = shift(-1.0), shift(0.2)
+    start, moved = follow_chains(jnp.asarray(chains), _pad([1, 3], 0, jnp.int32),
+                                 jnp.asarray(motions), jnp.asarray(T_pred),
+                                 jnp.asarray(committed), cfg=CFG)
+    np.testing.assert_allclose(np.asarray(start[0]), committed)
+    np.testing.assert_allclose(np.asarray(start[1:]), chains[1:])
+    inv = lambda T: np.asarray(invert_pose(jnp.asarray(T)))  # noqa: E731
+    np.testing.assert_allclose(np.asarray(moved[0]), committed @ inv(motions[0]), atol=1e-6)
+    np.testing.assert_allclose(np.asarray(moved[2]), chains[2] @ inv(motions[1]), atol=1e-6)
+    np.testing.assert_allclose(np.asarray(moved[1]), chains[1] @ inv(T_pred), atol=1e-6)

@@ -28,7 +28,9 @@ depend on it (:func:`challenge_loglik`, :class:`BackgroundState`): every frame i
 another identifier's motion is told apart from the background's, which of the two explains
 the larger surface speaks for one of them, and a one-sided sequential test (Page's CUSUM of
 those log-likelihood ratios) switches the background to that identifier once the sum
-crosses the confidence of every test. A switch discards what was established under the
+crosses the confidence of every test. Each identifier's motions are chained into the pose
+the camera would have were that motion its own (:func:`follow_chains`): after a switch the
+pose continues from the winner's chain, and the host revises the earlier poses along it. A switch discards what was established under the
 old choice (``BackgroundOut.switched``, ``forget``: the two motions' moving evidence and the
 occlusion memory start afresh).
 """
@@ -42,7 +44,7 @@ import jax.numpy as jnp
 
 from jaxvo.config import Params, StepOptions
 from jaxvo.core.evidence import explained_segments, moving_logodds, neighbourhood
-from jaxvo.core.geometry import tiny
+from jaxvo.core.geometry import invert_pose, tiny
 from jaxvo.core.identifiers import STATIC_ID, IdentifierState, identify, relabel, swap_perm
 from jaxvo.core.noise import NoiseScale, residuals_many
 from jaxvo.core.points import Points
@@ -156,14 +158,35 @@ class BackgroundState(NamedTuple):
     # background's (identifier 1, always 0 here) is the camera's: a CUSUM of this frame's
     # log-likelihood ratios (challenge_loglik), decaying as the moving evidence does
     challenge: jax.Array
+    # (max_ids, 4, 4) float32 the last image's camera pose were each identifier's motion
+    # the camera's: its segments' motions chained (follow_chains); identifier 1's is the
+    # committed pose. A switch continues from the winner's, and the host revises the past
+    # poses along it (jaxvo.trajectory.revise_poses)
+    chains: jax.Array
 
 
-def init_background(*, cfg: StepOptions) -> BackgroundState:
-    """No challenge to any identifier."""
-    return BackgroundState(challenge=jnp.zeros((cfg.max_ids,), jnp.float32))
+def init_background(T_w_c0, *, cfg: StepOptions) -> BackgroundState:
+    """No challenge to any identifier; every chain at the first pose ``T_w_c0`` (4, 4)."""
+    return BackgroundState(challenge=jnp.zeros((cfg.max_ids,), jnp.float32),
+                           chains=jnp.broadcast_to(T_w_c0, (cfg.max_ids, 4, 4)))
 
 
-def challenge_loglik(segment_ids, explained, member, surface, params: Params, *,
+def follow_chains(chains, segment_ids, motions, T_pred, T_w_prev, *, cfg: StepOptions):
+    """``(start (max_ids, 4, 4), chains (max_ids, 4, 4))``: the last image's pose under each
+    identifier (``chains`` (max_ids, 4, 4) as carried, identifier 1's replaced by the
+    committed pose ``T_w_prev``) and this image's, each moved by the motion ``motions``
+    (S, 4, 4) of the segment that carries the identifier (``segment_ids`` (S,)), or by the
+    predicted camera motion ``T_pred`` where none does (out of view: it stays with the
+    camera)."""
+    m = cfg.max_ids
+    start = chains.at[0].set(T_w_prev)
+    carries = (segment_ids[:, None] == jnp.arange(1, m + 1)[None, :]).astype(jnp.float32)
+    own = jnp.einsum("sm,sij->mij", carries, motions)
+    motion = jnp.where(jnp.any(carries > 0, axis=0)[:, None, None], own, T_pred[None])
+    return start, start @ jax.vmap(invert_pose)(motion)
+
+
+def challenge_loglik(segment_ids, explained, member, surface, behind, front, params: Params, *,
                      cfg: StepOptions):
     """(max_ids,) float32 this frame's log-likelihood ratio, for each identifier, that its
     motion is the camera's rather than the background's (identifier 1), from what does not
@@ -176,9 +199,15 @@ def challenge_loglik(segment_ids, explained, member, surface, params: Params, *,
     Then the thesis's "the background is the largest region", made independent of the
     choice: the odds ``surface_k / surface_1`` of the surfaces the two motions explain
     (``surface`` (S,), square metres, unweighted by belief), a view that changes as the
-    camera moves; within ``+-params.evidence_step``, as every evidence of one frame. The
-    depth order is not counted: a mover partly behind the static scene (a box behind a
-    table) lies behind it at their boundary (docs/report/cover_carried.md).
+    camera moves; within ``+-params.evidence_step``, as every evidence of one frame.
+
+    The depth order at the two motions' common boundary (``behind``, ``front`` (S, S),
+    :func:`depth_order`) only vetoes: a motion whose points lie in front of the
+    background's in more decisive pairs than behind it occludes the world and cannot take
+    its place (the static scene never comes nearer than itself); lying behind is no
+    evidence for it, as a mover partly behind the static scene (a box behind a table) lies
+    behind it there (docs/report/cover_carried.md). Without the veto a near box covering
+    most of the view took the background from a room split into two pieces, each smaller.
     ``segment_ids`` (S,) int32: the identifiers of the segments before the choice."""
     m = cfg.max_ids
     is_bg = segment_ids == STATIC_ID
@@ -187,7 +216,8 @@ def challenge_loglik(segment_ids, explained, member, surface, params: Params, *,
              & ~explains(explained, member[c][None, :], MOST))
     size = jnp.log(jnp.maximum(surface, tiny()) / jnp.maximum(surface[c], tiny()))
     llr = jnp.clip(size, -params.evidence_step, params.evidence_step)
-    counted = jnp.any(is_bg) & apart & (segment_ids > STATIC_ID) & (surface > 0)
+    occludes = front[:, c] > behind[:, c]
+    counted = jnp.any(is_bg) & apart & ~occludes & (segment_ids > STATIC_ID) & (surface > 0)
     idx = jnp.clip(segment_ids - 1, 0, m - 1)
     return jnp.zeros((m,), jnp.float32).at[idx].add(jnp.where(counted, llr, 0.0))
 
@@ -227,6 +257,13 @@ class BackgroundOut(NamedTuple):
     # (n,) bool the points of the two swapped motions, whose moving evidence was established
     # under the old background: it is discarded
     forget: jax.Array
+    # (4, 4) float32 the committed pose of the last image: as entering, or after a switch
+    # the new background's chain (BackgroundState.chains), which the ego-motion continues
+    T_w_prev: jax.Array
+    # () int32 the identifier (numbered as entering the frame) the background switched to,
+    # 0 none
+    winner: jax.Array
+    chains: jax.Array  # (max_ids, 4, 4) BackgroundState.chains after this frame
 
 
 def belief_weights(prior, params: Params):
@@ -285,6 +322,7 @@ class BackgroundInputs(NamedTuple):
     identifiers: IdentifierState
     evidence: jax.Array  # (n,) float32 each cell's moving log-odds entering the frame
     scale: NoiseScale  # the sensor noise (the depth readings' noise of the depth order)
+    T_w_c: jax.Array  # (4, 4) float32 the committed pose of the last image (EgoState.T_w_c)
     # (n,) bool the points the occlusion memory holds nearer than what was seen there
     # (jaxvo.core.occlusion); None: none
     occluded: jax.Array | None = None
@@ -323,7 +361,8 @@ def update_background(state: BackgroundState, inputs: BackgroundInputs, params: 
       ``(BackgroundState, BackgroundOut)``; the output's ``permutation`` renumbers the
       identifiers of the later stages' states so that the background's is 1.
     """
-    (seg, pts, T_pred, have_last, labels, identifiers, evidence, scale, occluded) = inputs
+    (seg, pts, T_pred, have_last, labels, identifiers, evidence, scale, T_w_c,
+     occluded) = inputs
     segment_ids = identify(identifiers, labels, params, cfg=cfg)
     valid = pts.valid
     d2_all = residuals_many(jnp.concatenate([T_pred[None], seg.motions]), pts.src, pts.dst,
@@ -338,8 +377,10 @@ def update_background(state: BackgroundState, inputs: BackgroundInputs, params: 
     member = (seg.labels[None, :] == jnp.arange(1, cfg.max_segments + 1)[:, None]) & valid
     surface = jnp.sum(explained * (z * z)[None, :], axis=1)
     score, winner = challenge(state, challenge_loglik(
-        segment_ids, explained, member, surface, params, cfg=cfg), params)
+        segment_ids, explained, member, surface, behind, front, params, cfg=cfg), params)
     switched = (winner > 0) & jnp.any(segment_ids == winner) & identifiers.initialised
+    start, chains = follow_chains(state.chains, segment_ids, seg.motions, T_pred, T_w_c,
+                                  cfg=cfg)
     # a switch chooses as a first frame would: what the old choice established of the two
     # motions' points is not read (other movers keep their evidence)
     swapped = (segment_ids == winner) | (segment_ids == STATIC_ID)
@@ -368,9 +409,13 @@ def update_background(state: BackgroundState, inputs: BackgroundInputs, params: 
                        jnp.int32(Status.OK))
     own = order[jnp.clip(seg.labels - 1, 0, cfg.max_segments - 1)]
     in_front = jnp.where((seg.labels > 0) & valid & (own < 0), -own, 0.0)
-    # the challenge follows the identifiers' renumbering; the new background's is 0
+    # the challenge and the chains follow the identifiers' renumbering; the new
+    # background's challenge is 0
     score = jnp.where(switched, 0.0, score[perm]).at[0].set(0.0)
-    return BackgroundState(challenge=score), BackgroundOut(
+    T_w_prev = jnp.where(switched, start[jnp.maximum(winner - 1, 0)], T_w_c)
+    chains = chains[perm]
+    return BackgroundState(challenge=score, chains=chains), BackgroundOut(
         segment_ids=segment_ids, background=bg, reacquired=reacquired, use=use, belief=belief,
         d2_seg=d2_seg, permutation=perm, status=status, in_front=in_front, occluded=occluded,
-        switched=switched, forget=forget)
+        switched=switched, forget=forget, T_w_prev=T_w_prev,
+        winner=jnp.where(switched, winner, 0).astype(jnp.int32), chains=chains)

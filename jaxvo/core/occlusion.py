@@ -44,10 +44,11 @@ def init_occlusion(*, grid: tuple[int, int]) -> OcclusionState:
                           jnp.eye(4, dtype=jnp.float32))
 
 
-def forget_occlusion(state: OcclusionState, forget) -> OcclusionState:
-    """The memory with its marks cleared where ``forget`` () bool: they were accumulated
-    under a background that has been switched (:mod:`jaxvo.core.background`)."""
-    return state._replace(nearer=jnp.where(forget, 0.0, state.nearer))
+def forget_occlusion(state: OcclusionState, forget, T_w_c) -> OcclusionState:
+    """The memory with its marks cleared where ``forget`` () bool (they were accumulated
+    under a background that has been switched, :mod:`jaxvo.core.background`) and its
+    image's pose the committed one ``T_w_c`` (4, 4) (after a switch, the new chain's)."""
+    return state._replace(nearer=jnp.where(forget, 0.0, state.nearer), T_w_c=T_w_c)
 
 
 class OcclusionInputs(NamedTuple):

@@ -123,9 +123,13 @@ class StepOutput(NamedTuple):
     reacquired: jax.Array  # () bool the background took its identifier back this frame
     noise: NoiseScale  # the sensor noise model after this frame
     keyframes: jax.Array | None = None  # () int32 keyframes taken so far (cfg.keyframes)
-    # () bool the background was switched to another motion this frame (its challenge,
-    # jaxvo.core.background): the pose chain follows the new background from here
+    # () int32 the identifier (numbered as entering the frame) whose motion became the
+    # background's this frame (its challenge, jaxvo.core.background), 0 none: the pose
+    # continues from that identifier's chain, and jaxvo.trajectory.revise_poses revises
+    # the earlier poses along it from `chains` and `permutation` of the earlier pairs
     switched: jax.Array | None = None
+    chains: jax.Array | None = None  # (max_ids, 4, 4) each identifier's pose chain, this image
+    permutation: jax.Array | None = None  # (max_ids,) int32 the identifiers' renumbering
 
 
 def init_pipeline(*, cfg: StepOptions, grid: tuple[int, int], T_w_c0=None,
@@ -138,7 +142,7 @@ def init_pipeline(*, cfg: StepOptions, grid: tuple[int, int], T_w_c0=None,
                          ego=init_ego(T0),
                          frame=jnp.int32(0), noise=init_noise(Params() if params is None else params),
                          keyframe=keyframe, occlusion=init_occlusion(grid=grid),
-                         background=init_background(cfg=cfg))
+                         background=init_background(T0, cfg=cfg))
 
 
 @full_precision
@@ -174,10 +178,10 @@ def step(state: PipelineState, flow: GridFlow, key, params: Params, *, cfg: Step
     background, bg = update_background(state.background, BackgroundInputs(
         seg=seg, pts=pts, T_pred=predicted_motion(state.ego), have_last=state.ego.have_last,
         labels=labels, identifiers=state.temporal.identifiers,
-        evidence=state.temporal.evidence, scale=state.noise, occluded=occ.occluded),
-        params, **stage)
-    ego, eo = update_egomotion(state.ego, _ego_inputs(state, flow, keyframe, pts, seg, bg,
-                                                      params, **stage), params, cfg=cfg)
+        evidence=state.temporal.evidence, scale=state.noise, T_w_c=state.ego.T_w_c,
+        occluded=occ.occluded), params, **stage)
+    ego, eo = update_egomotion(state.ego._replace(T_w_c=bg.T_w_prev), _ego_inputs(
+        state, flow, keyframe, pts, seg, bg, params, **stage), params, cfg=cfg)
     eo = eo._replace(used=eo.used[:pts.valid.shape[0]])  # the pair's points, not the keyframe's
     ev = moving_evidence(EvidenceInputs(
         seg_labels=seg.labels, pts=pts, T_cur_prev=eo.T_cur_prev, d2_seg=bg.d2_seg, ok=eo.ok,
@@ -196,14 +200,14 @@ def step(state: PipelineState, flow: GridFlow, key, params: Params, *, cfg: Step
     if keyframe is not None:  # the cells the temporal model holds static on this image
         kf_state, kout = update_keyframe(kf_state, KeyframeInputs(
             kf=keyframe, T_w_c=ego.T_w_c, static=temporal.evidence <= moving_logodds(params),
-            T_cur_prev=eo.T_cur_prev, T_w_prev=state.ego.T_w_c, pts=pts, used=eo.used,
+            T_cur_prev=eo.T_cur_prev, T_w_prev=bg.T_w_prev, pts=pts, used=eo.used,
             noise=noise, focal=flow.focal, ok=eo.ok & ~bg.switched), params, **stage)
         ego = ego._replace(T_w_c=kout.T_w_c)
     out = _output(ego, eo, seg, bg, tout, noise, pts.valid, params, **stage)
     return PipelineState(
         temporal=temporal, ego=ego, frame=state.frame + 1, noise=noise, keyframe=kf_state,
-        occlusion=forget_occlusion(occlusion, bg.switched), background=background), out._replace(
-        keyframes=None if kout is None else kout.count, switched=bg.switched)
+        occlusion=forget_occlusion(occlusion, bg.switched, bg.T_w_prev),
+        background=background), out._replace(keyframes=None if kout is None else kout.count)
 
 
 def _ego_inputs(state: PipelineState, flow: GridFlow, keyframe: KeyframeFlow | None, pts,
@@ -248,6 +252,9 @@ def _output(ego: EgoState, eo, seg: Segmentation, bg: BackgroundOut, tout: Tempo
         background=jnp.where(eo.ok, bg.background, 0),
         reacquired=bg.reacquired & eo.ok,
         noise=noise,
+        switched=bg.winner,
+        chains=bg.chains,
+        permutation=bg.permutation,
     )
 
 
@@ -269,6 +276,30 @@ def final_moving(state: PipelineState, params: Params):
     """(n,) bool the cells of the last image reported moving: the final state's evidence,
     already carried forward onto that image's grid."""
     return state.temporal.evidence > moving_logodds(params)
+
+
+@jax.jit
+def revised_poses(T_w_c, switched, chains, permutations):
+    """(T, 4, 4) the poses after each of T pairs as the committed chain has them at the
+    end: where the background switched to another motion in a pair
+    (``StepOutput.switched`` (T,), the winner numbered as entering that pair), every earlier
+    pose is redrawn along the winner's chain (``StepOutput.chains`` (T, max_ids, 4, 4)), and
+    a later switch redraws over an earlier one. Walking back from the last pair, the
+    followed identifier is renumbered by each pair's ``permutations`` (T, max_ids) (a swap:
+    its own inverse); where it was out of view its chain moved with the camera's predicted
+    motion. ``T_w_c`` (T, 4, 4): the poses as the pairs gave them. Pure and traceable: the
+    same walk for a study's configurations on the device and for a run on the host."""
+
+    def back(follow, xs):
+        T, won, chain, perm = xs
+        pose = jnp.where(follow >= 0, chain[jnp.maximum(follow, 0)], T)
+        follow = jnp.where(follow >= 0, perm[jnp.maximum(follow, 0)],
+                           jnp.where(won > 0, won - 1, -1))
+        return follow, pose
+
+    _, poses = jax.lax.scan(back, jnp.int32(-1), (T_w_c, switched, chains, permutations),
+                            reverse=True)
+    return poses
 
 
 def frame_key(key, index):

@@ -450,6 +450,29 @@ class TrajectoryWriter:
         self.timestamps.append(float(timestamp))
         self.poses.append(T)
 
+    def revise(self, revised: np.ndarray) -> int:
+        """Replace the ``k`` poses written before the last one by ``revised`` (k, 4, 4) (a
+        switch of the background redrew them, :attr:`jaxvo.odometry.FrameResult.revised`):
+        the file is written again, whole at every moment as before. Standard output, a pipe
+        or a device cannot take back what was printed: there the poses stay as they were
+        and the count of those left unrevised is returned (0 where the file holds them)."""
+        k = len(revised)
+        if k == 0:
+            return 0
+        if self._stdout or self._out.temporary is None:
+            return k
+        self.poses[-1 - k:-1] = [np.asarray(T, np.float64) for T in revised]
+        header = self._text[0]
+        self._text = []
+        try:
+            self._fh.seek(0)
+            self._fh.truncate()
+        except OSError as exc:
+            raise OSError(exc.errno, exc.strerror, str(self.path)) from None
+        self._put(header)
+        self._put(tum_lines(np.asarray(self.timestamps), np.asarray(self.poses)))
+        return 0
+
     def written(self) -> Trajectory:
         """The poses as the file holds them (rounded as printed), read from what this writer
         wrote, not from the file, which another run may have replaced since; standard
