@@ -342,10 +342,8 @@ def update_background(state: BackgroundState, inputs: BackgroundInputs, params: 
     segment that took in the background beside a mover). Where no segment is a candidate
     no background is in view: the status says so and the camera's motion is carried.
 
-    Unless the challenge (:func:`challenge_loglik`, :func:`challenge`) switches it: an
-    identifier whose motion the choice-independent evidence of several frames prefers to
-    the background's becomes the background, chosen as in a first frame (no belief, no
-    prediction: both were established under the old choice).
+    Unless the challenge (:func:`_challenged`) switches it to an identifier the evidence of
+    several frames prefers, chosen as in a first frame (no belief, no prediction).
 
     The ego-motion may use every valid point, weighted by its belief, but those in a
     segment that moves unlike the background (Algorithm 1's refinement on all points, for
@@ -353,9 +351,9 @@ def update_background(state: BackgroundState, inputs: BackgroundInputs, params: 
     background that fast motion or depth distortion split off) and the occluders.
 
     Args:
-      state: the challenge carried (:class:`BackgroundState`, identifiers as entering).
-      inputs: the frame's :class:`BackgroundInputs`; params: numeric settings.
-      cfg: static settings; grid: static ``(rows, cols)``.
+      state: the challenge carried (:class:`BackgroundState`, identifiers as entering);
+      inputs: the frame's :class:`BackgroundInputs`; params: numeric settings; cfg: static
+      settings; grid: static ``(rows, cols)``.
 
     Returns:
       ``(BackgroundState, BackgroundOut)``; the output's ``permutation`` renumbers the
@@ -375,18 +373,9 @@ def update_background(state: BackgroundState, inputs: BackgroundInputs, params: 
                                 scale.depth_coeff * z_prev * z_prev, explained, pts.tie,
                                 grid=grid, cfg=cfg)
     member = (seg.labels[None, :] == jnp.arange(1, cfg.max_segments + 1)[:, None]) & valid
-    surface = jnp.sum(explained * (z * z)[None, :], axis=1)
-    score, winner = challenge(state, challenge_loglik(
-        segment_ids, explained, member, surface, behind, front, params, cfg=cfg), params)
-    switched = (winner > 0) & jnp.any(segment_ids == winner) & identifiers.initialised
-    start, chains = follow_chains(state.chains, segment_ids, seg.motions, T_pred, T_w_c,
-                                  cfg=cfg)
-    # a switch chooses as a first frame would: what the old choice established of the two
-    # motions' points is not read (other movers keep their evidence)
-    swapped = (segment_ids == winner) | (segment_ids == STATIC_ID)
-    forget = switched & valid & swapped[jnp.clip(seg.labels - 1, 0, cfg.max_segments - 1)] & (
-        seg.labels > 0)
-    evidence = jnp.where(forget, 0.0, evidence)
+    ch = _challenged(state, segment_ids, seg, valid, explained, member, behind, front, z,
+                     T_pred, T_w_c, identifiers.initialised, params, cfg=cfg)
+    switched, winner, evidence = ch.switched, ch.winner, jnp.where(ch.forget, 0.0, evidence)
     occluded = (jnp.zeros_like(valid) if occluded is None else occluded & valid) & ~switched
     belief = jnp.where(valid & ~occluded, belief_weights(evidence, params), 0.0)
     support, consistency = background_support(d2_seg, seg.sizes, belief, z, d2_pred,
@@ -411,11 +400,43 @@ def update_background(state: BackgroundState, inputs: BackgroundInputs, params: 
     in_front = jnp.where((seg.labels > 0) & valid & (own < 0), -own, 0.0)
     # the challenge and the chains follow the identifiers' renumbering; the new
     # background's challenge is 0
-    score = jnp.where(switched, 0.0, score[perm]).at[0].set(0.0)
-    T_w_prev = jnp.where(switched, start[jnp.maximum(winner - 1, 0)], T_w_c)
-    chains = chains[perm]
+    score = jnp.where(switched, 0.0, ch.score[perm]).at[0].set(0.0)
+    T_w_prev = jnp.where(switched, ch.start[jnp.maximum(winner - 1, 0)], T_w_c)
+    chains = ch.chains[perm]
     return BackgroundState(challenge=score, chains=chains), BackgroundOut(
         segment_ids=segment_ids, background=bg, reacquired=reacquired, use=use, belief=belief,
         d2_seg=d2_seg, permutation=perm, status=status, in_front=in_front, occluded=occluded,
-        switched=switched, forget=forget, T_w_prev=T_w_prev,
+        switched=switched, forget=ch.forget, T_w_prev=T_w_prev,
         winner=jnp.where(switched, winner, 0).astype(jnp.int32), chains=chains)
+
+
+class _Challenge(NamedTuple):
+    """One frame of the challenge to the background (:func:`_challenged`), identifiers as
+    entering the frame."""
+
+    score: jax.Array  # (max_ids,) the CUSUM of each identifier after this frame
+    winner: jax.Array  # () int32 the identifier whose sum crossed the bound, 0 none
+    switched: jax.Array  # () bool the background switches to the winner in this frame
+    start: jax.Array  # (max_ids, 4, 4) the last image's pose under each identifier
+    chains: jax.Array  # (max_ids, 4, 4) this image's
+    forget: jax.Array  # (n,) bool the two swapped motions' points (BackgroundOut.forget)
+
+
+def _challenged(state: BackgroundState, segment_ids, seg: Segmentation, valid, explained,
+                member, behind, front, z, T_pred, T_w_c, initialised, params: Params, *,
+                cfg: StepOptions) -> _Challenge:
+    """The challenge of one frame (:func:`challenge_loglik`, :func:`challenge`), whether the
+    background switches (a winner in view, once identifiers exist), the identifiers' chains
+    (:func:`follow_chains`) and, on a switch, the points of the two swapped motions, whose
+    evidence the old choice established: a switch chooses as a first frame would (other
+    movers keep their evidence). Arguments as :func:`update_background` computes them."""
+    surface = jnp.sum(explained * (z * z)[None, :], axis=1)
+    score, winner = challenge(state, challenge_loglik(
+        segment_ids, explained, member, surface, behind, front, params, cfg=cfg), params)
+    switched = (winner > 0) & jnp.any(segment_ids == winner) & initialised
+    start, chains = follow_chains(state.chains, segment_ids, seg.motions, T_pred, T_w_c,
+                                  cfg=cfg)
+    swapped = (segment_ids == winner) | (segment_ids == STATIC_ID)
+    forget = switched & valid & (seg.labels > 0) & swapped[
+        jnp.clip(seg.labels - 1, 0, cfg.max_segments - 1)]
+    return _Challenge(score, winner, switched, start, chains, forget)
