@@ -41,7 +41,7 @@ from jaxvo.odometry import Odometry
 def timed_flow() -> list[float]:
     """The seconds of every ``FrameChain.push`` from now on (the host's share of a frame),
     appended to the list returned, one a frame."""
-    from jaxvo.host import flow
+    from jaxvo.host.frontend import flow
 
     seconds: list[float] = []
     push = flow.FrameChain.push
