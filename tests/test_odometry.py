@@ -3,7 +3,6 @@ compiled step the streaming odometry runs."""
 
 from __future__ import annotations
 
-import cv2
 import jax
 import numpy as np
 import pytest
@@ -36,42 +35,35 @@ def test_a_mapping_meets_the_config_checks_before_any_work():
         jaxvo.Odometry("tum_fr3", cfg=16)
 
 
-def frames(n: int = 6):
-    """A textured wall 2 m away, the camera sliding a pixel a frame, and a box moving
-    faster: (bgr, depth, t) per frame."""
-    rng = np.random.default_rng(0)
-    wall = cv2.GaussianBlur((rng.random((120, 200, 3)) * 255).astype(np.uint8), (5, 5), 1.5)
-    box = cv2.GaussianBlur((rng.random((30, 30, 3)) * 255).astype(np.uint8), (5, 5), 1.5)
-    out = []
-    for k in range(n):
-        bgr = wall[:, k:k + 160].copy()
-        depth = np.full((120, 160), 2.0, np.float32)
-        x = 40 + 4 * k
-        bgr[40:70, x:x + 30] = box
-        depth[40:70, x:x + 30] = 1.5
-        out.append((bgr, depth, k / 30))
-    return out
+@pytest.fixture(scope="module")
+def seq():
+    """test_pipeline.py's and test_keyframe.py's sequence at its first 6 frames: Odometry
+    with Config() or Config(keyframes=True) on its 640x480 images runs the exported step
+    those tests (and every default ``jaxvo run``) compile, so only jit_step compiles here."""
+    full = jaxvo.make_sequence("handheld_slow", frames=12, seed=3)
+    return full.intrinsics, list(full)[:6]
 
 
-def run(cfg: Config, monkeypatch, *, exported: bool):
-    """Odometry over :func:`frames`, its step exported or :func:`jit_step` as it is."""
+def run(cfg: Config, seq, monkeypatch, *, exported: bool):
+    """Odometry over ``seq``, its step exported or :func:`jit_step` as it is."""
     assert jax.config.jax_compilation_cache_dir  # the session's cache (conftest): exported
     if not exported:
         monkeypatch.setattr(odometry, "exported_program", lambda *a, **k: None)
-    odo = Odometry((150.0, 150.0, 80.0, 60.0), cfg=cfg, seed=3)
-    results = [odo.process(*f) for f in frames()]
+    intrinsics, frames = seq
+    odo = Odometry(intrinsics, cfg=cfg, seed=3)
+    results = [odo.process(f.bgr, f.depth, f.timestamp) for f in frames]
     monkeypatch.undo()
     return odo, results
 
 
 @pytest.mark.parametrize("keyframes", [False, pytest.param(True, marks=pytest.mark.slow)])
-def test_the_exported_step_gives_the_bits_of_jit_step(keyframes, monkeypatch):
+def test_the_exported_step_gives_the_bits_of_jit_step(keyframes, seq, monkeypatch):
     """The step exported in the compile cache (what a later process loads without tracing
     it) gives the bits of jit_step called as it is, frame by frame."""
     pytest.importorskip("flatbuffers")
     cfg = Config(keyframes=keyframes)
-    odo_a, exported = run(cfg, monkeypatch, exported=True)
-    odo_b, plain = run(cfg, monkeypatch, exported=False)
+    odo_a, exported = run(cfg, seq, monkeypatch, exported=True)
+    odo_b, plain = run(cfg, seq, monkeypatch, exported=False)
     # the exported program (jitted, traced once over the frames) against jit_step's closure
     assert odo_a._step._cache_size() == 1 and not hasattr(odo_b._step, "lower")
     assert sum(r.status == Status.OK for r in plain) >= 3  # motions were estimated
