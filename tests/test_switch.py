@@ -92,3 +92,27 @@ def test_the_trajectory_file_is_written_again_with_the_revised_poses(tmp_path):
     out.write(0.0, _shift(0))
     out.write(1.0, _shift(1))
     assert out.revise(np.stack([_shift(9)])) == 1
+
+
+def test_jaxvo_run_rewrites_its_file_and_counts_the_revised_poses(tmp_path):
+    """The run's recorder: a result with revised poses rewrites them in the trajectory file
+    and counts the switch and the poses; a result without leaves them."""
+    from types import SimpleNamespace
+
+    from jaxvo.config import Config
+    from jaxvo.run import Recorder
+    from jaxvo.status import Status
+
+    path = tmp_path / "traj.txt"
+    with TrajectoryWriter(path) as writer:
+        rec = Recorder(Config(), writer, images=None, folders={})
+        for i in range(4):
+            rec.recent[i] = SimpleNamespace(index=i)
+            output = None if i == 0 else SimpleNamespace(
+                reacquired=False, keyframes=None, dynamic=np.zeros(4, bool))
+            revised = np.stack([_shift(10), _shift(11)]) if i == 3 else None
+            rec.record(SimpleNamespace(index=i, timestamp=float(i), T_w_c=_shift(i),
+                                       dropped=None, status=Status.OK, output=output,
+                                       revised=revised))
+    assert _x(read_trajectory(path).poses) == [0, 10, 11, 3]
+    assert (rec.switches, rec.revised, rec.unrevised) == (1, 2, 0)
