@@ -30,9 +30,10 @@ the larger surface speaks for one of them, and a one-sided sequential test (Page
 those log-likelihood ratios) switches the background to that identifier once the sum
 crosses the confidence of every test. Each identifier's motions are chained into the pose
 the camera would have were that motion its own (:func:`follow_chains`): after a switch the
-pose continues from the winner's chain, and the host revises the earlier poses along it. A switch discards what was established under the
-old choice (``BackgroundOut.switched``, ``forget``: the two motions' moving evidence and the
-occlusion memory start afresh).
+pose continues from the winner's chain, and the earlier poses are redrawn along it
+(:func:`jaxvo.core.pipeline.revised_poses`). A switch discards what was established under
+the old choice (``BackgroundOut.forget``: the two motions' moving evidence; the occlusion
+memory starts afresh).
 """
 
 from __future__ import annotations
@@ -160,8 +161,8 @@ class BackgroundState(NamedTuple):
     challenge: jax.Array
     # (max_ids, 4, 4) float32 the last image's camera pose were each identifier's motion
     # the camera's: its segments' motions chained (follow_chains); identifier 1's is the
-    # committed pose. A switch continues from the winner's, and the host revises the past
-    # poses along it (jaxvo.trajectory.revise_poses)
+    # committed pose. A switch continues from the winner's, and the past poses are redrawn
+    # along it (jaxvo.core.pipeline.revised_poses)
     chains: jax.Array
 
 
@@ -251,9 +252,6 @@ class BackgroundOut(NamedTuple):
     # jaxvo.core.evidence counts it for the points the ego-motion does not explain
     in_front: jax.Array
     occluded: jax.Array  # (n,) bool points the occlusion memory holds nearer than what was seen
-    # () bool the challenge switched the background this frame: the occlusion memory, kept
-    # under the old one, is discarded
-    switched: jax.Array
     # (n,) bool the points of the two swapped motions, whose moving evidence was established
     # under the old background: it is discarded
     forget: jax.Array
@@ -264,6 +262,12 @@ class BackgroundOut(NamedTuple):
     # 0 none
     winner: jax.Array
     chains: jax.Array  # (max_ids, 4, 4) BackgroundState.chains after this frame
+
+    @property
+    def switched(self):
+        """() bool the challenge switched the background this frame (a winner): the
+        occlusion memory, kept under the old one, is discarded."""
+        return self.winner > 0
 
 
 def belief_weights(prior, params: Params):
@@ -406,7 +410,7 @@ def update_background(state: BackgroundState, inputs: BackgroundInputs, params: 
     return BackgroundState(challenge=score, chains=chains), BackgroundOut(
         segment_ids=segment_ids, background=bg, reacquired=reacquired, use=use, belief=belief,
         d2_seg=d2_seg, permutation=perm, status=status, in_front=in_front, occluded=occluded,
-        switched=switched, forget=ch.forget, T_w_prev=T_w_prev,
+        forget=ch.forget, T_w_prev=T_w_prev,
         winner=jnp.where(switched, winner, 0).astype(jnp.int32), chains=chains)
 
 

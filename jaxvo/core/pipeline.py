@@ -125,8 +125,8 @@ class StepOutput(NamedTuple):
     keyframes: jax.Array | None = None  # () int32 keyframes taken so far (cfg.keyframes)
     # () int32 the identifier (numbered as entering the frame) whose motion became the
     # background's this frame (its challenge, jaxvo.core.background), 0 none: the pose
-    # continues from that identifier's chain, and jaxvo.trajectory.revise_poses revises
-    # the earlier poses along it from `chains` and `permutation` of the earlier pairs
+    # continues from that identifier's chain, and revised_poses redraws the earlier poses
+    # along it from `chains` and `permutation` of the earlier pairs
     switched: jax.Array | None = None
     chains: jax.Array | None = None  # (max_ids, 4, 4) each identifier's pose chain, this image
     permutation: jax.Array | None = None  # (max_ids,) int32 the identifiers' renumbering
