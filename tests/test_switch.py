@@ -84,10 +84,13 @@ def test_the_trajectory_file_is_written_again_with_the_revised_poses(tmp_path):
             w.write(float(i), _shift(i))
         assert w.revise(np.stack([_shift(10), _shift(11)])) == 0
         w.write(4.0, _shift(4))
+        assert w.revise(np.stack([_shift(13)])) == 0  # a second switch: once more, whole
+        w.write(5.0, _shift(5))
     traj = read_trajectory(path)
-    assert _x(traj.poses) == [0, 10, 11, 3, 4]
+    assert _x(traj.poses) == [0, 10, 11, 13, 4, 5]
     assert path.read_text().startswith("# a run\n")
-    assert _x(w.written().poses) == [0, 10, 11, 3, 4]
+    assert path.read_text().count("# a run") == 1
+    assert _x(w.written().poses) == [0, 10, 11, 13, 4, 5]
     out = TrajectoryWriter("-")
     out.write(0.0, _shift(0))
     out.write(1.0, _shift(1))

@@ -434,7 +434,8 @@ class TrajectoryWriter:
             self._out = OutputFile(self.path, text=True, keep_on_abort=True)
         self._fh = sys.stdout if self._stdout else self._out.handle
         self._text: list[str] = []  # what the file holds
-        self._put(tum_header(comment))
+        self._header = tum_header(comment)
+        self._put(self._header)
 
     def _put(self, text: str) -> None:
         try:
@@ -462,15 +463,16 @@ class TrajectoryWriter:
         if self._stdout or self._out.temporary is None:
             return k
         self.poses[-1 - k:-1] = [np.asarray(T, np.float64) for T in revised]
-        header = self._text[0]
+        # the whole text in one write after the truncation: an abrupt end can only find the
+        # file empty of poses for the time of that one write
+        text = self._header + tum_lines(np.asarray(self.timestamps), np.asarray(self.poses))
         self._text = []
         try:
             self._fh.seek(0)
             self._fh.truncate()
         except OSError as exc:
             raise OSError(exc.errno, exc.strerror, str(self.path)) from None
-        self._put(header)
-        self._put(tum_lines(np.asarray(self.timestamps), np.asarray(self.poses)))
+        self._put(text)
         return 0
 
     def written(self) -> Trajectory:
