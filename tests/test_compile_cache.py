@@ -158,29 +158,42 @@ def test_processes_share_the_folder_and_an_entry_cut_short_is_compiled_again(tmp
     assert entry.stat().st_size > 0  # ...and stored
 
 
-@pytest.mark.slow  # 11-25 s here: a whole run or study compiled afresh
-def test_jaxvo_run_compiles_once_then_loads_the_step_with_the_same_poses(tmp_path):
+# The step the commands' tests compile afresh: a smaller one than the default (two
+# hypotheses, 32-pixel cells), over a 3-frame synthetic sequence
+STEP_OPTIONS = ("--hypotheses", "2", "--cell", "32")
+
+
+@pytest.fixture(scope="module")
+def command_runs(tmp_path_factory):
+    """Two runs of ``jaxvo run`` with one fresh cache folder: the first compiles the step,
+    the second loads it. ``(folder, sequence, [(summary, stderr, trajectory)] * 2)``; the
+    Python test below loads the same step from the same folder."""
+    from jaxvo.synth.scenes import make_sequence, write_sequence
+
+    root = tmp_path_factory.mktemp("command_cache")
+    seq_dir = root / "seq"
+    write_sequence(make_sequence("handheld_slow", frames=3, seed=0), seq_dir)
+    env = dict(os.environ, JAX_PLATFORMS="cpu")
+    runs = []
+    for k in range(2):
+        out = root / f"t{k}.txt"
+        proc = subprocess.run(
+            [sys.executable, "-m", "jaxvo.cli.main", "run", str(seq_dir), "--out", str(out),
+             "--json", "--compile-cache", str(root / "cache"), *STEP_OPTIONS],
+            capture_output=True, text=True, env=env, timeout=600, check=False)
+        assert proc.returncode == 0, proc.stderr[-2000:]
+        runs.append((json.loads(proc.stdout), proc.stderr, read_trajectory(out)))
+    return root / "cache", seq_dir, runs
+
+
+@pytest.mark.slow  # a whole run compiled afresh
+def test_jaxvo_run_compiles_once_then_loads_the_step_with_the_same_poses(command_runs):
     """Two runs of ``jaxvo run`` on a 3-frame synthetic sequence with a fresh cache folder:
     the first compiles the step and says so, the second loads it from the cache (and, where
     the load is slow enough to be announced, says that it loads) and estimates the same
     poses. The test reads the mechanism (``from_cache``), never a clock: under load a
     cache load takes seconds."""
-    from jaxvo.synth.scenes import make_sequence, write_sequence
-
-    seq_dir = tmp_path / "seq"
-    write_sequence(make_sequence("handheld_slow", frames=3, seed=0), seq_dir)
-    env = dict(os.environ, JAX_PLATFORMS="cpu")
-    runs = []
-    for k in range(2):
-        out = tmp_path / f"t{k}.txt"
-        proc = subprocess.run(
-            [sys.executable, "-m", "jaxvo.cli.main", "run", str(seq_dir), "--out", str(out),
-             "--json", "--compile-cache", str(tmp_path / "cache"),
-             "--hypotheses", "2", "--cell", "32"],  # a smaller step: 5 s to compile, not 8
-            capture_output=True, text=True, env=env, timeout=600, check=False)
-        assert proc.returncode == 0, proc.stderr[-2000:]
-        runs.append((json.loads(proc.stdout), proc.stderr, read_trajectory(out)))
-    (cold, cold_err, cold_traj), (warm, warm_err, warm_traj) = runs
+    _, _, [(cold, cold_err, cold_traj), (warm, warm_err, warm_traj)] = command_runs
     assert "jaxvo: preparing the per-frame step (compiled once per machine and cached) ... " \
         "compiled (first run with these settings on this machine) in" in cold_err
     assert [c["from_cache"] for c in cold["compile"]] == [False]
@@ -262,11 +275,12 @@ def test_a_full_cache_disk_is_one_line(tmp_path):
 
 # A child that uses the library as docs/python.md shows it, without setup_compile_cache:
 # a program compiled first (JAX decides at its first compile whether the process uses a
-# cache), then Odometry over three frames; prints the cache hits, JAX's cache folder and
-# the poses.
+# cache), then Odometry built ("construct", "off": after setup_compile_cache("off")) or run
+# over the sequence folder given ("run"); prints the cache hits, JAX's cache folder and the
+# poses.
 PYTHON_CHILD = """
 import json, sys
-import cv2, jax, numpy as np
+import jax, numpy as np
 hits, traced = [], []
 jax.monitoring.register_event_listener(lambda event, **kw: hits.append(event)
                                        if event == "/jax/compilation_cache/cache_hits" else None)
@@ -278,48 +292,50 @@ import jaxvo
 if sys.argv[1] == "off":
     from jaxvo.host.services.compile_cache import setup_compile_cache
     setup_compile_cache("off")
-rng = np.random.default_rng(0)
-bgr = cv2.GaussianBlur((rng.random((120, 160, 3)) * 255).astype(np.uint8), (5, 5), 1.5)
-depth = np.full((120, 160), 2.0, np.float32)
-odo = jaxvo.Odometry((150.0, 150.0, 80.0, 60.0))
-if sys.argv[1] != "construct":
-    for k in range(3):
-        odo.process(np.roll(bgr, k, axis=1), depth, k / 30)
+if sys.argv[1] == "run":  # the commands' sequence and step settings (STEP_OPTIONS)
+    seq = jaxvo.open_sequence(sys.argv[2])
+    odo = jaxvo.Odometry(seq.intrinsics, cfg=jaxvo.Config(num_hypotheses=2, cell=32))
+    for f in seq:
+        odo.process(f.bgr, f.depth, f.timestamp)
+else:  # the choice of cache is made when Odometry is built
+    odo = jaxvo.Odometry((150.0, 150.0, 80.0, 60.0))
 print(json.dumps({"hits": len(hits), "traced": traced,
                   "folder": jax.config.jax_compilation_cache_dir,
                   "poses": np.asarray(odo.trajectory.poses).tolist()}))
 """
 
 
-def python_child(how: str, **env: str | None) -> dict:
-    """PYTHON_CHILD with ``env`` set on this environment (None: unset); its JSON line."""
+def python_child(how: str, *args: str, **env: str | None) -> dict:
+    """PYTHON_CHILD ``how ARGS`` with ``env`` set on this environment (None: unset); its
+    JSON line."""
     environ = dict(os.environ)
     for name, value in env.items():
         environ.pop(name, None)
         if value is not None:
             environ[name] = value
-    done = subprocess.run([sys.executable, "-c", PYTHON_CHILD, how], capture_output=True,
+    done = subprocess.run([sys.executable, "-c", PYTHON_CHILD, how, *args], capture_output=True,
                           text=True, timeout=600, env=environ, check=False)
     assert done.returncode == 0, done.stderr[-3000:]
     return json.loads(done.stdout.strip().splitlines()[-1])
 
 
-@pytest.mark.slow  # the step compiled afresh in a child, then loaded in another
-def test_odometry_from_python_uses_the_cache_of_the_commands(tmp_path):
-    """The second process loads the step the first one compiled and stored, with the same
-    poses, though neither called setup_compile_cache and each compiled a program first; it
-    loads the step exported, without tracing it again."""
-    env = {ENV: str(tmp_path / "cache"), "JAX_COMPILATION_CACHE_DIR": None}
-    cold = python_child("run", **env)
-    folder = tmp_path / "cache" / VERSIONED
-    assert cold["folder"] == str(folder)
-    assert sorted(folder.glob("jit_call*-cache"))  # the exported per-frame step's entry
+@pytest.mark.slow  # the step compiled afresh by the command (command_runs)
+def test_odometry_from_python_uses_the_cache_of_the_commands(command_runs):
+    """A program that uses the library without calling setup_compile_cache, and compiles
+    a program of its own first, loads the step ``jaxvo run`` compiled and stored (the step
+    exported: it is not traced again), with the poses the command wrote."""
+    cache, seq_dir, [_, (_, _, command_traj)] = command_runs
+    warm = python_child("run", str(seq_dir), JAX_PLATFORMS="cpu",  # as the command's
+                        **{ENV: str(cache), "JAX_COMPILATION_CACHE_DIR": None})
+    folder = cache / VERSIONED
+    assert warm["folder"] == str(folder)
     assert sorted((folder / "jaxvo-exported").glob("step-*"))
-    warm = python_child("run", **env)
-    assert cold["hits"] == 0 and warm["hits"] >= 1
-    assert "step" in cold["traced"] and "step" not in warm["traced"]  # Odometry._compiled_step
+    assert warm["hits"] >= 1 and "step" not in warm["traced"]  # Odometry._compiled_step
     assert len(warm["poses"]) == 3
-    np.testing.assert_array_equal(warm["poses"], cold["poses"])  # bit for bit
+    # the command's poses, as its file holds them (9 decimals, the rotation as a quaternion),
+    # from its first pose (the command starts at the ground truth's, Odometry at the identity)
+    relative = np.linalg.inv(command_traj.poses[0]) @ command_traj.poses
+    np.testing.assert_allclose(np.asarray(warm["poses"]), relative, atol=1e-7)
 
 
 def test_a_program_that_chose_its_cache_keeps_it(tmp_path):
