@@ -8,6 +8,7 @@ from __future__ import annotations
 import json
 import subprocess
 import sys
+from pathlib import Path
 
 import pytest
 
@@ -108,3 +109,75 @@ def test_evals_choices_are_still_checked_against_evo_results():
     assert f"(choose from {', '.join(map(repr, sorted(RELATIONS)))})" in err
     _, _, _, err = answer("eval", "rpe", "a", "b", "--plot_mode", "q")
     assert f"(choose from {', '.join(map(repr, PLOT_MODES))})" in err
+
+
+@pytest.fixture(scope="module")
+def inputs(tmp_path_factory) -> dict[str, str]:
+    """What the answers below name that is there: a trajectory, a study spec (not a valid
+    one: the options are checked before it is read) and a two-frame TUM sequence whose
+    poses are the trajectory's, so that each case breaks one thing."""
+    import cv2
+    import numpy as np
+
+    root = tmp_path_factory.mktemp("inputs")
+    seq = root / "seq"
+    for kind, image in (("rgb", np.zeros((8, 8, 3), np.uint8)),
+                        ("depth", np.full((8, 8), 5000, np.uint16))):
+        (seq / kind).mkdir(parents=True)
+        for i in range(2):
+            cv2.imwrite(str(seq / kind / f"{i}.png"), image)
+        (seq / f"{kind}.txt").write_text("".join(f"{i} {kind}/{i}.png\n" for i in range(2)))
+    (seq / "camera.txt").write_text("fx 5\nfy 5\ncx 4\ncy 4\n")
+    (root / "gt.txt").write_text("".join(f"{i} 0 0 0 0 0 0 1\n" for i in range(2)))
+    (root / "spec.json").write_text("{}")
+    (root / "bad.json").write_text("{")
+    return {"tmp": str(root), "seq": str(seq), "gt": str(root / "gt.txt")}
+
+
+# case -> (argv, split on spaces; the one line after "jaxvo: error: "), with {tmp}, {seq},
+# {gt}, {cores} and {scenarios} filled in; each case has one thing wrong, so that the
+# answer is the one the command always gave
+EARLY_ANSWERS = {
+    "eval-gt-missing": ("eval ate {tmp}/missing.txt {gt}", "file not found: {tmp}/missing.txt"),
+    "eval-est-missing": ("eval rpe {gt} {tmp}/missing.txt", "file not found: {tmp}/missing.txt"),
+    "eval-gt-folder": ("eval ate {tmp} {gt}", "not a file: {tmp}"),
+    "eval-max-diff": ("eval ate {gt} {gt} --max-diff -1",
+                      "--max-diff must be a number of seconds >= 0, got -1.0"),
+    "eval-delta": ("eval rpe {gt} {gt} --delta 0",
+                   "--delta must be a positive number of frames, got 0"),
+    "eval-delta-whole": ("eval rpe {gt} {gt} --delta 1.5",
+                         "--delta in frames must be a whole number, got 1.5"),
+    "eval-delta-unit": ("eval rpe {gt} {gt} --delta-unit d", (
+        "--delta_unit 'd': jaxvo pairs poses by frames (f) or seconds; evo's d, r and m "
+        "(degrees, radians, metres travelled) are not offered")),
+    "eval-two-stdin": ("eval ate - -",
+                       "only one of the trajectories can come from standard input (-)"),
+}
+
+
+@pytest.mark.parametrize("case", list(EARLY_ANSWERS))
+def test_each_commands_cheap_answers_come_before_numpy_loads(inputs, case):
+    """Paths that are not there, unknown names and options out of range: every command
+    answers them in the words it always did, with nothing heavy loaded (and nothing
+    written)."""
+    argv, line = EARLY_ANSWERS[case]
+    fill = {**inputs}
+    status, heavy, _, err = answer(*(a.format(**fill) for a in argv.split()))
+    assert (status, err.strip()) == (2, "jaxvo: error: " + line.format(**fill))
+    assert heavy == []
+    assert not any((Path(inputs["tmp"]) / name).exists() for name in ("o", "s", "d", "m.ply"))
+
+
+def test_the_early_answers_say_what_read_trajectory_says(tmp_path):
+    """One wording for a missing trajectory and a folder given as one, whichever of the
+    light check or the reader finds it."""
+    from jaxvo.cli.inputs import require_trajectory
+    from jaxvo.errors import InputError
+    from jaxvo.trajectory import read_trajectory
+
+    for path in (tmp_path / "missing.txt", tmp_path):
+        with pytest.raises(InputError) as early:
+            require_trajectory(path)
+        with pytest.raises(InputError) as reader:
+            read_trajectory(path)
+        assert str(early.value) == str(reader.value)
