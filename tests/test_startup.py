@@ -6,6 +6,7 @@ not a test's)."""
 from __future__ import annotations
 
 import json
+import os
 import subprocess
 import sys
 from pathlib import Path
@@ -134,6 +135,10 @@ def inputs(tmp_path_factory) -> dict[str, str]:
     return {"tmp": str(root), "seq": str(seq), "gt": str(root / "gt.txt")}
 
 
+def _cores() -> int:
+    return len(os.sched_getaffinity(0)) if hasattr(os, "sched_getaffinity") else os.cpu_count()
+
+
 # case -> (argv, split on spaces; the one line after "jaxvo: error: "), with {tmp}, {seq},
 # {gt}, {cores} and {scenarios} filled in; each case has one thing wrong, so that the
 # answer is the one the command always gave
@@ -152,6 +157,18 @@ EARLY_ANSWERS = {
         "(degrees, radians, metres travelled) are not offered")),
     "eval-two-stdin": ("eval ate - -",
                        "only one of the trajectories can come from standard input (-)"),
+    "study-spec-missing": ("study {tmp}/missing.json --out {tmp}/s", (
+        "cannot read the study spec {tmp}/missing.json: No such file or directory")),
+    "study-spec-not-json": ("study {tmp}/bad.json --out {tmp}/s", (
+        "{tmp}/bad.json: not valid JSON: Expecting property name enclosed in double quotes: "
+        "line 1 column 2 (char 1)")),
+    "study-batch": ("study {tmp}/spec.json --out {tmp}/s --batch 0",
+                    "--batch must be at least 1, got 0"),
+    "study-join-timeout": ("study {tmp}/spec.json --out {tmp}/s --join-timeout 0",
+                           "--join-timeout must be a positive number of seconds, got 0.0"),
+    "study-cpu-devices": ("study {tmp}/spec.json --out {tmp}/s --cpu-devices 0", (
+        "--cpu-devices must be 1 to {cores} (this machine's cores: more devices only add "
+        "compiles), got 0")),
 }
 
 
@@ -161,7 +178,7 @@ def test_each_commands_cheap_answers_come_before_numpy_loads(inputs, case):
     answers them in the words it always did, with nothing heavy loaded (and nothing
     written)."""
     argv, line = EARLY_ANSWERS[case]
-    fill = {**inputs}
+    fill = {**inputs, "cores": _cores()}
     status, heavy, _, err = answer(*(a.format(**fill) for a in argv.split()))
     assert (status, err.strip()) == (2, "jaxvo: error: " + line.format(**fill))
     assert heavy == []
