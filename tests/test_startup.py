@@ -139,9 +139,16 @@ def _cores() -> int:
     return len(os.sched_getaffinity(0)) if hasattr(os, "sched_getaffinity") else os.cpu_count()
 
 
+def _scenarios() -> str:
+    from jaxvo.synth.scenes import SCENARIOS
+
+    return ", ".join(SCENARIOS)
+
+
 # case -> (argv, split on spaces; the one line after "jaxvo: error: "), with {tmp}, {seq},
 # {gt}, {cores} and {scenarios} filled in; each case has one thing wrong, so that the
 # answer is the one the command always gave
+SEED = "--seed must be a whole number from 0 to 4294967295 (2**32 - 1), got -1"
 EARLY_ANSWERS = {
     "eval-gt-missing": ("eval ate {tmp}/missing.txt {gt}", "file not found: {tmp}/missing.txt"),
     "eval-est-missing": ("eval rpe {gt} {tmp}/missing.txt", "file not found: {tmp}/missing.txt"),
@@ -169,6 +176,16 @@ EARLY_ANSWERS = {
     "study-cpu-devices": ("study {tmp}/spec.json --out {tmp}/s --cpu-devices 0", (
         "--cpu-devices must be 1 to {cores} (this machine's cores: more devices only add "
         "compiles), got 0")),
+    "synth-scenario": ("synth nonesuch {tmp}/o",
+                       "unknown scenario 'nonesuch'; choose one of {scenarios}"),
+    "synth-seed": ("synth static {tmp}/o --seed -1", SEED),
+    "synth-frames": ("synth static {tmp}/o --frames 0", "--frames must be at least 1, got 0"),
+    "synth-composite-missing": ("synth static {tmp}/o --composite {tmp}/missing",
+                                "sequence folder not found: {tmp}/missing"),
+    "demo-scenario": ("demo --scenario nonesuch",
+                      "unknown scenario 'nonesuch'; choose one of {scenarios}"),
+    "demo-frames": ("demo --frames 1", "--frames must be at least 2, got 1"),
+    "demo-seed": ("demo --seed -1", SEED),
 }
 
 
@@ -178,7 +195,7 @@ def test_each_commands_cheap_answers_come_before_numpy_loads(inputs, case):
     answers them in the words it always did, with nothing heavy loaded (and nothing
     written)."""
     argv, line = EARLY_ANSWERS[case]
-    fill = {**inputs, "cores": _cores()}
+    fill = {**inputs, "cores": _cores(), "scenarios": _scenarios()}
     status, heavy, _, err = answer(*(a.format(**fill) for a in argv.split()))
     assert (status, err.strip()) == (2, "jaxvo: error: " + line.format(**fill))
     assert heavy == []
@@ -198,3 +215,15 @@ def test_the_early_answers_say_what_read_trajectory_says(tmp_path):
         with pytest.raises(InputError) as reader:
             read_trajectory(path)
         assert str(early.value) == str(reader.value)
+
+
+def test_an_unknown_scenario_is_said_as_the_scenes_say_it():
+    from jaxvo.cli.synth import check_scenario
+    from jaxvo.errors import InputError
+    from jaxvo.synth.scenes import make_sequence
+
+    with pytest.raises(InputError) as early:
+        check_scenario("nonesuch")
+    with pytest.raises(InputError) as reader:
+        make_sequence("nonesuch")
+    assert str(early.value) == str(reader.value)
