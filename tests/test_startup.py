@@ -70,7 +70,9 @@ def test_the_early_answer_says_what_open_sequence_says(tmp_path):
 
 
 @pytest.mark.parametrize("argv", [("--help",), ("--version",), ("run",), ("nonsense",),
-                                  ("run", "x", "--out", "y", "--hypotheses", "many")])
+                                  ("run", "x", "--out", "y", "--hypotheses", "many"),
+                                  ("map", "x", "--traj", "y"),
+                                  ("map", "x", "--traj", "y", "--out", "z", "--grow", "many")])
 def test_argparse_answers_load_nothing_heavy(argv):
     assert loaded_by(*argv) == []
 
@@ -186,6 +188,12 @@ EARLY_ANSWERS = {
                       "unknown scenario 'nonesuch'; choose one of {scenarios}"),
     "demo-frames": ("demo --frames 1", "--frames must be at least 2, got 1"),
     "demo-seed": ("demo --seed -1", SEED),
+    "map-sequence-missing": ("map {tmp}/missing --traj {gt} --out {tmp}/m.ply",
+                             "sequence folder not found: {tmp}/missing"),
+    "map-traj-missing": ("map {seq} --traj {tmp}/missing.txt --out {tmp}/m.ply",
+                         "file not found: {tmp}/missing.txt"),
+    "map-masks-missing": ("map {seq} --traj {gt} --out {tmp}/m.ply --dynamic-masks {tmp}/none",
+                          "--dynamic-masks {tmp}/none: not a folder"),
 }
 
 
