@@ -194,6 +194,10 @@ EARLY_ANSWERS = {
                          "file not found: {tmp}/missing.txt"),
     "map-masks-missing": ("map {seq} --traj {gt} --out {tmp}/m.ply --dynamic-masks {tmp}/none",
                           "--dynamic-masks {tmp}/none: not a folder"),
+    "data-unknown-name": ("data get tum nonesuch --dir {tmp}/d",
+                          "no tum sequence 'nonesuch' (jaxvo data list tum)"),
+    "data-sha256": ("data get tum fr3/walking_xyz --dir {tmp}/d --sha256 zz",
+                    "--sha256 must be 64 hexadecimal digits, got 'zz'"),
 }
 
 
