@@ -6,8 +6,10 @@ not a test's)."""
 from __future__ import annotations
 
 import json
+import os
 import subprocess
 import sys
+from pathlib import Path
 
 import pytest
 
@@ -68,7 +70,9 @@ def test_the_early_answer_says_what_open_sequence_says(tmp_path):
 
 
 @pytest.mark.parametrize("argv", [("--help",), ("--version",), ("run",), ("nonsense",),
-                                  ("run", "x", "--out", "y", "--hypotheses", "many")])
+                                  ("run", "x", "--out", "y", "--hypotheses", "many"),
+                                  ("map", "x", "--traj", "y"),
+                                  ("map", "x", "--traj", "y", "--out", "z", "--grow", "many")])
 def test_argparse_answers_load_nothing_heavy(argv):
     assert loaded_by(*argv) == []
 
@@ -108,3 +112,130 @@ def test_evals_choices_are_still_checked_against_evo_results():
     assert f"(choose from {', '.join(map(repr, sorted(RELATIONS)))})" in err
     _, _, _, err = answer("eval", "rpe", "a", "b", "--plot_mode", "q")
     assert f"(choose from {', '.join(map(repr, PLOT_MODES))})" in err
+
+
+@pytest.fixture(scope="module")
+def inputs(tmp_path_factory) -> dict[str, str]:
+    """What the answers below name that is there: a trajectory, a study spec (not a valid
+    one: the options are checked before it is read) and a two-frame TUM sequence whose
+    poses are the trajectory's, so that each case breaks one thing."""
+    import cv2
+    import numpy as np
+
+    root = tmp_path_factory.mktemp("inputs")
+    seq = root / "seq"
+    for kind, image in (("rgb", np.zeros((8, 8, 3), np.uint8)),
+                        ("depth", np.full((8, 8), 5000, np.uint16))):
+        (seq / kind).mkdir(parents=True)
+        for i in range(2):
+            cv2.imwrite(str(seq / kind / f"{i}.png"), image)
+        (seq / f"{kind}.txt").write_text("".join(f"{i} {kind}/{i}.png\n" for i in range(2)))
+    (seq / "camera.txt").write_text("fx 5\nfy 5\ncx 4\ncy 4\n")
+    (root / "gt.txt").write_text("".join(f"{i} 0 0 0 0 0 0 1\n" for i in range(2)))
+    (root / "spec.json").write_text("{}")
+    (root / "bad.json").write_text("{")
+    return {"tmp": str(root), "seq": str(seq), "gt": str(root / "gt.txt")}
+
+
+def _cores() -> int:
+    return len(os.sched_getaffinity(0)) if hasattr(os, "sched_getaffinity") else os.cpu_count()
+
+
+def _scenarios() -> str:
+    from jaxvo.synth.scenes import SCENARIOS
+
+    return ", ".join(SCENARIOS)
+
+
+# case -> (argv, split on spaces; the one line after "jaxvo: error: "), with {tmp}, {seq},
+# {gt}, {cores} and {scenarios} filled in; each case has one thing wrong, so that the
+# answer is the one the command always gave
+SEED = "--seed must be a whole number from 0 to 4294967295 (2**32 - 1), got -1"
+EARLY_ANSWERS = {
+    "eval-gt-missing": ("eval ate {tmp}/missing.txt {gt}", "file not found: {tmp}/missing.txt"),
+    "eval-est-missing": ("eval rpe {gt} {tmp}/missing.txt", "file not found: {tmp}/missing.txt"),
+    "eval-gt-folder": ("eval ate {tmp} {gt}", "not a file: {tmp}"),
+    "eval-max-diff": ("eval ate {gt} {gt} --max-diff -1",
+                      "--max-diff must be a number of seconds >= 0, got -1.0"),
+    "eval-delta": ("eval rpe {gt} {gt} --delta 0",
+                   "--delta must be a positive number of frames, got 0"),
+    "eval-delta-whole": ("eval rpe {gt} {gt} --delta 1.5",
+                         "--delta in frames must be a whole number, got 1.5"),
+    "eval-delta-unit": ("eval rpe {gt} {gt} --delta-unit d", (
+        "--delta_unit 'd': jaxvo pairs poses by frames (f) or seconds; evo's d, r and m "
+        "(degrees, radians, metres travelled) are not offered")),
+    "eval-two-stdin": ("eval ate - -",
+                       "only one of the trajectories can come from standard input (-)"),
+    "study-spec-missing": ("study {tmp}/missing.json --out {tmp}/s", (
+        "cannot read the study spec {tmp}/missing.json: No such file or directory")),
+    "study-spec-not-json": ("study {tmp}/bad.json --out {tmp}/s", (
+        "{tmp}/bad.json: not valid JSON: Expecting property name enclosed in double quotes: "
+        "line 1 column 2 (char 1)")),
+    "study-batch": ("study {tmp}/spec.json --out {tmp}/s --batch 0",
+                    "--batch must be at least 1, got 0"),
+    "study-join-timeout": ("study {tmp}/spec.json --out {tmp}/s --join-timeout 0",
+                           "--join-timeout must be a positive number of seconds, got 0.0"),
+    "study-cpu-devices": ("study {tmp}/spec.json --out {tmp}/s --cpu-devices 0", (
+        "--cpu-devices must be 1 to {cores} (this machine's cores: more devices only add "
+        "compiles), got 0")),
+    "synth-scenario": ("synth nonesuch {tmp}/o",
+                       "unknown scenario 'nonesuch'; choose one of {scenarios}"),
+    "synth-seed": ("synth static {tmp}/o --seed -1", SEED),
+    "synth-frames": ("synth static {tmp}/o --frames 0", "--frames must be at least 1, got 0"),
+    "synth-composite-missing": ("synth static {tmp}/o --composite {tmp}/missing",
+                                "sequence folder not found: {tmp}/missing"),
+    "demo-scenario": ("demo --scenario nonesuch",
+                      "unknown scenario 'nonesuch'; choose one of {scenarios}"),
+    "demo-frames": ("demo --frames 1", "--frames must be at least 2, got 1"),
+    "demo-seed": ("demo --seed -1", SEED),
+    "map-sequence-missing": ("map {tmp}/missing --traj {gt} --out {tmp}/m.ply",
+                             "sequence folder not found: {tmp}/missing"),
+    "map-traj-missing": ("map {seq} --traj {tmp}/missing.txt --out {tmp}/m.ply",
+                         "file not found: {tmp}/missing.txt"),
+    "map-masks-missing": ("map {seq} --traj {gt} --out {tmp}/m.ply --dynamic-masks {tmp}/none",
+                          "--dynamic-masks {tmp}/none: not a folder"),
+    "data-unknown-name": ("data get tum nonesuch --dir {tmp}/d",
+                          "no tum sequence 'nonesuch' (jaxvo data list tum)"),
+    "data-sha256": ("data get tum fr3/walking_xyz --dir {tmp}/d --sha256 zz",
+                    "--sha256 must be 64 hexadecimal digits, got 'zz'"),
+}
+
+
+@pytest.mark.parametrize("case", list(EARLY_ANSWERS))
+def test_each_commands_cheap_answers_come_before_numpy_loads(inputs, case):
+    """Paths that are not there, unknown names and options out of range: every command
+    answers them in the words it always did, with nothing heavy loaded (and nothing
+    written)."""
+    argv, line = EARLY_ANSWERS[case]
+    fill = {**inputs, "cores": _cores(), "scenarios": _scenarios()}
+    status, heavy, _, err = answer(*(a.format(**fill) for a in argv.split()))
+    assert (status, err.strip()) == (2, "jaxvo: error: " + line.format(**fill))
+    assert heavy == []
+    assert not any((Path(inputs["tmp"]) / name).exists() for name in ("o", "s", "d", "m.ply"))
+
+
+def test_the_early_answers_say_what_read_trajectory_says(tmp_path):
+    """One wording for a missing trajectory and a folder given as one, whichever of the
+    light check or the reader finds it."""
+    from jaxvo.cli.inputs import require_trajectory
+    from jaxvo.errors import InputError
+    from jaxvo.trajectory import read_trajectory
+
+    for path in (tmp_path / "missing.txt", tmp_path):
+        with pytest.raises(InputError) as early:
+            require_trajectory(path)
+        with pytest.raises(InputError) as reader:
+            read_trajectory(path)
+        assert str(early.value) == str(reader.value)
+
+
+def test_an_unknown_scenario_is_said_as_the_scenes_say_it():
+    from jaxvo.cli.synth import check_scenario
+    from jaxvo.errors import InputError
+    from jaxvo.synth.scenes import make_sequence
+
+    with pytest.raises(InputError) as early:
+        check_scenario("nonesuch")
+    with pytest.raises(InputError) as reader:
+        make_sequence("nonesuch")
+    assert str(early.value) == str(reader.value)

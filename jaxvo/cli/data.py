@@ -68,15 +68,24 @@ def run(args: argparse.Namespace) -> int:
     return _get(args)
 
 
-def _get(args: argparse.Namespace) -> int:
+def _entry(args: argparse.Namespace):
+    """The catalogue's entry for the sequence asked for, and --sha256 checked: answered
+    before NumPy loads (the catalogue needs none)."""
     from jaxvo.errors import InputError
-    from jaxvo.host.readers.datasets import check_sha256, download, find, unpack
-    from jaxvo.host.readers.io import output_folder
-    from jaxvo.host.services.progress import Progress
+    from jaxvo.host.readers.datasets import find
 
     entry = find(args.dataset, args.name, bag=args.bag, mirror=args.mirror)
     if args.sha256 is not None and not re.fullmatch(r"[0-9a-fA-F]{64}", args.sha256):
         raise InputError(f"--sha256 must be 64 hexadecimal digits, got {args.sha256!r}")
+    return entry
+
+
+def _get(args: argparse.Namespace) -> int:
+    entry = _entry(args)
+    from jaxvo.host.readers.datasets import check_sha256, download, unpack
+    from jaxvo.host.readers.io import output_folder
+    from jaxvo.host.services.progress import Progress
+
     dest = output_folder(args.dir, what="--dir")
     target = dest / (entry.url.rsplit("/", 1)[1] if args.bag else entry.folder)
     out = entry.name.replace("/", "_") + ".txt"

@@ -57,12 +57,23 @@ class _Anchors:
         return self._seq[int(self._frames[k])]
 
 
+def _check_options(args: argparse.Namespace) -> None:
+    """The options whose checks need no NumPy: the scenario's name, the frame count and the
+    seed, answered before it loads."""
+    from jaxvo.cli.synth import check_scenario
+    from jaxvo.errors import InputError, check_seed
+
+    check_scenario(args.scenario)
+    if args.frames < 2:
+        raise InputError(f"--frames must be at least 2, got {args.frames}")
+    check_seed(args.seed, name="--seed")
+
+
 def _check(args: argparse.Namespace, cfg) -> tuple[list[str], object]:
     """The peers and the output folder (None without --out), after every option is checked
     and the run is known to fit in memory, before any work."""
     from pathlib import Path
 
-    from jaxvo.errors import InputError, check_seed
     from jaxvo.host.readers.io import check_outputs, output_folder
     from jaxvo.host.services.memory import (
         FRAME_BYTES_PER_PIXEL,
@@ -70,14 +81,8 @@ def _check(args: argparse.Namespace, cfg) -> tuple[list[str], object]:
         check_memory,
         run_bytes,
     )
-    from jaxvo.synth.scenes import SCENARIOS
 
-    peers = _peer_list(args.peers)
-    if args.scenario not in SCENARIOS:
-        raise InputError(f"unknown scenario {args.scenario!r}; choose one of {', '.join(SCENARIOS)}")
-    if args.frames < 2:
-        raise InputError(f"--frames must be at least 2, got {args.frames}")
-    check_seed(args.seed, name="--seed")
+    peers = _peer_list(args.peers)  # its module loads OpenCV (and tries Open3D) to say which run
     # the frames are rendered into memory, then scanned whole
     check_memory(run_bytes(cfg, height=480, width=640, frames=args.frames, host_bytes=(
         SYNTH_BYTES_PER_FRAME + FRAME_BYTES_PER_PIXEL * 480 * 640) * args.frames),
@@ -93,9 +98,10 @@ def _check(args: argparse.Namespace, cfg) -> tuple[list[str], object]:
 
 def prepare(args: argparse.Namespace):
     """The options checked and the output folder made, before JAX loads: ``(cfg, peers,
-    out)`` for :func:`run`."""
+    out)`` for :func:`run`. :func:`_check_options`' answers come before NumPy loads."""
     from jaxvo.config import Config
 
+    _check_options(args)
     cfg = Config()
     return (cfg, *_check(args, cfg))
 

@@ -169,21 +169,35 @@ def _delta(args) -> tuple[float | int, str]:
     return delta, unit
 
 
-def run(args: argparse.Namespace) -> int:
+def prepare(args: argparse.Namespace) -> tuple[float | int | None, str | None]:
+    """The options and the two files checked in the order they always were, before NumPy
+    loads: ``(delta, unit)`` for :func:`run` (None, None for ATE). Only --save_results and
+    --plot need NumPy to be checked (:func:`_outputs`), and load it only where given, still
+    before the files."""
     import math
 
+    from jaxvo.cli.inputs import require_trajectory
     from jaxvo.errors import InputError
+
+    if not (math.isfinite(args.max_diff) and args.max_diff >= 0):
+        raise InputError(f"--max-diff must be a number of seconds >= 0, got {args.max_diff}")
+    delta, unit = _delta(args) if args.metric == "rpe" else (None, None)
+    if args.save_results or args.plot:
+        _outputs(args)
+    if sum(_is_stdin(p) for p in (args.gt, args.est)) > 1:
+        raise InputError("only one of the trajectories can come from standard input (-)")
+    require_trajectory(args.gt)
+    require_trajectory(args.est)
+    return delta, unit
+
+
+def run(args: argparse.Namespace, prepared: tuple | None = None) -> int:
     from jaxvo.evaluation import evo_results, metrics
     from jaxvo.host.writers.outputs import write_bytes
     from jaxvo.trajectory import read_trajectory
 
-    if not (math.isfinite(args.max_diff) and args.max_diff >= 0):
-        raise InputError(f"--max-diff must be a number of seconds >= 0, got {args.max_diff}")
+    delta, unit = prepared or prepare(args)
     align, scale = _alignment(args)
-    delta, unit = _delta(args) if args.metric == "rpe" else (None, None)
-    _outputs(args)
-    if sum(_is_stdin(p) for p in (args.gt, args.est)) > 1:
-        raise InputError("only one of the trajectories can come from standard input (-)")
     gt = read_trajectory(args.gt)
     est = read_trajectory(args.est)
     names = (args.gt, args.est)

@@ -7,10 +7,13 @@ one line ``jaxvo: error: ...``; 130 interrupted (what was computed so far is kep
 
 Each subcommand lives in ``jaxvo/cli/<name>.py`` and exposes
 ``add_arguments(parser)`` and ``run(args) -> int``; modules are imported only when their
-command runs. A command that compiles also exposes ``prepare(args)``: every check of its
-options and files, without JAX, so that a one-line answer comes at once (``jaxvo run
-/missing``: 0.75-0.95 s with JAX loaded first); ``run(args, prepared)`` takes what it
-returns, after the compile cache is set up (which loads JAX).
+command runs. A command that compiles, or reads files, also exposes ``prepare(args)``:
+every check of its options and files, without JAX, so that a one-line answer comes at once
+(``jaxvo run /missing``: 0.75-0.95 s with JAX loaded first); the answers that need no
+NumPy (a path that is not there, an unknown name, an option out of range) come before
+NumPy loads, from the light checks at its start (:mod:`jaxvo.cli.inputs` for paths).
+``run(args, prepared)`` takes what it returns, after the compile cache is set up (which
+loads JAX).
 """
 
 from __future__ import annotations

@@ -72,57 +72,92 @@ def add_arguments(p: argparse.ArgumentParser) -> None:
     p.add_argument("--json", action="store_true", help="print the summary as JSON")
 
 
-def add_map_options(p: argparse.ArgumentParser) -> None:
-    """The fusion's options, at :class:`~jaxvo.host.writers.mapping.MapOptions`' defaults (which
-    ``jaxvo run --map`` takes)."""
-    from jaxvo.host.writers.mapping import MapOptions
+# the fusion's options: field of MapOptions, flag, metavar, help (its default added)
+_FUSION = (
+    ("voxel", "--voxel", "M", "the map's voxel side, metres"),
+    ("max_depth", "--max-depth", "M", "depth readings farther than this are left out, metres"),
+    ("grow", "--grow", "PX", "pixels around a dynamic pixel also left out"),
+    ("vote_voxel", "--vote-voxel", "M", "side of the cubes voted on, metres"),
+    ("vote_share", "--vote-share", "F",
+     "a cube with more than this share of its readings in the dynamic masks is left out whole"),
+)
 
-    d = MapOptions()
-    p.add_argument("--voxel", type=float, default=d.voxel, metavar="M",
-                   help=f"the map's voxel side, metres (default {d.voxel:g})")
-    p.add_argument("--max-depth", type=float, default=d.max_depth, metavar="M",
-                   help=f"depth readings farther than this are left out, metres (default "
-                   f"{d.max_depth:g})")
-    p.add_argument("--grow", type=int, default=d.grow, metavar="PX",
-                   help=f"pixels around a dynamic pixel also left out (default {d.grow})")
-    p.add_argument("--vote-voxel", type=float, default=d.vote_voxel, metavar="M",
-                   help=f"side of the cubes voted on, metres (default {d.vote_voxel})")
-    p.add_argument("--vote-share", type=float, default=d.vote_share, metavar="F",
-                   help="a cube with more than this share of its readings in the dynamic "
-                   f"masks is left out whole (default {d.vote_share}; 1: no vote)")
+# what map_options' checks call each field
+_NAMES = {field: flag for field, flag, _, _ in _FUSION}
+
+
+def add_map_options(p: argparse.ArgumentParser) -> None:
+    """The fusion's options, whose defaults are :class:`~jaxvo.host.writers.mapping.MapOptions`'
+    (which ``jaxvo run --map`` takes). An option not given stays None, so that the parser
+    needs no NumPy (the help reads the defaults when printed) and :func:`prepare` knows
+    which were given."""
+    from jaxvo.cli.later import Later
+
+    for field, flag, metavar, text in _FUSION:
+        note = "; 1: no vote" if field == "vote_share" else ""
+        action = p.add_argument(flag, type=int if field == "grow" else float, metavar=metavar,
+                                help=f"{text} (default %(default_value)s{note})")
+        action.default_value = Later("jaxvo.host.writers.mapping", "MapOptions",
+                                     lambda options, f=field: f"{getattr(options(), f):g}")
 
 
 def map_options(args: argparse.Namespace):
     """The :class:`~jaxvo.host.writers.mapping.MapOptions` the command line gives."""
     from jaxvo.host.writers.mapping import MapOptions
 
-    return MapOptions(voxel=args.voxel, max_depth=args.max_depth, grow=args.grow,
-                      vote_voxel=args.vote_voxel, vote_share=args.vote_share,
-                      max_diff=args.max_diff)
+    return MapOptions(**_fusion_given(args), max_diff=args.max_diff)
 
 
-# what map_options' checks call each field
-_NAMES = {"voxel": "--voxel", "max_depth": "--max-depth", "grow": "--grow",
-          "vote_voxel": "--vote-voxel", "vote_share": "--vote-share"}
+def _fusion_given(args: argparse.Namespace) -> dict:
+    """The fusion's options the command line gives, by field."""
+    return {f: getattr(args, f) for f in _NAMES if getattr(args, f) is not None}
 
 
-def open_mapped(args: argparse.Namespace):
-    """The sequence to map and the trajectory, the depth read as the run read it: ``(seq,
-    traj, warnings)``. A trajectory jaxvo run wrote names its sequence and camera in its
-    first lines (:func:`jaxvo.run.run_header`): one of another sequence is refused, and
-    its camera and depth scale are used unless an option gives them."""
+def prepare(args: argparse.Namespace) -> tuple:
+    """The options checked, then the inputs being there: ``(camera,)`` for :func:`run`.
+    The options' checks need NumPy, loaded only where one is given; a trajectory, a
+    sequence or a masks' folder that is not there is answered before NumPy loads (and so
+    before the trajectory is read and the outputs are checked)."""
+    from jaxvo.cli.inputs import require_sequence, require_trajectory
     from jaxvo.errors import InputError
-    from jaxvo.host.frontend.camera import intrinsics_option
+
+    if _fusion_given(args):
+        map_options(args).check(names=_NAMES)
+    camera = _camera(args)
+    require_trajectory(args.traj)
+    require_sequence(args.sequence)
+    if args.dynamic_masks and not Path(args.dynamic_masks).is_dir():
+        raise InputError(f"--dynamic-masks {Path(args.dynamic_masks)}: not a folder")
+    return (camera,)
+
+
+def _camera(args: argparse.Namespace):
+    """--intrinsics (parsed) or --camera, and --depth-scale checked; the camera module
+    (NumPy) loaded only where --intrinsics or --depth-scale is given."""
+    camera = args.camera
+    if args.intrinsics:
+        from jaxvo.host.frontend.camera import intrinsics_option
+
+        camera = intrinsics_option(args.intrinsics)
+    if args.depth_scale is not None:
+        from jaxvo.host.frontend.camera import check_depth_scale_value
+
+        check_depth_scale_value(args.depth_scale, name="--depth-scale")
+    return camera
+
+
+def open_mapped(args: argparse.Namespace, camera):
+    """The sequence to map and the trajectory, the depth read as the run read it: ``(seq,
+    traj, warnings)``; ``camera``: :func:`_camera`'s. A trajectory jaxvo run wrote names its
+    sequence and camera in its first lines (:func:`jaxvo.run.run_header`): one of another
+    sequence is refused, and its camera and depth scale are used unless an option gives
+    them."""
+    from jaxvo.errors import InputError
     from jaxvo.host.frontend.frames import describe
     from jaxvo.host.readers.io import open_sequence
     from jaxvo.run import read_run_header
     from jaxvo.trajectory import read_trajectory
 
-    camera = intrinsics_option(args.intrinsics) if args.intrinsics else args.camera
-    if args.depth_scale is not None:
-        from jaxvo.host.frontend.camera import check_depth_scale_value
-
-        check_depth_scale_value(args.depth_scale, name="--depth-scale")
     traj = read_trajectory(args.traj)
     run = read_run_header(args.traj)
     seq = open_sequence(args.sequence, camera=camera, max_diff=args.max_diff,
@@ -151,15 +186,15 @@ def open_mapped(args: argparse.Namespace):
     return seq, traj, notes
 
 
-def run(args: argparse.Namespace) -> int:
+def run(args: argparse.Namespace, prepared: tuple | None = None) -> int:
     from jaxvo.errors import InputError, warn
     from jaxvo.host.readers.io import check_outputs, output_file
     from jaxvo.host.writers.mapping import make_maps, map_outputs, mask_reader
     from jaxvo.host.writers.outputs import file_id, stream_target
 
+    (camera,) = prepared or prepare(args)
     options = map_options(args)
-    options.check(names=_NAMES)
-    seq, traj, notes = open_mapped(args)
+    seq, traj, notes = open_mapped(args, camera)
     options.check(height=seq.height, width=seq.width, names=_NAMES)
     outputs = map_outputs(args.out)
     if args.dynamic_masks is None:
@@ -171,8 +206,6 @@ def run(args: argparse.Namespace) -> int:
     reads = seq.files() + [Path(args.traj)]
     if args.dynamic_masks:
         masks = Path(args.dynamic_masks)
-        if not masks.is_dir():
-            raise InputError(f"--dynamic-masks {masks}: not a folder")
         image_folders = {file_id(p if p.is_dir() else p.parent) for p in seq.files()}
         if file_id(masks) in image_folders:  # TUM names its images by time, as masks are
             raise InputError(f"--dynamic-masks {masks}: holds the sequence's own images, not "

@@ -12,11 +12,10 @@ from __future__ import annotations
 
 import argparse
 import json
-import os
 import sys
-from pathlib import Path
 from typing import TYPE_CHECKING
 
+from jaxvo.cli.inputs import require_sequence
 from jaxvo.cli.later import Later
 from jaxvo.errors import InputError
 
@@ -195,9 +194,9 @@ def options(args: argparse.Namespace) -> RunOptions:
 def prepare(args: argparse.Namespace) -> PreparedRun:
     """Every option and file checked, the sequence opened and the outputs made ready, before
     JAX loads (:func:`run` takes it). A SEQ_DIR that does not exist is said first, before
-    NumPy loads, in the words :func:`jaxvo.host.readers.io.open_sequence` says it."""
-    if not (args.rgb_topic or args.depth_topic) and not os.path.exists(args.sequence):
-        raise InputError(f"sequence folder not found: {Path(args.sequence)}")
+    NumPy loads (a bag's topics given: the bag reader's to say)."""
+    if not (args.rgb_topic or args.depth_topic):
+        require_sequence(args.sequence)
     from jaxvo.run import prepare_run
 
     return prepare_run(options(args), names=_CONFIG_OPTIONS)

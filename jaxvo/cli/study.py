@@ -100,9 +100,11 @@ def run(args: argparse.Namespace, prepared=None) -> int:
 
 def prepare(args: argparse.Namespace):
     """The options checked and the spec read, before JAX loads (a multi-process study must
-    join before it starts): ``(spec, coordinator, processes, process id)`` for :func:`run`."""
+    join before it starts): ``(spec, coordinator, processes, process id)`` for :func:`run`.
+    :mod:`jaxvo.study.spec` reads it without NumPy: a spec that is not there, or not TOML
+    or JSON, is answered before NumPy loads."""
     from jaxvo.errors import InputError
-    from jaxvo.study import runner as study
+    from jaxvo.study.spec import load_spec
 
     if args.batch is not None and args.batch < 1:
         raise InputError(f"--batch must be at least 1, got {args.batch}")
@@ -110,13 +112,13 @@ def prepare(args: argparse.Namespace):
         raise InputError(f"--join-timeout must be a positive number of seconds, got "
                          f"{args.join_timeout}")
     _check_cpu_devices(args.cpu_devices)
-    spec = study.load_spec(args.spec, check_folders=False)
+    spec = load_spec(args.spec, check_folders=False)
     dist = spec.distributed
     coordinator = args.coordinator or dist.get("coordinator")
     nproc = args.num_processes if args.num_processes is not None else dist.get("num_processes")
     pid = args.process_id if args.process_id is not None else dist.get("process_id")
     if not pid:  # the first process (or the only one) reads the sequences: they must exist
-        spec = study.load_spec(args.spec)
+        spec = load_spec(args.spec)
     return spec, coordinator, nproc, pid
 
 

@@ -37,14 +37,38 @@ def add_arguments(parser: argparse.ArgumentParser) -> None:
                         help="let the colour gain drift like auto exposure")
 
 
+def check_scenario(name: str) -> None:
+    """Refuse a scenario no preset has, before NumPy loads, in the words
+    :mod:`jaxvo.synth.scenes` says it (``jaxvo demo --scenario`` takes the same names)."""
+    from jaxvo.errors import InputError
+
+    if name not in SCENARIO_NAMES:
+        raise InputError(f"unknown scenario {name!r}; choose one of {', '.join(SCENARIO_NAMES)}")
+
+
+def _check(args: argparse.Namespace) -> None:
+    """What needs neither NumPy nor a file read: the seed, the frame count, the scenario's
+    name and a composite's sequence being there."""
+    from jaxvo.cli.inputs import require_sequence
+    from jaxvo.errors import InputError, check_seed
+
+    check_seed(args.seed, name="--seed")
+    if args.frames is not None and args.frames < 1:
+        raise InputError(f"--frames must be at least 1, got {args.frames}")
+    check_scenario(args.scenario)
+    if args.composite:
+        require_sequence(args.composite)
+
+
 def prepare(args: argparse.Namespace):
     """The options checked, a composite's sequence opened and the (empty) output folder
-    made, before JAX loads: ``(opts, real, frames)`` for :func:`run`."""
+    made, before JAX loads: ``(opts, real, frames)`` for :func:`run`. :func:`_check`'s
+    answers come before NumPy loads."""
+    _check(args)
     from dataclasses import replace
     from pathlib import Path
 
     from jaxvo.config import Config
-    from jaxvo.errors import InputError, check_seed
     from jaxvo.host.readers.io import check_outputs, output_folder
     from jaxvo.host.services.memory import (
         SYNTH_BYTES_PER_FRAME,
@@ -54,9 +78,6 @@ def prepare(args: argparse.Namespace):
     )
     from jaxvo.synth import scenes as synth
 
-    check_seed(args.seed, name="--seed")
-    if args.frames is not None and args.frames < 1:
-        raise InputError(f"--frames must be at least 1, got {args.frames}")
     opts = synth.SensorOptions.ideal() if args.ideal else synth.SensorOptions()
     opts = replace(opts, motion_blur=args.motion_blur,
                          exposure_change=args.exposure_change)
@@ -69,8 +90,7 @@ def prepare(args: argparse.Namespace):
         reads = real.files(frames)
     else:
         frames = synth.DEFAULT_FRAMES if args.frames is None else args.frames
-    scenario = synth.SCENARIOS.get(args.scenario)
-    objects = len(scenario.objects) if scenario is not None else 0
+    objects = len(synth.SCENARIOS[args.scenario].objects)
     # frames are rendered and written one at a time; their trajectories are held whole
     check_memory(run_bytes(Config(), height=480, width=640, host_bytes=frames * (
         SYNTH_BYTES_PER_FRAME + SYNTH_BYTES_PER_OBJECT_FRAME * objects)),
