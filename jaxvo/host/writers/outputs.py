@@ -46,11 +46,12 @@ import stat
 import sys
 import warnings
 from pathlib import Path
-from typing import Self
-
-import numpy as np
+from typing import TYPE_CHECKING, Self
 
 from jaxvo.errors import InputError
+
+if TYPE_CHECKING:  # the commands check their outputs before NumPy loads: kept light
+    import numpy as np
 
 # the file name that means standard output, as command-line tools take it
 STDOUT = "-"
