@@ -235,6 +235,45 @@ def stream_target(path: str | Path, *, what: str, stdout: bool = False) -> Path 
     return Path(path)
 
 
+def file_target(path: str | Path, *, what: str, stdout: bool = False) -> Path | str:
+    """The checks of :func:`output_file` that nothing the command reads can answer
+    otherwise (:func:`check_outputs` finds no input in a stream, a folder or a file whose
+    folder is missing): a command asks them before it reads its inputs, and
+    :func:`output_file` again in its place. Nothing is written.
+
+    Returns:
+      the path, or :data:`STDOUT` when it goes to standard output.
+    Raises:
+      InputError: standard output where it cannot go (:func:`stream_target`), a folder, or
+        a missing folder.
+    """
+    if stream_target(path, what=what, stdout=stdout) == STDOUT:
+        return STDOUT
+    p = Path(path)
+    if p.is_dir():
+        raise InputError(f"{what} {p}: is a folder, not a file")
+    if not p.parent.is_dir():
+        raise InputError(f"{what} {p}: folder {p.parent} does not exist")
+    return p
+
+
+def folder_target(path: str | Path, *, what: str, empty: bool = False) -> Path:
+    """The checks of :func:`output_folder` that create nothing: a command asks them before
+    its checks that need NumPy, and :func:`output_folder` (which creates the folder) again
+    in its place.
+
+    Raises:
+      InputError: it exists and is not a folder (or, with ``empty``, is not empty).
+    """
+    p = Path(path)
+    if p.exists() and not p.is_dir():
+        raise InputError(f"{what} {p}: exists and is not a folder")
+    if empty and p.is_dir() and any(p.iterdir()):
+        raise InputError(f"{what} {p}: the folder is not empty; give a new or empty folder "
+                         "(nothing in it is changed)")
+    return p
+
+
 def output_file(path: str | Path, *, what: str, stdout: bool = False) -> Path | str:
     """``path`` as a file this command can write, checked before any work is done (what it
     must not overwrite: :func:`check_outputs`).
@@ -249,13 +288,9 @@ def output_file(path: str | Path, *, what: str, stdout: bool = False) -> Path | 
       InputError: standard output where it cannot go (:func:`stream_target`), a folder, a
         missing folder, or a file that cannot be written.
     """
-    if stream_target(path, what=what, stdout=stdout) == STDOUT:
+    p = file_target(path, what=what, stdout=stdout)
+    if p == STDOUT:
         return STDOUT
-    p = Path(path)
-    if p.is_dir():
-        raise InputError(f"{what} {p}: is a folder, not a file")
-    if not p.parent.is_dir():
-        raise InputError(f"{what} {p}: folder {p.parent} does not exist")
     real = Path(os.path.realpath(p))
     if real.exists() and not _regular(real):
         if not os.access(real, os.W_OK):
@@ -295,12 +330,7 @@ def output_folder(path: str | Path, *, what: str, empty: bool = False,
       InputError: it exists and is not a folder (or, with ``empty``, is not empty), or
         cannot be created or written into.
     """
-    p = Path(path)
-    if p.exists() and not p.is_dir():
-        raise InputError(f"{what} {p}: exists and is not a folder")
-    if empty and p.is_dir() and any(p.iterdir()):
-        raise InputError(f"{what} {p}: the folder is not empty; give a new or empty folder "
-                         "(nothing in it is changed)")
+    p = folder_target(path, what=what, empty=empty)
     try:
         p.mkdir(parents=True, exist_ok=True)
         OutputFile(p / "x", what=what).discard()
