@@ -214,6 +214,59 @@ def test_each_commands_cheap_answers_come_before_numpy_loads(inputs, case):
     assert not any((Path(inputs["tmp"]) / name).exists() for name in ("o", "s", "d", "m.ply"))
 
 
+# case -> (argv, the one line), as EARLY_ANSWERS: an output that cannot be written, each
+# case with nothing else wrong ({gt} a file, {seq} a folder that is not empty)
+OUTPUT_ANSWERS = {
+    "eval-save-results-no-folder": ("eval ate {gt} {gt} --save_results {tmp}/none/r.zip",
+                                    ("--save_results {tmp}/none/r.zip: folder {tmp}/none "
+                                     "does not exist")),
+    "eval-save-results-folder": ("eval rpe {gt} {gt} --save_results {tmp}",
+                                 "--save_results {tmp}: is a folder, not a file"),
+    "eval-save-results-input": ("eval ate {gt} {gt} --save_results {gt}",
+                                "--save_results {gt} would overwrite the input {gt}"),
+    "eval-save-results-stdout": ("eval ate {gt} {gt} --save_results -", (
+        "--save_results -: --save_results writes a file, not standard output; name a file")),
+    "eval-one-file-twice": ("eval ate {gt} {gt} --save_results {tmp}/r.zip --plot {tmp}/r.zip",
+                            ("--plot and --save_results are the same file {tmp}/r.zip; "
+                             "each output needs its own")),
+    "eval-plot-no-folder": ("eval ate {gt} {gt} --plot {tmp}/none/p.png",
+                            "--plot {tmp}/none/p.png: folder {tmp}/none does not exist"),
+    "data-dir-file": ("data get tum fr3/walking_xyz --dir {gt}",
+                      "--dir {gt}: exists and is not a folder"),
+}
+
+
+def _tree(root: Path) -> dict[str, tuple[int, int]]:
+    """Every path under ``root``, with its size and modification time."""
+    return {str(p): (p.stat().st_size, p.stat().st_mtime_ns) for p in sorted(root.rglob("*"))}
+
+
+@pytest.mark.parametrize("case", list(OUTPUT_ANSWERS))
+def test_each_commands_output_answers_come_before_numpy_loads(inputs, case):
+    """An output that cannot be written (a folder missing, a file where a folder goes, a
+    folder that is not empty, an input or another output): said in the words it always
+    was, with nothing heavy loaded and nothing written."""
+    if "plot" in case:  # without matplotlib --plot says that first
+        pytest.importorskip("matplotlib")
+    argv, line = OUTPUT_ANSWERS[case]
+    before = _tree(Path(inputs["tmp"]))
+    status, heavy, _, err = answer(*(a.format(**inputs) for a in argv.split()))
+    assert (status, err.strip()) == (2, "jaxvo: error: " + line.format(**inputs))
+    assert heavy == []
+    assert _tree(Path(inputs["tmp"])) == before
+
+
+def test_the_plot_formats_known_without_matplotlib_are_the_installed_ones():
+    """A --plot named in one of these is passed before matplotlib (and NumPy) loads: each
+    must be a format matplotlib writes."""
+    pytest.importorskip("matplotlib")
+    from matplotlib.backend_bases import FigureCanvasBase
+
+    from jaxvo.cli.eval import PLOT_FORMATS
+
+    assert set(PLOT_FORMATS) <= set(FigureCanvasBase.get_supported_filetypes())
+
+
 def test_the_early_answers_say_what_read_trajectory_says(tmp_path):
     """One wording for a missing trajectory and a folder given as one, whichever of the
     light check or the reader finds it."""

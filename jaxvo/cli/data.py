@@ -70,7 +70,7 @@ def run(args: argparse.Namespace) -> int:
 
 def _entry(args: argparse.Namespace):
     """The catalogue's entry for the sequence asked for, and --sha256 checked: answered
-    before NumPy loads (the catalogue needs none)."""
+    before NumPy loads (the catalogue needs none, and neither does --dir's check after)."""
     from jaxvo.errors import InputError
     from jaxvo.host.readers.datasets import find
 
@@ -83,8 +83,8 @@ def _entry(args: argparse.Namespace):
 def _get(args: argparse.Namespace) -> int:
     entry = _entry(args)
     from jaxvo.host.readers.datasets import check_sha256, download, unpack
-    from jaxvo.host.readers.io import output_folder
     from jaxvo.host.services.progress import Progress
+    from jaxvo.host.writers.outputs import output_folder
 
     dest = output_folder(args.dir, what="--dir")
     target = dest / (entry.url.rsplit("/", 1)[1] if args.bag else entry.folder)

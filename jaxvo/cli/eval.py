@@ -139,17 +139,37 @@ def _delta_unit(text: str) -> str:
 
 
 def _outputs(args) -> None:
-    """Check --save_results and --plot before any work (InputError)."""
-    from jaxvo.evaluation.evo_results import require_matplotlib
-    from jaxvo.host.readers.io import check_outputs, output_file
+    """Check --save_results and --plot before any work (InputError), before NumPy loads
+    but where only matplotlib can judge --plot's format (:func:`_check_plot`)."""
+    from jaxvo.host.writers.outputs import check_outputs, output_file
 
     given = {option: Path(p) for option, p in (("--save_results", args.save_results),
                                                ("--plot", args.plot)) if p}
     check_outputs((Path(args.gt), Path(args.est)), files=given)
     if args.plot:
-        require_matplotlib(args.plot)
+        _check_plot(args.plot)
     for option, path in given.items():
         output_file(path, what=option)
+
+
+# image formats that every matplotlib jaxvo[plot] takes writes (FigureCanvasBase's default
+# file types; tests/test_startup.py holds them to the installed one's)
+PLOT_FORMATS = frozenset({"eps", "jpeg", "jpg", "pdf", "png", "ps", "svg", "svgz", "tif",
+                          "tiff"})
+
+
+def _check_plot(path: str) -> None:
+    """``require_matplotlib(path)``, which imports matplotlib (and NumPy), asked only where
+    its answer is not known without: matplotlib installed and ``path`` one of
+    :data:`PLOT_FORMATS` pass it, as they would there."""
+    import importlib.util
+
+    if (importlib.util.find_spec("matplotlib") is not None
+            and Path(path).suffix.lower().lstrip(".") in PLOT_FORMATS):
+        return
+    from jaxvo.evaluation.evo_results import require_matplotlib
+
+    require_matplotlib(path)
 
 
 def _delta(args) -> tuple[float | int, str]:
@@ -170,10 +190,10 @@ def _delta(args) -> tuple[float | int, str]:
 
 
 def prepare(args: argparse.Namespace) -> tuple[float | int | None, str | None]:
-    """The options and the two files checked in the order they always were, before NumPy
-    loads: ``(delta, unit)`` for :func:`run` (None, None for ATE). Only --save_results and
-    --plot need NumPy to be checked (:func:`_outputs`), and load it only where given, still
-    before the files."""
+    """The options, the outputs and the two files checked in the order they always were,
+    before NumPy loads: ``(delta, unit)`` for :func:`run` (None, None for ATE). Only a
+    --plot format that matplotlib alone can judge, or matplotlib missing, loads it
+    (:func:`_check_plot`), still before the files."""
     import math
 
     from jaxvo.cli.inputs import require_trajectory
@@ -197,6 +217,8 @@ def run(args: argparse.Namespace, prepared: tuple | None = None) -> int:
     from jaxvo.trajectory import read_trajectory
 
     delta, unit = prepared or prepare(args)
+    if args.plot:  # one line, not a traceback, where matplotlib is there but fails to import
+        evo_results.require_matplotlib(args.plot)
     align, scale = _alignment(args)
     gt = read_trajectory(args.gt)
     est = read_trajectory(args.est)
