@@ -233,6 +233,11 @@ OUTPUT_ANSWERS = {
                             "--plot {tmp}/none/p.png: folder {tmp}/none does not exist"),
     "data-dir-file": ("data get tum fr3/walking_xyz --dir {gt}",
                       "--dir {gt}: exists and is not a folder"),
+    "synth-out-not-empty": ("synth static {seq}", (
+        "OUT_DIR {seq}: the folder is not empty; give a new or empty folder (nothing in it is "
+        "changed)")),
+    "synth-out-file": ("synth static {gt} --frames 3", "OUT_DIR {gt}: exists and is not a folder"),
+    "demo-out-file": ("demo --out {gt}", "--out {gt}: exists and is not a folder"),
 }
 
 

@@ -74,13 +74,13 @@ def _check(args: argparse.Namespace, cfg) -> tuple[list[str], object]:
     and the run is known to fit in memory, before any work."""
     from pathlib import Path
 
-    from jaxvo.host.readers.io import check_outputs, output_folder
     from jaxvo.host.services.memory import (
         FRAME_BYTES_PER_PIXEL,
         SYNTH_BYTES_PER_FRAME,
         check_memory,
         run_bytes,
     )
+    from jaxvo.host.writers.outputs import check_outputs, output_folder
 
     peers = _peer_list(args.peers)  # its module loads OpenCV (and tries Open3D) to say which run
     # the frames are rendered into memory, then scanned whole
@@ -98,10 +98,15 @@ def _check(args: argparse.Namespace, cfg) -> tuple[list[str], object]:
 
 def prepare(args: argparse.Namespace):
     """The options checked and the output folder made, before JAX loads: ``(cfg, peers,
-    out)`` for :func:`run`. :func:`_check_options`' answers come before NumPy loads."""
+    out)`` for :func:`run`. :func:`_check_options`' answers come before NumPy loads, and
+    so does an --out that is a file: said before the peers (whose module loads OpenCV) and
+    the memory are checked, with two things wrong the --out first."""
     from jaxvo.config import Config
+    from jaxvo.host.writers.outputs import folder_target
 
     _check_options(args)
+    if args.out:
+        folder_target(args.out, what="--out")
     cfg = Config()
     return (cfg, *_check(args, cfg))
 

@@ -63,13 +63,19 @@ def _check(args: argparse.Namespace) -> None:
 def prepare(args: argparse.Namespace):
     """The options checked, a composite's sequence opened and the (empty) output folder
     made, before JAX loads: ``(opts, real, frames)`` for :func:`run`. :func:`_check`'s
-    answers come before NumPy loads."""
+    answers come before NumPy loads, and so does an OUT_DIR that is a file or not empty
+    where there is no composite: said before the memory is checked (with two things
+    wrong, OUT_DIR first). With a composite, OUT_DIR may hold what it reads, said as such
+    once the sequence is opened, as before."""
     _check(args)
+    from jaxvo.host.writers.outputs import check_outputs, folder_target, output_folder
+
+    if not args.composite:
+        folder_target(args.out_dir, what="OUT_DIR", empty=True)
     from dataclasses import replace
     from pathlib import Path
 
     from jaxvo.config import Config
-    from jaxvo.host.readers.io import check_outputs, output_folder
     from jaxvo.host.services.memory import (
         SYNTH_BYTES_PER_FRAME,
         SYNTH_BYTES_PER_OBJECT_FRAME,
