@@ -238,6 +238,11 @@ OUTPUT_ANSWERS = {
         "changed)")),
     "synth-out-file": ("synth static {gt} --frames 3", "OUT_DIR {gt}: exists and is not a folder"),
     "demo-out-file": ("demo --out {gt}", "--out {gt}: exists and is not a folder"),
+    "map-out-no-folder": ("map {seq} --traj {gt} --out {tmp}/none/m.ply",
+                          "--out {tmp}/none/m.ply: folder {tmp}/none does not exist"),
+    "map-out-folder": ("map {seq} --traj {gt} --out {tmp}", "--out {tmp}: is a folder, not a file"),
+    "map-out-stdout": ("map {seq} --traj {gt} --out -",
+                       "--out -: --out writes a file, not standard output; name a file"),
 }
 
 

@@ -114,12 +114,16 @@ def _fusion_given(args: argparse.Namespace) -> dict:
 
 
 def prepare(args: argparse.Namespace) -> tuple:
-    """The options checked, then the inputs being there: ``(camera,)`` for :func:`run`.
-    The options' checks need NumPy, loaded only where one is given; a trajectory, a
-    sequence or a masks' folder that is not there is answered before NumPy loads (and so
-    before the trajectory is read and the outputs are checked)."""
+    """The options checked, then the inputs being there, then --out: ``(camera,)`` for
+    :func:`run`. The options' checks need NumPy, loaded only where one is given; a
+    trajectory, a sequence or a masks' folder that is not there, and an --out that is a
+    folder, lies in a folder that is not there or is standard output, are answered before
+    NumPy loads, and so before the trajectory and the sequence are read (with one of those
+    wrong too, the --out is said first). What the outputs must not overwrite is checked
+    in :func:`run`, once the sequence is open."""
     from jaxvo.cli.inputs import require_sequence, require_trajectory
     from jaxvo.errors import InputError
+    from jaxvo.host.writers.outputs import file_target
 
     if _fusion_given(args):
         map_options(args).check(names=_NAMES)
@@ -128,6 +132,7 @@ def prepare(args: argparse.Namespace) -> tuple:
     require_sequence(args.sequence)
     if args.dynamic_masks and not Path(args.dynamic_masks).is_dir():
         raise InputError(f"--dynamic-masks {Path(args.dynamic_masks)}: not a folder")
+    file_target(args.out, what="--out")
     return (camera,)
 
 
@@ -188,9 +193,8 @@ def open_mapped(args: argparse.Namespace, camera):
 
 def run(args: argparse.Namespace, prepared: tuple | None = None) -> int:
     from jaxvo.errors import InputError, warn
-    from jaxvo.host.readers.io import check_outputs, output_file
     from jaxvo.host.writers.mapping import make_maps, map_outputs, mask_reader
-    from jaxvo.host.writers.outputs import file_id, stream_target
+    from jaxvo.host.writers.outputs import check_outputs, file_id, output_file, stream_target
 
     (camera,) = prepared or prepare(args)
     options = map_options(args)
