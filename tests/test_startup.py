@@ -243,6 +243,9 @@ OUTPUT_ANSWERS = {
     "map-out-folder": ("map {seq} --traj {gt} --out {tmp}", "--out {tmp}: is a folder, not a file"),
     "map-out-stdout": ("map {seq} --traj {gt} --out -",
                        "--out -: --out writes a file, not standard output; name a file"),
+    "run-out-no-folder": ("run {seq} --cell 4 --out {tmp}/none/t.txt",
+                          "--out {tmp}/none/t.txt: folder {tmp}/none does not exist"),
+    "run-out-folder": ("run {seq} --cell 4 --out {tmp}", "--out {tmp}: is a folder, not a file"),
 }
 
 

@@ -194,9 +194,17 @@ def options(args: argparse.Namespace) -> RunOptions:
 def prepare(args: argparse.Namespace) -> PreparedRun:
     """Every option and file checked, the sequence opened and the outputs made ready, before
     JAX loads (:func:`run` takes it). A SEQ_DIR that does not exist is said first, before
-    NumPy loads (a bag's topics given: the bag reader's to say)."""
+    NumPy loads (a bag's topics given: the bag reader's to say), then an --out that is a
+    folder, lies in a folder that is not there (and that no output folder makes) or is
+    standard output where it cannot go, before the options and the sequence are checked
+    (with one of those wrong too, the --out is said first); the rest, what --out must not
+    overwrite included, by :func:`jaxvo.run.prepare_run`."""
+    from jaxvo.host.writers.outputs import file_target
+
     if not (args.rgb_topic or args.depth_topic):
         require_sequence(args.sequence)
+    file_target(args.out, what="--out", stdout=True, folders=[f for f in (
+        args.masks, args.dynamic_masks, args.overlays, args.out_bag) if f])
     from jaxvo.run import prepare_run
 
     return prepare_run(options(args), names=_CONFIG_OPTIONS)

@@ -45,6 +45,7 @@ import secrets
 import stat
 import sys
 import warnings
+from collections.abc import Iterable
 from pathlib import Path
 from typing import TYPE_CHECKING, Self
 
@@ -235,12 +236,17 @@ def stream_target(path: str | Path, *, what: str, stdout: bool = False) -> Path 
     return Path(path)
 
 
-def file_target(path: str | Path, *, what: str, stdout: bool = False) -> Path | str:
+def file_target(path: str | Path, *, what: str, stdout: bool = False,
+                folders: Iterable[str | Path] = ()) -> Path | str:
     """The checks of :func:`output_file` that nothing the command reads can answer
     otherwise (:func:`check_outputs` finds no input in a stream, a folder or a file whose
     folder is missing): a command asks them before it reads its inputs, and
     :func:`output_file` again in its place. Nothing is written.
 
+    Args:
+      path, what, stdout: as :func:`output_file`'s.
+      folders: the command's output folders, made later: a file whose missing folder is
+        one of them is left to :func:`check_outputs` (it lies in another output's folder).
     Returns:
       the path, or :data:`STDOUT` when it goes to standard output.
     Raises:
@@ -252,7 +258,7 @@ def file_target(path: str | Path, *, what: str, stdout: bool = False) -> Path | 
     p = Path(path)
     if p.is_dir():
         raise InputError(f"{what} {p}: is a folder, not a file")
-    if not p.parent.is_dir():
+    if not p.parent.is_dir() and _key(p.parent) not in {_key(Path(f)) for f in folders}:
         raise InputError(f"{what} {p}: folder {p.parent} does not exist")
     return p
 
