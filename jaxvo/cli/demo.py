@@ -209,8 +209,9 @@ def _write_outputs(out, seq, res, cfg) -> None:
     """The ground truth, jaxvo's trajectory and six overlays into ``out``."""
     import jax
 
-    from jaxvo.host.readers.io import write_image, write_trajectory
+    from jaxvo.host.readers.io import write_trajectory
     from jaxvo.host.writers.masks import overlay_panel
+    from jaxvo.host.writers.outputs import write_image
 
     write_trajectory(out / "groundtruth.txt", seq.groundtruth)
     write_trajectory(out / "jaxvo.txt", res.trajectory)

@@ -10,8 +10,9 @@ Each subcommand lives in ``jaxvo/cli/<name>.py`` and exposes
 command runs. A command that compiles, or reads files, also exposes ``prepare(args)``:
 every check of its options and files, without JAX, so that a one-line answer comes at once
 (``jaxvo run /missing``: 0.75-0.95 s with JAX loaded first); the answers that need no
-NumPy (a path that is not there, an unknown name, an option out of range) come before
-NumPy loads, from the light checks at its start (:mod:`jaxvo.cli.inputs` for paths).
+NumPy (a path that is not there, an unknown name, an option out of range, an output that
+cannot be written) come before NumPy loads, from the light checks at its start
+(:mod:`jaxvo.cli.inputs` for paths, :mod:`jaxvo.host.writers.outputs` for outputs).
 ``run(args, prepared)`` takes what it returns, after the compile cache is set up (which
 loads JAX).
 """
@@ -223,7 +224,7 @@ def _standard_streams() -> None:
     so that no file this command opens takes their descriptor (a library's message on fd 2
     would land in it) and printing ends nowhere quietly. A closed standard output is
     remembered: ``--out -`` is refused then (:func:`jaxvo.host.writers.outputs.output_file`), whose
-    module (and NumPy) loads only then."""
+    module loads only then."""
     for fd in (0, 1, 2):
         try:
             os.fstat(fd)
