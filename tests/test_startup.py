@@ -166,6 +166,9 @@ EARLY_ANSWERS = {
         "(degrees, radians, metres travelled) are not offered")),
     "eval-two-stdin": ("eval ate - -",
                        "only one of the trajectories can come from standard input (-)"),
+    "eval-est-missing-with-outputs": (
+        "eval ate {gt} {tmp}/missing.txt --save_results {tmp}/r.zip --plot {tmp}/p.png",
+        "file not found: {tmp}/missing.txt"),
     "study-spec-missing": ("study {tmp}/missing.json --out {tmp}/s", (
         "cannot read the study spec {tmp}/missing.json: No such file or directory")),
     "study-spec-not-json": ("study {tmp}/bad.json --out {tmp}/s", (
@@ -207,6 +210,8 @@ def test_each_commands_cheap_answers_come_before_numpy_loads(inputs, case):
     answers them in the words it always did, with nothing heavy loaded (and nothing
     written)."""
     argv, line = EARLY_ANSWERS[case]
+    if "--plot" in argv:  # without matplotlib --plot says that first
+        pytest.importorskip("matplotlib")
     fill = {**inputs, "cores": _cores(), "scenarios": _scenarios()}
     status, heavy, _, err = answer(*(a.format(**fill) for a in argv.split()))
     assert (status, err.strip()) == (2, "jaxvo: error: " + line.format(**fill))
