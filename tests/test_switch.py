@@ -119,3 +119,35 @@ def test_jaxvo_run_rewrites_its_file_and_counts_the_revised_poses(tmp_path):
                                        revised=revised))
     assert _x(read_trajectory(path).poses) == [0, 10, 11, 3]
     assert (rec.switches, rec.revised, rec.unrevised) == (1, 2, 0)
+
+
+def test_real_frames_under_near_boxes_switch_once_and_the_path_redrawn_is_nearer_the_truth(
+        require_data):
+    """7-Scenes frames 150-239 with fixed_camera_2's boxes inserted (seed 1; the validation
+    split's composite, shortened): the background is first committed to the wrong motion,
+    the challenge switches it once, late in the run, and the poses before the switch are
+    redrawn along the winner's chain; the whole path is then far nearer the truth than the
+    poses the frames returned as they came (measured: 108 -> 51 mm ATE)."""
+    import jaxvo
+    from jaxvo.host.readers.io import InMemorySequence
+    from jaxvo.synth.scenes import composite_sequence
+
+    seq = InMemorySequence(composite_sequence(require_data("7scenes_static_0000_0299"),
+                                              "fixed_camera_2", start=150, frames=90, seed=1))
+    odo = Odometry(seq.intrinsics, seed=0, T_w_c0=seq.groundtruth.poses[0])
+    results = [odo.process(f.bgr, f.depth, f.timestamp) for f in seq]
+    kept = [r for r in results if r.dropped is None]
+    switched = [r for r in results if r.revised is not None]
+    assert len(switched) == 1 and switched[0].index > 45, [r.index for r in switched]
+    # every kept pose between the first frame's (the start) and the switching pair's is
+    # redrawn, the later ones stay as returned
+    k = kept.index(switched[0])
+    assert len(switched[0].revised) == k - 1
+    np.testing.assert_allclose(odo.trajectory.poses[0], seq.groundtruth.poses[0], atol=1e-6)
+    np.testing.assert_array_equal(odo.trajectory.poses[1:k], switched[0].revised)
+    np.testing.assert_array_equal(odo.trajectory.poses[k:], [r.T_w_c for r in kept[k:]])
+    truth = seq.groundtruth
+    as_returned = jaxvo.Trajectory(odo.trajectory.timestamps, [r.T_w_c for r in kept])
+    before = jaxvo.trajectory_scores(truth, as_returned)["ate_rmse_m"]
+    after = jaxvo.trajectory_scores(truth, odo.trajectory)["ate_rmse_m"]
+    assert after < 0.6 * before, (before, after)
