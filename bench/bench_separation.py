@@ -34,6 +34,7 @@ import json
 from pathlib import Path
 
 import numpy as np
+from _options import count
 
 from jaxvo.config import Params
 from jaxvo.core.noise import init_noise, mahalanobis, point_noise
@@ -172,8 +173,9 @@ def cases(frames: int, seeds: int):
 
 def main() -> None:
     ap = argparse.ArgumentParser(description=__doc__.split("\n\n")[0])
-    ap.add_argument("--seeds", type=int, default=5)
-    ap.add_argument("--frames", type=int, default=60)
+    ap.add_argument("--seeds", type=count(1), default=5)
+    # more frames than the longest k, so that every k has pairs to measure
+    ap.add_argument("--frames", type=count(max(K) + 1), default=60)
     ap.add_argument("--out", type=Path, default=Path("results"))
     ap.add_argument("--tracked", action="store_true", help="jaxvo's own tracked points")
     args = ap.parse_args()
@@ -211,7 +213,6 @@ def main() -> None:
                                                "share_p90": q[2], "d2_median": np.median(d2)}
             cells.append(f"{q[0]:.2f} [{q[1]:.2f}-{q[2]:.2f}], d2 {np.median(d2):.1f}")
         lines.append(f"| {case} | " + " | ".join(cells) + " |")
-    args.out.mkdir(parents=True, exist_ok=True)
     (args.out / "separation.md").write_text("\n".join(lines) + "\n")
     (args.out / "separation.json").write_text(json.dumps(summary, indent=1))
     print("\n".join(lines))
