@@ -36,7 +36,7 @@ def _pad(values, fill=0.0, dtype=jnp.float32):
 
 @functools.partial(jax.jit, static_argnames=("grid",))
 def _order(labels, z, sigma, explained, tie, *, grid):
-    return depth_order(labels, z, sigma, explained, tie, grid=grid, cfg=CFG)
+    return depth_order(labels, z, sigma, explained, tie, grid=grid)
 
 
 def _order_reference(labels, z, sigma, explained, tie, grid):

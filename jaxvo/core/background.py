@@ -54,7 +54,7 @@ from jaxvo.core.spatial import Segmentation
 from jaxvo.status import Status
 
 
-def depth_order(labels, z, sigma, explained, tie, *, grid: tuple[int, int], cfg: StepOptions):
+def depth_order(labels, z, sigma, explained, tie, *, grid: tuple[int, int]):
     """``(behind (S, S), front (S, S))`` float32: for each two segments ``a``, ``b``, the
     decisive neighbour pairs of points that move unlike each other where ``a``'s point lies
     behind ``b``'s, and where it lies in front.
@@ -74,9 +74,9 @@ def depth_order(labels, z, sigma, explained, tie, *, grid: tuple[int, int], cfg:
     Args:
       labels: (n,) int32 spatial segments of the valid points (0 none or invalid); z: (n,)
       depth of each grid point, metres; sigma: (n,) its depth noise, metres; explained:
-      (S, n) bool; tie: () the test, noise units squared.
+      (S, n) bool (S: the segments' count); tie: () the test, noise units squared.
     """
-    s = cfg.max_segments
+    s = explained.shape[0]
     near_lab = neighbourhood(labels, 0, grid=grid)  # (n, 9)
     near_z = neighbourhood(z, 0.0, grid=grid)
     near_s = neighbourhood(sigma, 0.0, grid=grid)
@@ -215,20 +215,36 @@ def challenge_loglik(segment_ids, explained, member, surface, behind, front, par
     c = jnp.argmax(is_bg)
     apart = (~explains(explained[c][None, :], member, MOST)
              & ~explains(explained, member[c][None, :], MOST))
-    size = jnp.log(jnp.maximum(surface, tiny()) / jnp.maximum(surface[c], tiny()))
-    llr = jnp.clip(size, -params.evidence_step, params.evidence_step)
+    llr = surface_loglik(surface, surface[c], params)
     occludes = front[:, c] > behind[:, c]
     counted = jnp.any(is_bg) & apart & ~occludes & (segment_ids > STATIC_ID) & (surface > 0)
     idx = jnp.clip(segment_ids - 1, 0, m - 1)
     return jnp.zeros((m,), jnp.float32).at[idx].add(jnp.where(counted, llr, 0.0))
 
 
+def surface_loglik(surface, surface_bg, params: Params):
+    """The log-likelihood ratio that a motion explaining ``surface`` (square metres) and not
+    the background's explaining ``surface_bg`` is the camera's: the thesis's "the background
+    is the largest region" as the odds of the two surfaces, within ``+-params.evidence_step``
+    as every evidence of one frame (:func:`challenge_loglik`,
+    :func:`jaxvo.core.separation.separate`)."""
+    size = jnp.log(jnp.maximum(surface, tiny()) / jnp.maximum(surface_bg, tiny()))
+    return jnp.clip(size, -params.evidence_step, params.evidence_step)
+
+
+def page_cusum(score, llr, params: Params):
+    """One frame of Page's CUSUM, ``S <- max(0, decay S + llr)`` (``params.evidence_decay``,
+    as the moving evidence fades), and whether it crossed ``logit(params.confidence)``: a
+    false switch at most as likely as a false moving cell."""
+    score = jnp.maximum(params.evidence_decay * score + llr, 0.0)
+    return score, score > moving_logodds(params)
+
+
 def challenge(state: BackgroundState, llr, params: Params):
-    """``(challenge (max_ids,), winner () int32)``: one frame of Page's CUSUM per identifier,
-    ``S <- max(0, decay S + llr)`` (``params.evidence_decay``, as the moving evidence fades),
-    and the identifier whose sum crossed ``logit(params.confidence)`` (the largest; 0 none):
-    a false switch at most as likely as a false moving cell."""
-    score = jnp.maximum(params.evidence_decay * state.challenge + llr, 0.0).at[0].set(0.0)
+    """``(challenge (max_ids,), winner () int32)``: one frame of the CUSUM per identifier
+    (:func:`page_cusum`) and the identifier whose sum crossed the bound (the largest; 0
+    none)."""
+    score = page_cusum(state.challenge, llr, params)[0].at[0].set(0.0)
     best = jnp.argmax(score)
     winner = jnp.where(score[best] > moving_logodds(params), best + 1, 0).astype(jnp.int32)
     return score, winner
@@ -375,7 +391,7 @@ def update_background(state: BackgroundState, inputs: BackgroundInputs, params: 
     explained = (d2_seg <= pts.thr) & valid
     behind, front = depth_order(jnp.where(valid, seg.labels, 0), z_prev,
                                 scale.depth_coeff * z_prev * z_prev, explained, pts.tie,
-                                grid=grid, cfg=cfg)
+                                grid=grid)
     member = (seg.labels[None, :] == jnp.arange(1, cfg.max_segments + 1)[:, None]) & valid
     ch = _challenged(state, segment_ids, seg, valid, explained, member, behind, front, z,
                      T_pred, T_w_c, identifiers.initialised, params, cfg=cfg)

@@ -59,14 +59,22 @@ def evidence_delta(seg_labels, d2_ego, d2_seg, explained, valid, params: Params,
     lab = jnp.clip(seg_labels - 1, 0, s - 1)
     own = jnp.take_along_axis(d2_seg, lab[None, :], axis=0)[0]
     in_moving = (seg_labels > 0) & ~explained[lab]
-    k2 = params.evidence_effect ** 2
-    ratio = -1.5 * jnp.log(k2) + 0.5 * d2_ego * (1.0 - 1.0 / k2)
+    ratio = static_loglik(d2_ego, params)
     agreed = jnp.minimum(ratio, jnp.maximum(neighbourhood_agreement(ratio, valid, grid=grid),
                                             0.0))
     residual = jnp.where(ratio > 0, agreed, ratio)
     delta = jnp.where(in_moving, 0.5 * (d2_ego - own), residual)
     delta = jnp.clip(delta, -params.evidence_step, params.evidence_step)
     return jnp.where(valid, delta, 0.0).astype(jnp.float32)
+
+
+def static_loglik(d2, params: Params):
+    """(n,) the log-likelihood ratio, moving over static, of points with normalised residuals
+    ``d2`` (n,) under the camera's motion, where no other motion is known for them: against
+    residuals ``k = params.evidence_effect`` times the noise, ``-3 log k + d2 (1 - 1/k^2) /
+    2`` (:func:`evidence_delta`, :func:`jaxvo.core.separation.separate`)."""
+    k2 = params.evidence_effect ** 2
+    return -1.5 * jnp.log(k2) + 0.5 * d2 * (1.0 - 1.0 / k2)
 
 
 def neighbourhood(values, fill, *, grid: tuple[int, int]):

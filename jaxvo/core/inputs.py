@@ -103,6 +103,12 @@ def invalid_keyframe_flow(n: int, window: int) -> KeyframeFlow:
                         np.full(n, -1, np.int32))
 
 
+def keyframe_grid(grid: tuple[int, int], stride: int) -> tuple[int, int]:
+    """``(rows, cols)`` of the keyframe's points (:func:`keyframe_index`) as a grid of
+    their own: every ``stride``-th row and column of ``grid``."""
+    return len(range(0, grid[0], stride)), len(range(0, grid[1], stride))
+
+
 def keyframe_index(grid: tuple[int, int], stride: int) -> np.ndarray:
     """The grid points (row-major indices) a keyframe offers: every ``stride``-th row and
     column of the ``(rows, cols)`` grid. The one rule of both sides: the host's

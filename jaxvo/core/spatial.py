@@ -104,7 +104,7 @@ def _mean_valid(x, valid):
     return jnp.sum(jnp.where(valid, x, 0.0)) / jnp.maximum(nv, 1)
 
 
-def _refine(motion, nmax, pts: Points, iters, bound):
+def refine_motion(motion, nmax, pts: Points, iters, bound):
     """Algorithm 1 lines 9-16 as ``iters`` fixed trips.
 
     Each trip evaluates the motion on all points and, while the inlier count grows, refits
@@ -253,8 +253,8 @@ def _search_work(state, key, pts: Points, params, *, cfg, grid):
     # every frame of the call, and must leave the finished ones as they are
     found = jnp.any(verified) & ~state.done
 
-    motion, d2_all, e2_all, inl = _refine(motions[first], jnp.int32(m), pts, cfg.refine_iters,
-                                          state.d2_min)
+    motion, d2_all, e2_all, inl = refine_motion(motions[first], jnp.int32(m), pts,
+                                                cfg.refine_iters, state.d2_min)
     eye = jnp.eye(4, dtype=motion.dtype)
     hyp = _Hypothesis(
         motion=jnp.where(found, motion, eye),
@@ -282,7 +282,7 @@ def _cluster_refine(start, active, pts: Points, *, cfg):
     Each trip gives every point to one active cluster motion it is an inlier of (see
     :func:`_assign`) and refits every motion on its own points. Refining the clusters
     jointly rather than one by one keeps a slow object's motion from being pulled into the
-    background's (see :func:`_refine`).
+    background's (see :func:`refine_motion`).
 
     Args:
       start: (C, 4, 4) starting motions (one member hypothesis per cluster slot).
