@@ -40,7 +40,7 @@ from splits import Case, cases, runnable
 import jaxvo.host.frontend.keyframes
 from jaxvo.config import Config, Params, config_fields, grid_shape, params_as_arrays
 from jaxvo.core.inputs import GridFlow
-from jaxvo.core.pipeline import final_moving, init_pipeline, jit_step, revised_poses
+from jaxvo.core.pipeline import committed_poses, final_moving, init_pipeline, jit_step
 from jaxvo.evaluation.metrics import SegmentationScores
 from jaxvo.evaluation.scores import moving_at_grid, trajectory_scores
 from jaxvo.host.frontend.flow import sequence_flows
@@ -212,7 +212,7 @@ def run_jaxvo(data: dict, params: Params, cfg: Config, seed: int):
         outs.append(out)
     outs = jax.tree.map(lambda *xs: np.stack([np.asarray(x) for x in xs]), *outs)
     seconds = time.perf_counter() - t0
-    committed = revised_poses(outs.T_w_c, outs.switched, outs.chains, outs.permutation)
+    committed = committed_poses(outs)
     poses = np.concatenate([np.asarray(T0, np.float64)[None], np.asarray(committed, np.float64)])
     return Trajectory(data["timestamps"], poses), outs, np.asarray(final_moving(state, p)), seconds
 

@@ -47,7 +47,7 @@ from jaxvo.config import (
     params_as_arrays,
 )
 from jaxvo.core.inputs import GridFlow, KeyframeFlow
-from jaxvo.core.pipeline import frame_key, init_pipeline, revised_poses, step
+from jaxvo.core.pipeline import committed_poses, frame_key, init_pipeline, step
 from jaxvo.evaluation.metrics import SegmentationScores
 from jaxvo.evaluation.scores import trajectory_scores
 from jaxvo.host.readers.io import data_root
@@ -88,9 +88,8 @@ def run_seeds(flows: dict, T0, params: Params, cfg: Config, seeds: int, first_se
     outs = jax.tree.map(lambda *xs: np.stack([np.asarray(x) for x in xs], axis=1), *outs)
     t = np.asarray(flows["timestamps"], np.float64)
     T0 = np.asarray(T0, np.float64)
-    committed = [np.asarray(revised_poses(outs.T_w_c[s], outs.switched[s], outs.chains[s],
-                                          outs.permutation[s]), np.float64)
-                 for s in range(seeds)]
+    committed = [np.asarray(committed_poses(jax.tree.map(lambda x, s=s: x[s], outs)),
+                            np.float64) for s in range(seeds)]
     trajs = [Trajectory(t, np.concatenate([T0[None], committed[s]])) for s in range(seeds)]
     return trajs, outs
 

@@ -43,11 +43,11 @@ from jaxvo.config import Config, Params, grid_shape, params_as_arrays
 from jaxvo.core.inputs import stack_flows
 from jaxvo.core.pipeline import (
     StepOutput,
+    committed_poses,
     final_moving,
     frame_key,
     init_pipeline,
     jit_step,
-    revised_poses,
     run_scan,
 )
 from jaxvo.core.spatial import segment
@@ -198,7 +198,7 @@ def run_jaxvo(seq: CachedSequence, cfg: Config, seed: int, repeats: int):
     final_ids = np.asarray(final_moving(final, params))
     rss_after_scan = peak_rss_mib()
     stage_ms, stage_compile = time_stages(flows_dev, key, params, cfg, grid)
-    committed = revised_poses(outs.T_w_c, outs.switched, outs.chains, outs.permutation)
+    committed = committed_poses(outs)
     poses = np.concatenate([np.asarray(T0, np.float64)[None], np.asarray(committed, np.float64)])
     timing = {
         "flow_ms": 1e3 * float(np.median(flow_times)),

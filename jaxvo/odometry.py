@@ -26,7 +26,14 @@ import numpy as np
 
 from jaxvo.config import Config, Params, check_config, check_params, grid_shape, params_as_arrays
 from jaxvo.core.inputs import GridFlow, KeyframeFlow
-from jaxvo.core.pipeline import StepOutput, init_pipeline, jit_step, revised_poses, run_scan
+from jaxvo.core.pipeline import (
+    StepOutput,
+    committed_poses,
+    init_pipeline,
+    jit_step,
+    revised_poses,
+    run_scan,
+)
 from jaxvo.errors import InputError
 from jaxvo.host.frontend.camera import Intrinsics, as_intrinsics, check_intrinsics, depth_metres
 from jaxvo.host.frontend.flow import (
@@ -56,7 +63,9 @@ class FrameResult(NamedTuple):
     dropped: str | None = None  # why the frame was dropped (it has no pose), None if kept
     # (k, 4, 4) float64 the k poses before this one, revised: the background switched to
     # another motion in this pair (StepOutput.switched), and the camera's path so far is
-    # redrawn along that motion's chain (Odometry.trajectory holds them); None: none
+    # redrawn along that motion's chain, or the test over the keyframe switched
+    # (StepOutput.separated), and the poses since the keyframe are redrawn as the other
+    # motion had them (Odometry.trajectory holds them); None: none
     revised: np.ndarray | None = None
 
 
@@ -167,6 +176,9 @@ class Odometry:
         # a switch of the background revises the earlier poses from
         self._chains: list[np.ndarray] = []
         self._permutations: list[np.ndarray] = []
+        # the pairs tested against the latest keyframe (jaxvo.core.separation): its number
+        # and each pair's pose under the other motion
+        self._tested_keyframe, self._other_poses = -1, []
         self.logger = None
         if logger is not None:
             self.attach(logger)
@@ -322,6 +334,22 @@ class Odometry:
         self.poses[len(self.poses) - pairs:-1] = list(revised)
         return revised
 
+    def _separate(self, out: StepOutput) -> np.ndarray | None:
+        """Where the test over the keyframe switched the commitment in the last pair, redraw
+        the poses of the earlier pairs tested against the same keyframe as the other motion
+        had them (:func:`jaxvo.core.pipeline.separated_poses`); the revised poses, (k, 4, 4)
+        float64, else None. Only the pairs of the latest keyframe are kept for it."""
+        keyframe = int(out.tested_keyframe)
+        if keyframe != self._tested_keyframe:
+            self._tested_keyframe, self._other_poses = keyframe, []
+        self._other_poses.append(np.asarray(out.other_pose, np.float64))
+        k = len(self._other_poses) - 1
+        if not bool(out.separated) or k == 0:
+            return None
+        revised = np.stack(self._other_poses[:-1])
+        self.poses[len(self.poses) - 1 - k:-1] = list(revised)
+        return revised
+
     def _finish(self, pending: _Dispatched) -> FrameResult:
         """Wait for a dispatched frame, record its pose, log it (:meth:`attach`) and return
         its result."""
@@ -346,6 +374,8 @@ class Odometry:
         self._chains.append(out.chains)
         self._permutations.append(out.permutation)
         revised = None
+        if out.separated is not None:
+            revised = self._separate(out)
         if int(out.switched):
             revised = self._revise(int(out.switched))
         return FrameResult(index, t, T, Status(int(out.status)), out.ids, out.static, out,
@@ -511,7 +541,7 @@ def run_sequence(
     outs = jax.tree.map(np.asarray, jax.block_until_ready(outs))
     scan_s = time.perf_counter() - t0
 
-    committed = revised_poses(outs.T_w_c, outs.switched, outs.chains, outs.permutation)
+    committed = committed_poses(outs)
     poses = np.concatenate([T0[None], np.asarray(committed, np.float64)])
     return SequenceResult(Trajectory(stamps, poses), outs, chain.flows, flow_s, scan_s, grid,
                           chain.frames, chain.dropped, start, chain.keyframes)

@@ -13,6 +13,7 @@ keyword:
      the background among them (:func:`jaxvo.core.background.update_background`)
   -> ego-motion from the background -> camera pose chain (:mod:`jaxvo.core.egomotion`)
   -> moving evidence under the ego-motion (:func:`jaxvo.core.evidence.moving_evidence`)
+     and, with keyframes, over the frames since the keyframe (:mod:`jaxvo.core.separation`)
   -> labels: the dual-mode grid model, compensated (:func:`jaxvo.core.temporal.update_temporal`)
   -> sensor noise (:mod:`jaxvo.core.noise`)
   -> keyframes and their local window (:mod:`jaxvo.core.keyframe`, ``cfg.keyframes``).
@@ -74,6 +75,7 @@ from jaxvo.core.occlusion import (
     update_occlusion,
 )
 from jaxvo.core.points import frame_points
+from jaxvo.core.separation import SeparationInputs, separate
 from jaxvo.core.spatial import Segmentation, segment_points
 from jaxvo.core.temporal import (
     TemporalInputs,
@@ -130,6 +132,13 @@ class StepOutput(NamedTuple):
     switched: jax.Array | None = None
     chains: jax.Array | None = None  # (max_ids, 4, 4) each identifier's pose chain, this image
     permutation: jax.Array | None = None  # (max_ids,) int32 the identifiers' renumbering
+    # () bool the commitment switched to the motion it left out since the keyframe
+    # (jaxvo.core.separation, cfg.keyframes): the pose jumped to that motion's, and
+    # separated_poses redraws the earlier poses since the keyframe along `other_pose` of
+    # the earlier pairs tested against the same keyframe (`tested_keyframe`); None: off
+    separated: jax.Array | None = None
+    other_pose: jax.Array | None = None  # (4, 4) float32 SeparationOut.other_pose
+    tested_keyframe: jax.Array | None = None  # () int32 the keyframe the test read (its number)
 
 
 def init_pipeline(*, cfg: StepOptions, grid: tuple[int, int], T_w_c0=None,
@@ -186,28 +195,65 @@ def step(state: PipelineState, flow: GridFlow, key, params: Params, *, cfg: Step
     ev = moving_evidence(EvidenceInputs(
         seg_labels=seg.labels, pts=pts, T_cur_prev=eo.T_cur_prev, d2_seg=bg.d2_seg, ok=eo.ok,
         in_front=bg.in_front, occluded=bg.occluded), params, **stage)
+    ego, ev, sep, kf_state = _separated(state, flow, keyframe, ego, eo, ev, params, **stage)
+    regrounded, T_w_mem = _regrounded(bg, sep, eo)
     temporal, tout = update_temporal(state.temporal, TemporalInputs(
         labels=labels, disp=flow.uv_cur - flow.uv_prev, flow_valid=pts.valid,
         segment_ids=bg.segment_ids, explained=ev.explained, evidence_delta=ev.delta,
-        depth_prev=flow.depth_prev, permutation=bg.permutation, forget=bg.forget),
-        params, **stage)
-    noise = state.noise
-    if cfg.noise_calibration:
-        noise = update_noise(noise, NoiseInputs(
-            r=transfer(eo.T_cur_prev, pts.src) - pts.dst, used=(bg.use > 0) & eo.ok,
-            noise=pts.noise), params)
-    kf_state, kout = state.keyframe, None
+        depth_prev=flow.depth_prev, permutation=bg.permutation, forget=bg.forget,
+        held=None if sep is None else sep.held), params, **stage)
+    noise = _calibrated(state.noise, eo, pts, bg, params, cfg=cfg)
+    kout = None
     if keyframe is not None:  # the cells the temporal model holds static on this image
         kf_state, kout = update_keyframe(kf_state, KeyframeInputs(
             kf=keyframe, T_w_c=ego.T_w_c, static=temporal.evidence <= moving_logodds(params),
             T_cur_prev=eo.T_cur_prev, T_w_prev=bg.T_w_prev, pts=pts, used=eo.used,
-            noise=noise, focal=flow.focal, ok=eo.ok & ~bg.switched), params, **stage)
+            noise=noise, focal=flow.focal, ok=eo.ok & ~regrounded), params, **stage)
         ego = ego._replace(T_w_c=kout.T_w_c)
-    out = _output(ego, eo, seg, bg, tout, noise, pts.valid, params, **stage)
+    out = _output(ego, eo, seg, bg, tout, noise, pts.valid, params, kout=kout, sep=sep,
+                  tested=None if sep is None else state.keyframe.count, **stage)
     return PipelineState(
         temporal=temporal, ego=ego, frame=state.frame + 1, noise=noise, keyframe=kf_state,
-        occlusion=forget_occlusion(occlusion, bg.switched, bg.T_w_prev),
-        background=background), out._replace(keyframes=None if kout is None else kout.count)
+        occlusion=forget_occlusion(occlusion, regrounded, T_w_mem),
+        background=background), out
+
+
+def _separated(state: PipelineState, flow: GridFlow, keyframe: KeyframeFlow | None, ego, eo,
+               ev, params: Params, *, cfg: StepOptions, grid):
+    """With a ``keyframe``, the two motions over the frames since it
+    (:func:`jaxvo.core.separation.separate`): the pose where the commitment switched, and
+    its evidence in place of the pair's where it decides; ``(ego, ev, SeparationOut)``
+    (``None`` and the stages' outputs as given without)."""
+    if keyframe is None:
+        return ego, ev, None, state.keyframe
+    sep = separate(state.keyframe.challenge, state.keyframe.other, SeparationInputs(
+        kf=keyframe, T_w_kf=state.keyframe.T_w_kf[-1], T_w_c=ego.T_w_c,
+        depth_prev=flow.depth_prev, scale=state.noise, focal=flow.focal, ok=eo.ok,
+        prior=state.temporal.evidence, pair_delta=ev.delta), params, cfg=cfg, grid=grid)
+    return (ego._replace(T_w_c=sep.T_w_c),
+            ev._replace(delta=jnp.where(sep.decided, sep.delta, ev.delta)), sep,
+            state.keyframe._replace(challenge=sep.score, other=sep.other))
+
+
+def _regrounded(bg: BackgroundOut, sep, eo):
+    """``(regrounded () bool, T_w_c (4, 4))``: whether the commitment switched this frame
+    (the background's challenge, or the test over the keyframe ``sep``), and the last
+    image's pose under it, which the occlusion memory keeps."""
+    if sep is None:
+        return bg.switched, bg.T_w_prev
+    return (bg.switched | sep.switched,
+            jnp.where(sep.switched, sep.T_w_c @ eo.T_cur_prev, bg.T_w_prev))
+
+
+def _calibrated(scale: NoiseScale, eo, pts, bg: BackgroundOut, params: Params, *,
+                cfg: StepOptions) -> NoiseScale:
+    """The sensor noise after this frame: calibrated on the points the ego-motion used
+    (``cfg.noise_calibration``), else ``scale`` as it was."""
+    if not cfg.noise_calibration:
+        return scale
+    return update_noise(scale, NoiseInputs(
+        r=transfer(eo.T_cur_prev, pts.src) - pts.dst, used=(bg.use > 0) & eo.ok,
+        noise=pts.noise), params)
 
 
 def _ego_inputs(state: PipelineState, flow: GridFlow, keyframe: KeyframeFlow | None, pts,
@@ -231,9 +277,12 @@ def _ego_inputs(state: PipelineState, flow: GridFlow, keyframe: KeyframeFlow | N
 
 
 def _output(ego: EgoState, eo, seg: Segmentation, bg: BackgroundOut, tout: TemporalOut,
-            noise, valid, params: Params, *, cfg: StepOptions, grid) -> StepOutput:
+            noise, valid, params: Params, *, cfg: StepOptions, grid, kout=None, sep=None,
+            tested=None) -> StepOutput:
     """The step's :class:`StepOutput` from its stages' outputs: one notion of moving, the
-    evidence (``moving``), which the identifiers and the mask cells follow."""
+    evidence (``moving``), which the identifiers and the mask cells follow. With keyframes,
+    ``kout`` the keyframe stage's, ``sep`` the test over the keyframe's (``tested``: the
+    keyframe it read)."""
     moving = tout.evidence > moving_logodds(params)
     return StepOutput(
         T_w_c=ego.T_w_c,
@@ -255,6 +304,10 @@ def _output(ego: EgoState, eo, seg: Segmentation, bg: BackgroundOut, tout: Tempo
         switched=bg.winner,
         chains=bg.chains,
         permutation=bg.permutation,
+        keyframes=None if kout is None else kout.count,
+        separated=None if sep is None else sep.switched,
+        other_pose=None if sep is None else sep.other_pose,
+        tested_keyframe=tested,
     )
 
 
@@ -300,6 +353,39 @@ def revised_poses(T_w_c, switched, chains, permutations):
     _, poses = jax.lax.scan(back, jnp.int32(-1), (T_w_c, switched, chains, permutations),
                             reverse=True)
     return poses
+
+
+@jax.jit
+def separated_poses(T_w_c, separated, other_pose, tested_keyframe):
+    """(T, 4, 4) the poses after each of T pairs as the committed chain has them at the
+    end, for the switches of the test over the keyframe (:mod:`jaxvo.core.separation`):
+    where the commitment switched to the other motion in a pair (``separated`` (T,) bool),
+    the poses of the earlier pairs tested against the same keyframe (``tested_keyframe``
+    (T,) int32) are redrawn as that motion had them (``other_pose`` (T, 4, 4)); a later
+    switch redraws over an earlier one. ``T_w_c`` (T, 4, 4): the poses as the pairs gave
+    them. Pure and traceable, as :func:`revised_poses`."""
+
+    def back(followed, xs):
+        T, switched, other, keyframe = xs
+        follow = (followed >= 0) & (keyframe == followed)
+        pose = jnp.where(follow, other, T)
+        followed = jnp.where(switched, keyframe, jnp.where(follow, followed, -1))
+        return followed, pose
+
+    _, poses = jax.lax.scan(back, jnp.int32(-1),
+                            (T_w_c, separated, other_pose, tested_keyframe), reverse=True)
+    return poses
+
+
+def committed_poses(outs: StepOutput):
+    """(T, 4, 4) the poses after each of T pairs (``outs``: :class:`StepOutput` stacked
+    over them) as the committed chain has them at the end: redrawn where the test over the
+    keyframe switched (:func:`separated_poses`, with keyframes), then where the background
+    switched to another motion (:func:`revised_poses`). Traceable (a study vmaps it)."""
+    T = outs.T_w_c
+    if outs.separated is not None:
+        T = separated_poses(T, outs.separated, outs.other_pose, outs.tested_keyframe)
+    return revised_poses(T, outs.switched, outs.chains, outs.permutation)
 
 
 def frame_key(key, index):

@@ -97,6 +97,9 @@ class TemporalInputs(NamedTuple):
     # (n,) bool cells whose evidence was established under a background switched this frame
     # (jaxvo.core.background.BackgroundOut.forget): discarded first; None: none
     forget: jax.Array | None = None
+    # (n,) bool cells whose measurement this frame cannot tell their explanations apart
+    # (jaxvo.core.separation.SeparationOut.held): they keep their evidence; None: none
+    held: jax.Array | None = None
 
 
 def update_temporal(state: TemporalState, inputs: TemporalInputs, params: Params, *,
@@ -115,7 +118,7 @@ def update_temporal(state: TemporalState, inputs: TemporalInputs, params: Params
       :class:`TemporalOut` on the previous image's grid (the grid of ``labels``).
     """
     (labels, disp, flow_valid, segment_ids, explained, evidence_delta, depth_prev,
-     permutation, forget) = inputs
+     permutation, forget, held) = inputs
     # 4.1: the segments' identifiers; those the ego-motion explains are the background
     seen = jnp.any(jax.nn.one_hot(segment_ids - 1, cfg.max_ids, dtype=bool), axis=0)
     segment_ids, matched = matched_labels(labels, segment_ids, explained, cfg=cfg)
@@ -123,7 +126,10 @@ def update_temporal(state: TemporalState, inputs: TemporalInputs, params: Params
     model = update_grid_model(state.model, matched, params, cfg=cfg, permutation=permutation)
     hidden = jnp.zeros_like(flow_valid) if depth_prev is None else ~(depth_prev > 0)
     prior = state.evidence if forget is None else jnp.where(forget, 0.0, state.evidence)
-    evidence = update_evidence(prior, evidence_delta, flow_valid, hidden, params)
+    measured = flow_valid
+    if held is not None:  # nothing learnt: kept as a hidden cell keeps its evidence
+        measured, hidden = flow_valid & ~held, hidden | held
+    evidence = update_evidence(prior, evidence_delta, measured, hidden, params)
     # the window keeps this frame's identifier map; unmeasured cells keep the grid's label
     identifiers = update_identifiers(state.identifiers, seen,
                                      jnp.where(matched > 0, matched, model.ids),

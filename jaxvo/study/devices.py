@@ -260,17 +260,17 @@ def _study_program(cfg: StepOptions, grid: tuple[int, int], devices: tuple):
     each computes what it would alone); jitted, with its mesh. The program returns
     ``(T_w_c, moving, status)`` stacked over every device's configurations in turn, the
     poses as the committed chain has them at the end
-    (:func:`jaxvo.core.pipeline.revised_poses`)."""
+    (:func:`jaxvo.core.pipeline.committed_poses`)."""
     import jax
     from jax.sharding import Mesh
     from jax.sharding import PartitionSpec as P
 
-    from jaxvo.core.pipeline import revised_poses, run_study
+    from jaxvo.core.pipeline import committed_poses, run_study
 
     def one_device(flows, keyframes, T_w_c0, seeds, params):
         keys = jax.vmap(jax.random.key)(seeds)
         out = run_study(flows, keys, params, T_w_c0, cfg=cfg, grid=grid, keyframes=keyframes)
-        poses = jax.vmap(revised_poses)(out.T_w_c, out.switched, out.chains, out.permutation)
+        poses = jax.vmap(committed_poses)(out)
         return poses, out.moving, out.status
 
     mesh = Mesh(np.asarray(devices, dtype=object), (DEVICES_AXIS,))
