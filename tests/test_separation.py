@@ -19,7 +19,7 @@ from jaxvo.core.geometry import invert_pose
 from jaxvo.core.inputs import KeyframeFlow
 from jaxvo.core.noise import init_noise
 from jaxvo.core.pipeline import separated_poses
-from jaxvo.core.separation import SeparationInputs, separate
+from jaxvo.core.separation import SeparationInputs, SeparationState, update_separation
 from jaxvo.evaluation.scores import trajectory_scores
 from jaxvo.odometry import Odometry
 from jaxvo.synth.scenes import make_sequence
@@ -65,8 +65,8 @@ def _scene(rigid: bool = False):
 
 
 @jax.jit
-def _separate(score, other, inputs):
-    return separate(score, other, inputs, Params(), cfg=CFG, grid=GRID)
+def _update(score, other, inputs):
+    return update_separation(SeparationState(score, other), inputs, Params(), cfg=CFG, grid=GRID)
 
 
 def _inputs(kf, depth, T_kf_to_cur):
@@ -80,9 +80,9 @@ def _inputs(kf, depth, T_kf_to_cur):
 def test_committed_to_the_box_the_rooms_surface_switches_to_the_rooms_motion():
     kf, box, depth = _scene()
     L = float(moving_logodds(Params()))
-    out = _separate(jnp.float32(L - 0.1), jnp.float32(0.0), _inputs(kf, depth, T_BOX))
+    state, out = _update(jnp.float32(L - 0.1), jnp.float32(0.0), _inputs(kf, depth, T_BOX))
     assert bool(out.switched)
-    assert float(out.score) == 0.0 and float(out.other) == 1.0
+    assert float(state.challenge) == 0.0 and float(state.other) == 1.0
     # the pose is the keyframe's moved by the room's motion
     np.testing.assert_allclose(np.asarray(invert_pose(out.T_w_c)), T_ROOM, atol=2e-3)
     # the box's cells are set moving, the room's static, beyond the evidence's bound
@@ -93,8 +93,8 @@ def test_committed_to_the_box_the_rooms_surface_switches_to_the_rooms_motion():
 
 def test_below_the_bound_nothing_switches_and_the_room_gains_the_evidence():
     kf, box, depth = _scene()
-    out = _separate(jnp.float32(0.0), jnp.float32(0.0), _inputs(kf, depth, T_BOX))
-    assert not bool(out.switched) and float(out.score) > 0.0
+    state, out = _update(jnp.float32(0.0), jnp.float32(0.0), _inputs(kf, depth, T_BOX))
+    assert not bool(out.switched) and float(state.challenge) > 0.0
     np.testing.assert_allclose(np.asarray(out.T_w_c), np.linalg.inv(T_BOX), atol=1e-5)
     delta = np.asarray(out.delta)
     step = Params().evidence_step
@@ -107,7 +107,7 @@ def test_below_the_bound_nothing_switches_and_the_room_gains_the_evidence():
 def test_committed_to_the_room_the_box_in_front_never_switches():
     kf, box, depth = _scene()
     L = float(moving_logodds(Params()))
-    out = _separate(jnp.float32(L - 0.1), jnp.float32(0.0), _inputs(kf, depth, T_ROOM))
+    _, out = _update(jnp.float32(L - 0.1), jnp.float32(0.0), _inputs(kf, depth, T_ROOM))
     assert not bool(out.switched)
     np.testing.assert_allclose(np.asarray(out.T_w_c), np.linalg.inv(T_ROOM), atol=1e-5)
     delta = np.asarray(out.delta)
@@ -116,10 +116,10 @@ def test_committed_to_the_room_the_box_in_front_never_switches():
 
 def test_one_rigid_scene_is_evidence_for_nothing():
     kf, _, depth = _scene(rigid=True)
-    out = _separate(jnp.float32(1.0), jnp.float32(0.0), _inputs(kf, depth, T_ROOM))
-    assert not bool(out.switched) and float(out.other) == 0.0
+    state, out = _update(jnp.float32(1.0), jnp.float32(0.0), _inputs(kf, depth, T_ROOM))
+    assert not bool(out.switched) and float(state.other) == 0.0
     assert not np.any(np.asarray(out.decided)) and not np.any(np.asarray(out.held))
-    assert float(out.score) < 1.0  # it only fades
+    assert float(state.challenge) < 1.0  # it only fades
 
 
 def test_a_moving_cell_the_pair_calls_static_is_held_while_the_other_motion_is_near():
@@ -129,10 +129,10 @@ def test_a_moving_cell_the_pair_calls_static_is_held_while_the_other_motion_is_n
     inputs = _inputs(kf, depth, T_ROOM)._replace(
         prior=np.where(box, L + 1.0, -L).astype(np.float32),
         pair_delta=np.full(N, -2.0, np.float32))
-    held = np.asarray(_separate(jnp.float32(0.0), jnp.float32(1.0), inputs).held)
+    held = np.asarray(_update(jnp.float32(0.0), jnp.float32(1.0), inputs)[1].held)
     np.testing.assert_array_equal(held, box)  # the moving cells, where nothing decides
     # once the other motion has not been seen for long, the pair decides again
-    assert not np.any(np.asarray(_separate(jnp.float32(0.0), jnp.float32(0.1), inputs).held))
+    assert not np.any(np.asarray(_update(jnp.float32(0.0), jnp.float32(0.1), inputs)[1].held))
 
 
 def test_separated_poses_redraw_the_pairs_of_the_same_keyframe_only():

@@ -227,7 +227,7 @@ def surface_loglik(surface, surface_bg, params: Params):
     the background's explaining ``surface_bg`` is the camera's: the thesis's "the background
     is the largest region" as the odds of the two surfaces, within ``+-params.evidence_step``
     as every evidence of one frame (:func:`challenge_loglik`,
-    :func:`jaxvo.core.separation.separate`)."""
+    :func:`jaxvo.core.separation.update_separation`)."""
     size = jnp.log(jnp.maximum(surface, tiny()) / jnp.maximum(surface_bg, tiny()))
     return jnp.clip(size, -params.evidence_step, params.evidence_step)
 

@@ -72,7 +72,7 @@ def static_loglik(d2, params: Params):
     """(n,) the log-likelihood ratio, moving over static, of points with normalised residuals
     ``d2`` (n,) under the camera's motion, where no other motion is known for them: against
     residuals ``k = params.evidence_effect`` times the noise, ``-3 log k + d2 (1 - 1/k^2) /
-    2`` (:func:`evidence_delta`, :func:`jaxvo.core.separation.separate`)."""
+    2`` (:func:`evidence_delta`, :func:`jaxvo.core.separation.update_separation`)."""
     k2 = params.evidence_effect ** 2
     return -1.5 * jnp.log(k2) + 0.5 * d2 * (1.0 - 1.0 / k2)
 

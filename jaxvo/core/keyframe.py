@@ -73,12 +73,6 @@ class KeyframeState(NamedTuple):
     # () bool a frame since the latest keyframe (or that keyframe's own) had no measured
     # ego-motion: the next keyframe starts a new window, as a new chain does on the host
     blind: jax.Array = np.bool_(False)
-    # () float32 the evidence that the motion the committed one leaves out since the
-    # keyframe is the world's: a CUSUM (jaxvo.core.separation)
-    challenge: jax.Array = np.float32(0.0)
-    # () float32 1 where the two motions were told apart in the last frame, fading by the
-    # evidence's decay (jaxvo.core.separation)
-    other: jax.Array = np.float32(0.0)
 
 
 class KeyframeOut(NamedTuple):
@@ -400,7 +394,7 @@ def _take(state: KeyframeState, kf, T_w_c, static, index, link, measured) -> Key
     return KeyframeState(_shift(state.T_w_kf, T_w_c), _shift(state.taken, jnp.bool_(True)),
                          point, stat, obs, seen, state.count + 1, jnp.bool_(False),
                          _shift(state.link_T, T_meas), _shift(state.link_H, H),
-                         _shift(state.link_g, g), state.blind, state.challenge, state.other)
+                         _shift(state.link_g, g))
 
 
 def _learn_first(state: KeyframeState, kf, index) -> KeyframeState:

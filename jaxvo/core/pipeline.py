@@ -75,7 +75,12 @@ from jaxvo.core.occlusion import (
     update_occlusion,
 )
 from jaxvo.core.points import frame_points
-from jaxvo.core.separation import SeparationInputs, separate
+from jaxvo.core.separation import (
+    SeparationInputs,
+    SeparationState,
+    init_separation,
+    update_separation,
+)
 from jaxvo.core.spatial import Segmentation, segment_points
 from jaxvo.core.temporal import (
     TemporalInputs,
@@ -97,6 +102,8 @@ class PipelineState(NamedTuple):
     keyframe: KeyframeState | None = None  # the latest keyframe (cfg.keyframes), None: off
     occlusion: OcclusionState | None = None  # the occlusion memory of the last image
     background: BackgroundState | None = None  # the challenge to the background's choice
+    # the test over the frames since the keyframe (cfg.keyframes), None: off
+    separation: SeparationState | None = None
 
     @property
     def T_w_c(self):
@@ -151,7 +158,8 @@ def init_pipeline(*, cfg: StepOptions, grid: tuple[int, int], T_w_c0=None,
                          ego=init_ego(T0),
                          frame=jnp.int32(0), noise=init_noise(Params() if params is None else params),
                          keyframe=keyframe, occlusion=init_occlusion(grid=grid),
-                         background=init_background(T0, cfg=cfg))
+                         background=init_background(T0, cfg=cfg),
+                         separation=init_separation() if cfg.keyframes else None)
 
 
 @full_precision
@@ -195,7 +203,7 @@ def step(state: PipelineState, flow: GridFlow, key, params: Params, *, cfg: Step
     ev = moving_evidence(EvidenceInputs(
         seg_labels=seg.labels, pts=pts, T_cur_prev=eo.T_cur_prev, d2_seg=bg.d2_seg, ok=eo.ok,
         in_front=bg.in_front, occluded=bg.occluded), params, **stage)
-    ego, ev, sep, kf_state = _separated(state, flow, keyframe, ego, eo, ev, params, **stage)
+    ego, ev, separation, sep = _separated(state, flow, keyframe, ego, eo, ev, params, **stage)
     regrounded, T_w_mem = _regrounded(bg, sep, eo)
     temporal, tout = update_temporal(state.temporal, TemporalInputs(
         labels=labels, disp=flow.uv_cur - flow.uv_prev, flow_valid=pts.valid,
@@ -203,9 +211,9 @@ def step(state: PipelineState, flow: GridFlow, key, params: Params, *, cfg: Step
         depth_prev=flow.depth_prev, permutation=bg.permutation, forget=bg.forget,
         held=None if sep is None else sep.held), params, **stage)
     noise = _calibrated(state.noise, eo, pts, bg, params, cfg=cfg)
-    kout = None
+    kf_state, kout = state.keyframe, None
     if keyframe is not None:  # the cells the temporal model holds static on this image
-        kf_state, kout = update_keyframe(kf_state, KeyframeInputs(
+        kf_state, kout = update_keyframe(state.keyframe, KeyframeInputs(
             kf=keyframe, T_w_c=ego.T_w_c, static=temporal.evidence <= moving_logodds(params),
             T_cur_prev=eo.T_cur_prev, T_w_prev=bg.T_w_prev, pts=pts, used=eo.used,
             noise=noise, focal=flow.focal, ok=eo.ok & ~regrounded), params, **stage)
@@ -215,24 +223,23 @@ def step(state: PipelineState, flow: GridFlow, key, params: Params, *, cfg: Step
     return PipelineState(
         temporal=temporal, ego=ego, frame=state.frame + 1, noise=noise, keyframe=kf_state,
         occlusion=forget_occlusion(occlusion, regrounded, T_w_mem),
-        background=background), out
+        background=background, separation=separation), out
 
 
 def _separated(state: PipelineState, flow: GridFlow, keyframe: KeyframeFlow | None, ego, eo,
                ev, params: Params, *, cfg: StepOptions, grid):
     """With a ``keyframe``, the two motions over the frames since it
-    (:func:`jaxvo.core.separation.separate`): the pose where the commitment switched, and
-    its evidence in place of the pair's where it decides; ``(ego, ev, SeparationOut)``
-    (``None`` and the stages' outputs as given without)."""
+    (:func:`jaxvo.core.separation.update_separation`): the pose where the commitment switched, and
+    its evidence in place of the pair's where it decides; ``(ego, ev, SeparationState,
+    SeparationOut)`` (the stages' outputs as given and ``None`` twice without)."""
     if keyframe is None:
-        return ego, ev, None, state.keyframe
-    sep = separate(state.keyframe.challenge, state.keyframe.other, SeparationInputs(
+        return ego, ev, None, None
+    separation, sep = update_separation(state.separation, SeparationInputs(
         kf=keyframe, T_w_kf=state.keyframe.T_w_kf[-1], T_w_c=ego.T_w_c,
         depth_prev=flow.depth_prev, scale=state.noise, focal=flow.focal, ok=eo.ok,
         prior=state.temporal.evidence, pair_delta=ev.delta), params, cfg=cfg, grid=grid)
     return (ego._replace(T_w_c=sep.T_w_c),
-            ev._replace(delta=jnp.where(sep.decided, sep.delta, ev.delta)), sep,
-            state.keyframe._replace(challenge=sep.score, other=sep.other))
+            ev._replace(delta=jnp.where(sep.decided, sep.delta, ev.delta)), separation, sep)
 
 
 def _regrounded(bg: BackgroundOut, sep, eo):

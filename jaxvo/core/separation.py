@@ -60,7 +60,7 @@ from jaxvo.core.spatial import refine_motion
 
 
 class SeparationInputs(NamedTuple):
-    """What the test over the keyframe reads (:func:`separate`)."""
+    """What the test over the keyframe reads (:func:`update_separation`)."""
 
     kf: KeyframeFlow  # the pair's keyframe flow (every keyframe point, not only the static)
     T_w_kf: jax.Array  # (4, 4) float32 the latest keyframe's pose
@@ -73,13 +73,25 @@ class SeparationInputs(NamedTuple):
     pair_delta: jax.Array  # (n,) float32 the pair's evidence (jaxvo.core.evidence)
 
 
-class SeparationOut(NamedTuple):
-    """One frame of the test over the keyframe (:func:`separate`)."""
+class SeparationState(NamedTuple):
+    """What the test over the keyframe carries from frame to frame (:func:`update_separation`)."""
 
-    score: jax.Array  # () float32 the CUSUM after this frame (0 after a switch)
-    # () float32 1 where the two motions were told apart this frame, fading by the
+    # () float32 the evidence that the motion the committed one leaves out since the
+    # keyframe is the world's: a CUSUM, 0 after a switch
+    challenge: jax.Array
+    # () float32 1 where the two motions were told apart in the last frame, fading by the
     # evidence's decay after: the other motion is still near where it was last seen
     other: jax.Array
+
+
+def init_separation() -> SeparationState:
+    """No evidence against the commitment, no other motion seen."""
+    return SeparationState(challenge=jnp.float32(0.0), other=jnp.float32(0.0))
+
+
+class SeparationOut(NamedTuple):
+    """One frame of the test over the keyframe (:func:`update_separation`)."""
+
     switched: jax.Array  # () bool the commitment switched to the other motion this frame
     T_w_c: jax.Array  # (4, 4) float32 this image's pose: the other motion's where switched
     # (4, 4) float32 this image's pose were the other motion the world's, where the two were
@@ -93,20 +105,22 @@ class SeparationOut(NamedTuple):
     # its keyframe points follow one of the two motions and not the other
     decided: jax.Array
     # (n,) bool the cells established moving whose pair says static while the other motion
-    # is near (``other``): the pair cannot tell the two apart, so nothing is learnt of
+    # is near (:attr:`SeparationState.other`): the pair cannot tell the two apart, so nothing is learnt of
     # them this frame (they keep their evidence, as a cell without a depth reading does)
     held: jax.Array
 
 
-def separate(score, other, inputs: SeparationInputs, params: Params, *, cfg: StepOptions,
-             grid: tuple[int, int]) -> SeparationOut:
+def update_separation(state: SeparationState, inputs: SeparationInputs, params: Params, *,
+                      cfg: StepOptions, grid: tuple[int, int]):
     """The committed motion since the keyframe against the other motion of its points: the
     moving evidence the test adds and whether the commitment switches (module docstring).
 
     Args:
-      score: () float32 the CUSUM carried; other: () float32 whether the two motions were
-        told apart lately (both :class:`jaxvo.core.keyframe.KeyframeState`).
+      state: the CUSUM and the other motion's recency carried (:class:`SeparationState`);
       inputs: :class:`SeparationInputs`; params: numeric settings; cfg, grid: static.
+
+    Returns:
+      ``(SeparationState, SeparationOut)``.
     """
     kf, T_w_kf, T_w_c, depth_prev, scale, focal, ok, prior, pair_delta = inputs
     index = keyframe_index(grid, cfg.keyframe_stride)
@@ -135,7 +149,7 @@ def separate(score, other, inputs: SeparationInputs, params: Params, *, cfg: Ste
     occludes = front[1, 0] > behind[1, 0]
     llr = jnp.where(apart & ~occludes,
                     surface_loglik(surface(only_theirs), surface(only_mine), params), 0.0)
-    score, crossed = page_cusum(score, llr, params)
+    score, crossed = page_cusum(state.challenge, llr, params)
     switched = crossed & apart & ~occludes
     # each keyframe point's evidence where one motion explains it and the other does not
     step = params.evidence_step
@@ -150,13 +164,13 @@ def separate(score, other, inputs: SeparationInputs, params: Params, *, cfg: Ste
     decided = delta != 0
     # the other motion told apart within the evidence's half-life: what the pair calls
     # static may be it
-    other = jnp.maximum(apart.astype(jnp.float32), params.evidence_decay * other)
+    other = jnp.maximum(apart.astype(jnp.float32), params.evidence_decay * state.other)
     held = ((other > 0.5) & (prior > moving_logodds(params)) & ~decided & (pair_delta < 0)
             & ~switched)
     other_pose = jnp.where(apart, T_w_kf @ invert_pose(T_other), T_w_c)
-    return SeparationOut(score=jnp.where(switched, 0.0, score), other=other,
-                         switched=switched, T_w_c=jnp.where(switched, other_pose, T_w_c),
-                         other_pose=other_pose, delta=delta, decided=decided, held=held)
+    return SeparationState(challenge=jnp.where(switched, 0.0, score), other=other), \
+        SeparationOut(switched=switched, T_w_c=jnp.where(switched, other_pose, T_w_c),
+                      other_pose=other_pose, delta=delta, decided=decided, held=held)
 
 
 def _other_motion(pts: Points, left, thr, *, iters: int):
