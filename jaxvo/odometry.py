@@ -172,10 +172,12 @@ class Odometry:
         self._step = None  # the compiled step, from the first frame pair on
         self.timestamps: list[float] = []
         self.poses: list[np.ndarray] = []
-        # every pair's pose chains and renumbering (StepOutput.chains, .permutation): what
-        # a switch of the background revises the earlier poses from
+        # every pair's pose chains, renumbering and identifiers given anew
+        # (StepOutput.chains, .permutation, .new_ids): what a switch of the background
+        # revises the earlier poses from
         self._chains: list[np.ndarray] = []
         self._permutations: list[np.ndarray] = []
+        self._new_ids: list[np.ndarray] = []
         # the pairs tested against the latest keyframe (jaxvo.core.separation): its number
         # and each pair's pose under the other motion
         self._tested_keyframe, self._other_poses = -1, []
@@ -329,7 +331,8 @@ class Odometry:
         after = revised_poses(
             _padded([p.astype(np.float32) for p in self.poses[-pairs:]], size, eye), switched,
             _padded(self._chains, size, np.broadcast_to(eye, self._chains[0].shape)),
-            _padded(self._permutations, size, np.arange(len(self._permutations[0]))))
+            _padded(self._permutations, size, np.arange(len(self._permutations[0]))),
+            _padded(self._new_ids, size, np.zeros_like(self._new_ids[0])))
         revised = np.asarray(after, np.float64)[size - pairs:-1]
         self.poses[len(self.poses) - pairs:-1] = list(revised)
         return revised
@@ -373,6 +376,7 @@ class Odometry:
         out = jax.tree.map(np.asarray, out)
         self._chains.append(out.chains)
         self._permutations.append(out.permutation)
+        self._new_ids.append(out.new_ids)
         revised = None
         if out.separated is not None:
             revised = self._separate(out)

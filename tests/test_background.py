@@ -321,6 +321,41 @@ def test_the_challenge_is_a_cusum_that_switches_past_the_confidence():
     assert float(score[0]) == 0.0
 
 
+def test_an_identifier_given_anew_starts_its_challenge_and_its_chain_here():
+    """Identifier 3 carried a sum past the bound and a chain of the object it named before;
+    given anew this frame, its challenge is this frame's ratio alone (no switch) and its
+    chain starts from the committed pose; not given anew, the old sum switches at once."""
+    from types import SimpleNamespace
+
+    from jaxvo.core.background import _challenged
+
+    ids, explained, member, _, behind, front = _two_motions(0, surfaces=[1.0, 2.0])
+    n = explained.shape[1]
+    z = jnp.ones(n, jnp.float32).at[10:].set(jnp.sqrt(2.0))  # the challenger's surface 2x
+    seg = SimpleNamespace(motions=jnp.broadcast_to(jnp.eye(4), (S, 4, 4)),
+                          labels=jnp.where(member[1], 2, 1).astype(jnp.int32))
+    committed = np.eye(4, dtype=np.float32)
+    committed[0, 3] = -1.0
+    state = BackgroundState(challenge=jnp.zeros(M, jnp.float32).at[2].set(10.0),
+                            chains=jnp.broadcast_to(7.0 * jnp.eye(4), (M, 4, 4)))
+
+    def challenged(given):
+        return _challenged(state, ids, jnp.asarray(given), seg, jnp.ones(n, bool), explained,
+                           member, behind, front, z, jnp.eye(4), jnp.asarray(committed),
+                           jnp.bool_(True), params(), cfg=CFG)
+
+    fresh = np.zeros(M, bool)
+    fresh[2] = True
+    ch = challenged(fresh)
+    np.testing.assert_allclose(float(ch.score[2]), np.log(2.0), rtol=1e-5)
+    assert int(ch.winner) == 0 and not bool(ch.switched)
+    np.testing.assert_allclose(np.asarray(ch.start[2]), committed)
+    np.testing.assert_allclose(np.asarray(ch.start[1]), 7.0 * np.eye(4))
+    ch = challenged(np.zeros(M, bool))
+    assert int(ch.winner) == 3 and bool(ch.switched)
+    np.testing.assert_allclose(np.asarray(ch.start[2]), 7.0 * np.eye(4))
+
+
 def test_each_identifier_chain_follows_its_segment_and_identifier_1_the_committed_pose():
     """Identifier 3 carried by segment 2 moves by that segment's motion, identifier 1 starts
     from the committed pose and moves by segment 1's, an identifier out of view moves with

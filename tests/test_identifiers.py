@@ -25,7 +25,7 @@ from temporal_frames import (
     zero_disp,
 )
 
-from jaxvo.core.identifiers import label_correlation, match_segments
+from jaxvo.core.identifiers import identify_new, label_correlation, match_segments, measured_labels
 from jaxvo.core.temporal import init_temporal
 
 _correlation = jax.jit(label_correlation, static_argnames=("num_segments", "num_ids"))
@@ -142,6 +142,25 @@ def test_new_object_gets_fresh_identifier_background_stays_one(step):
     # apparent model is saturated at max_age = 4, so the 4th frame with b swaps
     assert region_ids(outs[6].ids, box(*b)) == {1}
     assert region_ids(outs[7].ids, box(*b)) == {3}
+
+
+def test_identify_new_names_the_identifiers_given_to_new_objects(step):
+    """The first frame gives the background 1 and the object 2; a frame that matches them
+    gives none; a newcomer's identifier is given anew, the others' are not."""
+    a, b = (2, 6, 2, 7), (7, 11, 10, 14)
+    prm = params()
+
+    def given(state, lab):
+        labels = measured_labels(make_seg(lab), jnp.ones(lab.size, bool), cfg=CFG)
+        ids, new = identify_new(state.identifiers, labels, prm, cfg=CFG)
+        return set((np.flatnonzero(np.asarray(new)) + 1).tolist()), np.asarray(ids)
+
+    state = init_temporal(cfg=CFG, grid=GRID)
+    assert given(state, scene([a]))[0] == {1, 2}
+    state, _ = run(step, [scene([a])] * 2, prm)
+    assert given(state, scene([a]))[0] == set()
+    new, ids = given(state, scene([a, b]))
+    assert new == {ids[2]} and ids[2] not in (1, 2)
 
 
 def test_window_matches_the_best_scoring_past_frame(step):

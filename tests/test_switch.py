@@ -50,6 +50,21 @@ def test_a_switch_redraws_every_earlier_pose_along_the_winner_renumbered_back():
         100, 301, 302, 3]
 
 
+def test_the_redraw_stops_where_the_identifier_was_given_to_its_object():
+    """Identifier 2 given anew in pair 1 (numbered as entering it): a switch to it in pair
+    3 redraws pairs 2 and 1 along its chain, and pair 0, when identifier 2 was another
+    object's or none, keeps its committed pose. Given in pair 3 itself, nothing before it
+    is redrawn."""
+    T_w_c, chains, perms = _run(4)
+    new_ids = np.zeros((4, M), bool)
+    new_ids[1, 1] = True
+    switched = np.array([0, 0, 0, 2], np.int32)
+    assert _x(revised_poses(T_w_c, switched, chains, perms, new_ids)) == [0, 201, 202, 3]
+    new_ids = np.zeros((4, M), bool)
+    new_ids[3, 1] = True
+    assert _x(revised_poses(T_w_c, switched, chains, perms, new_ids)) == [0, 1, 2, 3]
+
+
 def test_a_later_switch_redraws_over_an_earlier_one():
     T_w_c, chains, perms = _run(4)
     assert _x(revised_poses(T_w_c, np.array([0, 3, 0, 0], np.int32), chains, perms)) == [
@@ -65,14 +80,16 @@ def test_the_streaming_odometry_revises_its_poses_as_the_walk_does():
     T_w_c, chains, perms = _run(5)
     odo = Odometry((500.0, 500.0, 320.0, 240.0))
     odo.poses = [np.eye(4)] + [T.astype(np.float64) for T in T_w_c]
-    odo._chains, odo._permutations = list(chains), list(perms)
+    new_ids = np.zeros((5, M), bool)
+    new_ids[1, 1] = True
+    odo._chains, odo._permutations, odo._new_ids = list(chains), list(perms), list(new_ids)
     revised = odo._revise(2)
     switched = np.array([0, 0, 0, 0, 2], np.int32)
-    expected = np.asarray(revised_poses(T_w_c, switched, chains, perms))
+    expected = np.asarray(revised_poses(T_w_c, switched, chains, perms, new_ids))
     np.testing.assert_array_equal(np.asarray(odo.poses[1:]), expected)
     np.testing.assert_array_equal(revised, expected[:-1])
     np.testing.assert_array_equal(odo.poses[0], np.eye(4))
-    assert _x(odo.trajectory.poses) == [0, 200, 201, 202, 203, 4]
+    assert _x(odo.trajectory.poses) == [0, 0, 201, 202, 203, 4]
 
 
 def test_the_trajectory_file_is_written_again_with_the_revised_poses(tmp_path):

@@ -29,9 +29,10 @@ another identifier's motion is told apart from the background's, which of the tw
 the larger surface speaks for one of them, and a one-sided sequential test (Page's CUSUM of
 those log-likelihood ratios) switches the background to that identifier once the sum
 crosses the confidence of every test. Each identifier's motions are chained into the pose
-the camera would have were that motion its own (:func:`follow_chains`): after a switch the
-pose continues from the winner's chain, and the earlier poses are redrawn along it
-(:func:`jaxvo.core.pipeline.revised_poses`). A switch discards what was established under
+the camera would have were that motion its own (:func:`follow_chains`), from the frame the
+identifier was given to its object (its chain and its challenge start there): after a
+switch the pose continues from the winner's chain, and the earlier poses back to that frame
+are redrawn along it (:func:`jaxvo.core.pipeline.revised_poses`). A switch discards what was established under
 the old choice (``BackgroundOut.forget``: the two motions' moving evidence; the occlusion
 memory starts afresh).
 """
@@ -46,7 +47,7 @@ import jax.numpy as jnp
 from jaxvo.config import Params, StepOptions
 from jaxvo.core.evidence import explained_segments, moving_logodds, neighbourhood
 from jaxvo.core.geometry import invert_pose, tiny
-from jaxvo.core.identifiers import STATIC_ID, IdentifierState, identify, relabel, swap_perm
+from jaxvo.core.identifiers import STATIC_ID, IdentifierState, identify_new, relabel, swap_perm
 from jaxvo.core.noise import NoiseScale, residuals_many
 from jaxvo.core.points import Points
 from jaxvo.core.robust import MOST, enough_points, explains
@@ -160,9 +161,9 @@ class BackgroundState(NamedTuple):
     # log-likelihood ratios (challenge_loglik), decaying as the moving evidence does
     challenge: jax.Array
     # (max_ids, 4, 4) float32 the last image's camera pose were each identifier's motion
-    # the camera's: its segments' motions chained (follow_chains); identifier 1's is the
-    # committed pose. A switch continues from the winner's, and the past poses are redrawn
-    # along it (jaxvo.core.pipeline.revised_poses)
+    # the camera's: its segments' motions chained (follow_chains) since the identifier was
+    # given to its object; identifier 1's is the committed pose. A switch continues from
+    # the winner's, and the past poses are redrawn along it (pipeline.revised_poses)
     chains: jax.Array
 
 
@@ -278,6 +279,9 @@ class BackgroundOut(NamedTuple):
     # 0 none
     winner: jax.Array
     chains: jax.Array  # (max_ids, 4, 4) BackgroundState.chains after this frame
+    # (max_ids,) bool the identifiers given anew this frame (numbered as entering it): their
+    # chains and challenges start here, and a redraw of the past along one stops here
+    given: jax.Array
 
     @property
     def switched(self):
@@ -381,7 +385,7 @@ def update_background(state: BackgroundState, inputs: BackgroundInputs, params: 
     """
     (seg, pts, T_pred, have_last, labels, identifiers, evidence, scale, T_w_c,
      occluded) = inputs
-    segment_ids = identify(identifiers, labels, params, cfg=cfg)
+    segment_ids, given = identify_new(identifiers, labels, params, cfg=cfg)
     valid = pts.valid
     d2_all = residuals_many(jnp.concatenate([T_pred[None], seg.motions]), pts.src, pts.dst,
                             pts.noise)[0]
@@ -393,8 +397,8 @@ def update_background(state: BackgroundState, inputs: BackgroundInputs, params: 
                                 scale.depth_coeff * z_prev * z_prev, explained, pts.tie,
                                 grid=grid)
     member = (seg.labels[None, :] == jnp.arange(1, cfg.max_segments + 1)[:, None]) & valid
-    ch = _challenged(state, segment_ids, seg, valid, explained, member, behind, front, z,
-                     T_pred, T_w_c, identifiers.initialised, params, cfg=cfg)
+    ch = _challenged(state, segment_ids, given, seg, valid, explained, member, behind, front,
+                     z, T_pred, T_w_c, identifiers.initialised, params, cfg=cfg)
     switched, winner, evidence = ch.switched, ch.winner, jnp.where(ch.forget, 0.0, evidence)
     occluded = (jnp.zeros_like(valid) if occluded is None else occluded & valid) & ~switched
     belief = jnp.where(valid & ~occluded, belief_weights(evidence, params), 0.0)
@@ -427,7 +431,7 @@ def update_background(state: BackgroundState, inputs: BackgroundInputs, params: 
         segment_ids=segment_ids, background=bg, reacquired=reacquired, use=use, belief=belief,
         d2_seg=d2_seg, permutation=perm, status=status, in_front=in_front, occluded=occluded,
         forget=ch.forget, T_w_prev=T_w_prev,
-        winner=jnp.where(switched, winner, 0).astype(jnp.int32), chains=chains)
+        winner=jnp.where(switched, winner, 0).astype(jnp.int32), chains=chains, given=given)
 
 
 class _Challenge(NamedTuple):
@@ -442,15 +446,19 @@ class _Challenge(NamedTuple):
     forget: jax.Array  # (n,) bool the two swapped motions' points (BackgroundOut.forget)
 
 
-def _challenged(state: BackgroundState, segment_ids, seg: Segmentation, valid, explained,
-                member, behind, front, z, T_pred, T_w_c, initialised, params: Params, *,
-                cfg: StepOptions) -> _Challenge:
+def _challenged(state: BackgroundState, segment_ids, given, seg: Segmentation, valid,
+                explained, member, behind, front, z, T_pred, T_w_c, initialised,
+                params: Params, *, cfg: StepOptions) -> _Challenge:
     """The challenge of one frame (:func:`challenge_loglik`, :func:`challenge`), whether the
     background switches (a winner in view, once identifiers exist), the identifiers' chains
     (:func:`follow_chains`) and, on a switch, the points of the two swapped motions, whose
     evidence the old choice established: a switch chooses as a first frame would (other
-    movers keep their evidence). Arguments as :func:`update_background` computes them."""
+    movers keep their evidence). An identifier ``given`` anew (max_ids,) names a new
+    object: its challenge starts at 0 and its chain at the committed pose. Arguments as
+    :func:`update_background` computes them."""
     surface = jnp.sum(explained * (z * z)[None, :], axis=1)
+    state = BackgroundState(challenge=jnp.where(given, 0.0, state.challenge),
+                            chains=jnp.where(given[:, None, None], T_w_c, state.chains))
     score, winner = challenge(state, challenge_loglik(
         segment_ids, explained, member, surface, behind, front, params, cfg=cfg), params)
     switched = (winner > 0) & jnp.any(segment_ids == winner) & initialised

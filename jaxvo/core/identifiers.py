@@ -145,7 +145,8 @@ def _forgotten(state: IdentifierState, retention):
 def _assign_identifiers(state: IdentifierState, seg_labels, params: Params, *, cfg: StepOptions):
     """Algorithm 3 and the identifier management of section 4.1.
 
-    Returns ``(segment_ids (S,) int32, n_seg (S,) float32)``.
+    Returns ``(segment_ids (S,) int32, n_seg (S,) float32, given (max_ids,) bool)``:
+    ``given`` marks the identifiers given anew this frame (to a new object).
     """
     s, m = cfg.max_segments, cfg.max_ids
 
@@ -179,7 +180,8 @@ def _assign_identifiers(state: IdentifierState, seg_labels, params: Params, *, c
         0,
     )
     segment_ids = jnp.where(assign > 0, assign, new_id).astype(jnp.int32)
-    return segment_ids, n_seg
+    given = jnp.any(jax.nn.one_hot(new_id - 1, m, dtype=bool), axis=0)
+    return segment_ids, n_seg, given
 
 
 def measured_labels(seg, flow_valid, *, cfg: StepOptions):
@@ -194,7 +196,15 @@ def identify(state: IdentifierState, labels, params: Params, *, cfg: StepOptions
     """(max_segments,) int32 the identifier of each spatial segment (Algorithm 3, section
     4.1), from the measured ``labels`` (n,) (:func:`measured_labels`); 0 when no identifier
     was free."""
-    return _assign_identifiers(state, labels, params, cfg=cfg)[0]
+    return identify_new(state, labels, params, cfg=cfg)[0]
+
+
+def identify_new(state: IdentifierState, labels, params: Params, *, cfg: StepOptions):
+    """:func:`identify`'s identifiers, and which identifiers (max_ids,) bool were given
+    anew this frame: to a new object, the identifier's past being another object's or
+    none."""
+    segment_ids, _, given = _assign_identifiers(state, labels, params, cfg=cfg)
+    return segment_ids, given
 
 
 # --------------------------------------------------------------------------------------

@@ -139,6 +139,9 @@ class StepOutput(NamedTuple):
     switched: jax.Array | None = None
     chains: jax.Array | None = None  # (max_ids, 4, 4) each identifier's pose chain, this image
     permutation: jax.Array | None = None  # (max_ids,) int32 the identifiers' renumbering
+    # (max_ids,) bool the identifiers given anew this frame, to a new object (numbered as
+    # entering it): revised_poses redraws no pose along one before it was given
+    new_ids: jax.Array | None = None
     # () bool the commitment switched to the motion it left out since the keyframe
     # (jaxvo.core.separation, cfg.keyframes): the pose jumped to that motion's, and
     # separated_poses redraws the earlier poses since the keyframe along `other_pose` of
@@ -311,6 +314,7 @@ def _output(ego: EgoState, eo, seg: Segmentation, bg: BackgroundOut, tout: Tempo
         switched=bg.winner,
         chains=bg.chains,
         permutation=bg.permutation,
+        new_ids=bg.given,
         keyframes=None if kout is None else kout.count,
         separated=None if sep is None else sep.switched,
         other_pose=None if sep is None else sep.other_pose,
@@ -339,26 +343,32 @@ def final_moving(state: PipelineState, params: Params):
 
 
 @jax.jit
-def revised_poses(T_w_c, switched, chains, permutations):
+def revised_poses(T_w_c, switched, chains, permutations, new_ids=None):
     """(T, 4, 4) the poses after each of T pairs as the committed chain has them at the
     end: where the background switched to another motion in a pair
-    (``StepOutput.switched`` (T,), the winner numbered as entering that pair), every earlier
-    pose is redrawn along the winner's chain (``StepOutput.chains`` (T, max_ids, 4, 4)), and
-    a later switch redraws over an earlier one. Walking back from the last pair, the
+    (``StepOutput.switched`` (T,), the winner numbered as entering that pair), the earlier
+    poses are redrawn along the winner's chain (``StepOutput.chains`` (T, max_ids, 4, 4)),
+    back to the pair in which its identifier was given to the object
+    (``StepOutput.new_ids`` (T, max_ids) bool; None: every identifier's from the start):
+    before that the identifier was another object's or none, and the committed poses stay.
+    A later switch redraws over an earlier one. Walking back from the last pair, the
     followed identifier is renumbered by each pair's ``permutations`` (T, max_ids) (a swap:
     its own inverse); where it was out of view its chain moved with the camera's predicted
     motion. ``T_w_c`` (T, 4, 4): the poses as the pairs gave them. Pure and traceable: the
     same walk for a study's configurations on the device and for a run on the host."""
+    if new_ids is None:
+        new_ids = jnp.zeros(permutations.shape, bool)
 
     def back(follow, xs):
-        T, won, chain, perm = xs
+        T, won, chain, perm, given = xs
         pose = jnp.where(follow >= 0, chain[jnp.maximum(follow, 0)], T)
         follow = jnp.where(follow >= 0, perm[jnp.maximum(follow, 0)],
                            jnp.where(won > 0, won - 1, -1))
+        follow = jnp.where(given[jnp.maximum(follow, 0)], -1, follow)  # its object begins here
         return follow, pose
 
-    _, poses = jax.lax.scan(back, jnp.int32(-1), (T_w_c, switched, chains, permutations),
-                            reverse=True)
+    _, poses = jax.lax.scan(back, jnp.int32(-1),
+                            (T_w_c, switched, chains, permutations, new_ids), reverse=True)
     return poses
 
 
@@ -392,7 +402,7 @@ def committed_poses(outs: StepOutput):
     T = outs.T_w_c
     if outs.separated is not None:
         T = separated_poses(T, outs.separated, outs.other_pose, outs.tested_keyframe)
-    return revised_poses(T, outs.switched, outs.chains, outs.permutation)
+    return revised_poses(T, outs.switched, outs.chains, outs.permutation, outs.new_ids)
 
 
 def frame_key(key, index):
