@@ -32,9 +32,9 @@ crosses the confidence of every test. Each identifier's motions are chained into
 the camera would have were that motion its own (:func:`follow_chains`), from the frame the
 identifier was given to its object (its chain and its challenge start there): after a
 switch the pose continues from the winner's chain, and the earlier poses back to that frame
-are redrawn along it (:func:`jaxvo.core.pipeline.revised_poses`). A switch discards what was established under
-the old choice (``BackgroundOut.forget``: the two motions' moving evidence; the occlusion
-memory starts afresh).
+are redrawn along it (:func:`jaxvo.core.pipeline.revised_poses`). A switch discards what
+was established under the old choice (``BackgroundOut.forget``: the two motions' moving
+evidence; the occlusion memory starts afresh).
 """
 
 from __future__ import annotations

@@ -136,6 +136,12 @@ def match_segments(corr, n_seg, min_corr):
     return assign, score
 
 
+def carried(ids, num_ids: int):
+    """(num_ids,) bool the identifiers that ``ids`` (S,) int32 (identifier per segment, 0
+    none) hold."""
+    return jnp.any(jax.nn.one_hot(ids - 1, num_ids, dtype=bool), axis=0)
+
+
 def _forgotten(state: IdentifierState, retention):
     """(max_ids,) bool: identifiers unobserved for ``retention`` frames before this one; such
     an identifier may be given to a new object (section 4.1)."""
@@ -161,7 +167,7 @@ def _assign_identifiers(state: IdentifierState, seg_labels, params: Params, *, c
     assign = jnp.where(score_w[best_w] > 0, assign_w[best_w], 0)
 
     n_seg = jax.nn.one_hot(seg_labels - 1, s, dtype=jnp.float32).sum(axis=0)
-    used = jnp.any(jax.nn.one_hot(assign - 1, m, dtype=bool), axis=0)
+    used = carried(assign, m)
     free = ~used & _forgotten(state, params.id_retention)
     unmatched = (n_seg > 0) & (assign == 0)
 
@@ -180,7 +186,7 @@ def _assign_identifiers(state: IdentifierState, seg_labels, params: Params, *, c
         0,
     )
     segment_ids = jnp.where(assign > 0, assign, new_id).astype(jnp.int32)
-    given = jnp.any(jax.nn.one_hot(new_id - 1, m, dtype=bool), axis=0)
+    given = carried(new_id, m)
     return segment_ids, n_seg, given
 
 

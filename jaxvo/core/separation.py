@@ -105,8 +105,9 @@ class SeparationOut(NamedTuple):
     # its keyframe points follow one of the two motions and not the other
     decided: jax.Array
     # (n,) bool the cells established moving whose pair says static while the other motion
-    # is near (:attr:`SeparationState.other`): the pair cannot tell the two apart, so nothing is learnt of
-    # them this frame (they keep their evidence, as a cell without a depth reading does)
+    # is near (SeparationState.other): the pair cannot tell the two apart, so nothing is
+    # learnt of them this frame (they keep their evidence, as a cell without a depth
+    # reading does)
     held: jax.Array
 
 

@@ -37,6 +37,7 @@ from jaxvo.core.grid_model import (
 )
 from jaxvo.core.identifiers import (
     IdentifierState,
+    carried,
     init_identifiers,
     matched_labels,
     update_identifiers,
@@ -120,7 +121,7 @@ def update_temporal(state: TemporalState, inputs: TemporalInputs, params: Params
     (labels, disp, flow_valid, segment_ids, explained, evidence_delta, depth_prev,
      permutation, forget, held) = inputs
     # 4.1: the segments' identifiers; those the ego-motion explains are the background
-    seen = jnp.any(jax.nn.one_hot(segment_ids - 1, cfg.max_ids, dtype=bool), axis=0)
+    seen = carried(segment_ids, cfg.max_ids)
     segment_ids, matched = matched_labels(labels, segment_ids, explained, cfg=cfg)
     # 4.2.1: the grid models with the matched label as measurement
     model = update_grid_model(state.model, matched, params, cfg=cfg, permutation=permutation)
