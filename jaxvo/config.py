@@ -132,6 +132,10 @@ class FlowOptions(SharedOptions):
     # a new keyframe is taken when fewer than this fraction of the keyframe's points that
     # its first pair tracked are still tracked
     keyframe_overlap: float = number(0.7, UNIT)
+    # ... and at the latest this many pairs after it was taken (0: no bound), so that a
+    # keyframe whose tracked points a near mover holds is renewed while the world's points
+    # leave the view (a second at 30 Hz; docs/report/separation.md)
+    keyframe_max_age: int = whole(30, 0, "pairs")
 
 
 @dataclasses.dataclass(frozen=True)

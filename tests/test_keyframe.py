@@ -253,6 +253,23 @@ def test_tracker_follows_the_keyframe_and_renews_when_the_overlap_is_gone(shifte
     assert renewals >= 1
 
 
+@pytest.mark.parametrize("max_age, renewed_at", [(4, [4, 8]), (0, [])])
+def test_a_keyframe_is_renewed_at_the_latest_after_its_age_bound(shifted_frames, max_age,
+                                                                 renewed_at):
+    """A still view keeps every point tracked, so the overlap never asks for a keyframe: one
+    is taken every ``keyframe_max_age`` pairs, and never without the bound."""
+    cfg = dataclasses.replace(CFG, keyframes=True, keyframe_max_age=max_age)
+    chain = FrameChain(GridFlowTracker(K, cfg, height=H, width=W), min_valid=5, keyframes=True)
+    still = bgr(shifted_frames[0])
+    chain.push(still, plane(2.0))
+    renewals = []
+    for pair in range(1, 10):
+        chain.push(still, plane(2.0))
+        if chain.keyframe_flow.renew:
+            renewals.append(pair)
+    assert renewals == renewed_at
+
+
 @pytest.fixture(scope="module")
 def kf_seq():
     # test_pipeline.py's sequence: its frame-to-frame scan below is the program compiled there

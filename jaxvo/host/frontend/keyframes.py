@@ -15,9 +15,12 @@ two levels, finds them every frame (a seeded track needs no coarse level, and no
 pass: the patch similarity and the depth checks reject the failures, and the robust fits
 the rest); the older keyframes' points are found the same way only when a new keyframe is
 taken, from the positions the flow predicted. The keyframe is renewed when fewer than
-``cfg.keyframe_overlap`` of the points its first pair tracked are still tracked. The
-decision uses host data only, so a recorded sequence's keyframes are known before the scan
-and a stream takes the same ones.
+``cfg.keyframe_overlap`` of the points its first pair tracked are still tracked, and at the
+latest ``cfg.keyframe_max_age`` pairs after it was taken: where a near mover holds most of
+the keyframe's points, they stay tracked while the world's leave the view, and the test
+over the keyframe (:mod:`jaxvo.core.separation`) would lose the world's points for good.
+The decision uses host data only, so a recorded sequence's keyframes are known before the
+scan and a stream takes the same ones.
 
 Host only: numpy and OpenCV, never traced.
 """
@@ -137,7 +140,8 @@ class KeyframeTracker:
         self._age += 1
         if self._age == 1:
             self._ref = count
-        renew = count < cfg.keyframe_overlap * self._ref or count < max(cfg.sample_size, 3)
+        renew = (count < cfg.keyframe_overlap * self._ref or count < max(cfg.sample_size, 3)
+                 or 0 < cfg.keyframe_max_age <= self._age)
         win_cur = np.zeros((W, n, 3), np.float32)
         win_valid = np.zeros((W, n), bool)
         new_kf = np.zeros((n, 3), np.float32)
