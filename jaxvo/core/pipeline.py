@@ -232,9 +232,10 @@ def step(state: PipelineState, flow: GridFlow, key, params: Params, *, cfg: Step
 def _separated(state: PipelineState, flow: GridFlow, keyframe: KeyframeFlow | None, ego, eo,
                ev, params: Params, *, cfg: StepOptions, grid):
     """With a ``keyframe``, the two motions over the frames since it
-    (:func:`jaxvo.core.separation.update_separation`): the pose where the commitment switched, and
-    its evidence in place of the pair's where it decides; ``(ego, ev, SeparationState,
-    SeparationOut)`` (the stages' outputs as given and ``None`` twice without)."""
+    (:func:`jaxvo.core.separation.update_separation`): the pose where the commitment
+    switched, and its evidence in place of the pair's where it decides; ``(ego, ev,
+    SeparationState, SeparationOut)`` (the stages' outputs as given and ``None`` twice
+    without)."""
     if keyframe is None:
         return ego, ev, None, None
     separation, sep = update_separation(state.separation, SeparationInputs(

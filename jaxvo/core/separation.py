@@ -169,9 +169,9 @@ def update_separation(state: SeparationState, inputs: SeparationInputs, params: 
     held = ((other > 0.5) & (prior > moving_logodds(params)) & ~decided & (pair_delta < 0)
             & ~switched)
     other_pose = jnp.where(apart, T_w_kf @ invert_pose(T_other), T_w_c)
-    return SeparationState(challenge=jnp.where(switched, 0.0, score), other=other), \
-        SeparationOut(switched=switched, T_w_c=jnp.where(switched, other_pose, T_w_c),
-                      other_pose=other_pose, delta=delta, decided=decided, held=held)
+    state = SeparationState(challenge=jnp.where(switched, 0.0, score), other=other)
+    return state, SeparationOut(switched=switched, T_w_c=jnp.where(switched, other_pose, T_w_c),
+                                other_pose=other_pose, delta=delta, decided=decided, held=held)
 
 
 def _other_motion(pts: Points, left, thr, *, iters: int):
