@@ -24,6 +24,7 @@ import numpy as np
 from _common import SEVEN_SCENES, TUM_WALKING, machine_line, real_present
 
 from jaxvo.config import Config
+from jaxvo.host.frontend.camera import grid_pixels
 from jaxvo.host.frontend.flow import GridFlowTracker
 from jaxvo.host.readers.io import data_root, open_sequence
 
@@ -56,10 +57,7 @@ def lk_costs(cfg: Config, repeat: int) -> dict:
     unseeded and seeded at its own answer."""
     seq = open_sequence(data_root() / SEVEN_SCENES)
     a, b = (cv2.cvtColor(seq[i].bgr, cv2.COLOR_BGR2GRAY) for i in (150, 151))
-    h, w = a.shape
-    c = cfg.cell
-    ys, xs = np.mgrid[c // 2:h:c, c // 2:w:c]
-    pts = np.stack([xs.ravel(), ys.ravel()], 1).astype(np.float32)
+    pts = grid_pixels(*a.shape, cfg.cell)
     win = (cfg.lk_window, cfg.lk_window)
     crit = (cv2.TERM_CRITERIA_COUNT | cv2.TERM_CRITERIA_EPS, cfg.lk_iters, cfg.lk_eps)
 

@@ -12,6 +12,7 @@ questions asked of both runs with the masks:
 * the pose error of each pair (translation mm, rotation deg), median over the seeds.
 
     .venv/bin/python bench/people_diagnosis.py [--seeds 5] [--config keyframes=true]
+        [--cache results/cache]
 """
 
 from __future__ import annotations
@@ -30,6 +31,7 @@ from splits import cases
 from jaxvo.config import Params
 from jaxvo.core.background import belief_weights
 from jaxvo.core.evidence import moving_logodds
+from jaxvo.evaluation.metrics import rpe
 from jaxvo.evaluation.scores import trajectory_scores
 from jaxvo.host.readers.io import data_root
 
@@ -50,22 +52,20 @@ def on_people(data: dict, masks: dict) -> np.ndarray:
 
 
 def pair_errors(gt, traj) -> np.ndarray:
-    """(T, 2) each pair's translation error, mm, and rotation error, deg (NaN without truth)."""
-    times = gt.timestamps
-    near = [int(np.argmin(np.abs(times - t))) for t in traj.timestamps]
-    ok = [abs(times[i] - t) < 0.02 for i, t in zip(near, traj.timestamps)]
+    """(T, 2) each frame pair's translation error, mm, and rotation error, deg: the RPE of
+    one frame (:func:`jaxvo.evaluation.metrics.rpe`) at the pair's first frame, NaN where
+    either frame has no ground truth."""
+    r = rpe(gt, traj, delta=1)
+    frame = np.searchsorted(traj.timestamps, r.matched.est_timestamps)
+    i, j = frame[r.pairs[:, 0]], frame[r.pairs[:, 1]]
     out = np.full((len(traj.poses) - 1, 2), np.nan)
-    for k in range(len(out)):
-        if ok[k] and ok[k + 1]:
-            G = np.linalg.inv(gt.poses[near[k]]) @ gt.poses[near[k + 1]]
-            E = np.linalg.inv(G) @ (np.linalg.inv(traj.poses[k]) @ traj.poses[k + 1])
-            cos = np.clip((np.trace(E[:3, :3]) - 1) / 2, -1, 1)
-            out[k] = 1e3 * np.linalg.norm(E[:3, 3]), np.degrees(np.arccos(cos))
+    one = j == i + 1
+    out[i[one]] = np.stack([1e3 * r.trans_errors[one], r.rot_errors[one]], axis=1)
     return out
 
 
-def diagnose(case, cfg, seeds: int, people: np.ndarray | None) -> dict:
-    data = prepare(case, Path("results/cache"), cfg)
+def diagnose(case, cfg, seeds: int, people: dict | None, cache: Path) -> dict:
+    data = prepare(case, cache, cfg)
     trajs, outs = run_seeds(data, first_pose(data), Params(), cfg, seeds)
     gt = groundtruth(data)
     onp = on_people(data, people) if people is not None else None
@@ -83,6 +83,7 @@ def main(argv=None) -> int:
     ap = argparse.ArgumentParser(description=__doc__.splitlines()[0])
     ap.add_argument("--seeds", type=int, default=5)
     ap.add_argument("--config", nargs="*", default=[], type=config_setting)
+    ap.add_argument("--cache", type=Path, default=Path("results/cache"))
     args = ap.parse_args(argv)
     case = next((c for c in cases() if c.kind == "people"), None)
     if case is None or not (data_root() / case.source / "associations.txt").is_file():
@@ -92,8 +93,8 @@ def main(argv=None) -> int:
     masks = people_masks(data_root() / case.source)
     print(machine_line())
     L = float(moving_logodds(Params()))
-    runs = {"jaxvo": diagnose(case, cfg, args.seeds, masks),
-            "oracle": diagnose(reference_case(case), cfg, args.seeds, masks)}
+    runs = {"jaxvo": diagnose(case, cfg, args.seeds, masks, args.cache),
+            "oracle": diagnose(reference_case(case), cfg, args.seeds, masks, args.cache)}
     onp = runs["jaxvo"]["onp"]  # the masks on the clip's own grid points
     recent = np.zeros_like(onp)
     for j in range(1, RECENT + 1):
@@ -101,7 +102,8 @@ def main(argv=None) -> int:
     for name, r in runs.items():
         used, weight, ev = r["used"], r["weight"], r["evidence"]
         room = r["valid"] & ~onp
-        kf = "" if r["keyframes"] is None else f", keyframes {int(np.median(r['keyframes'][:, -1]))}"
+        kf = ("" if r["keyframes"] is None
+              else f", keyframes {int(np.median(r['keyframes'][:, -1]))}")
         print(f"\n{name}: ATE mm {np.round(r['ate'], 1).tolist()} (median "
               f"{np.median(r['ate']):.1f}){kf}")
         print(f"  points used on people: {100 * (used & onp).sum() / max(used.sum(), 1):.1f} %,"
