@@ -216,8 +216,9 @@ def main(argv=None) -> int:
     one = [jax.tree.map(lambda a, b=b: a[b], params) for b in range(B)]
     print(f"{args.scenario}: {T} frame pairs, B = {B} configurations", flush=True)
 
-    vmapped, study_compile = timed_compile(run_study, flows, keys, params, T0, cfg=cfg, grid=grid)
-    scan, scan_compile = timed_compile(run_scan, flows, keys[0], one[0], T0, cfg=cfg, grid=grid)
+    static = dict(cfg=cfg.step, grid=grid)
+    vmapped, study_compile = timed_compile(run_study, flows, keys, params, T0, **static)
+    scan, scan_compile = timed_compile(run_scan, flows, keys[0], one[0], T0, **static)
     print(f"compile: vmapped {study_compile:.1f} s, single scan {scan_compile:.1f} s",
           flush=True)
 
@@ -240,7 +241,7 @@ def main(argv=None) -> int:
         b = 1
         while b < B:
             _, _, _, k_b, p_b = configurations(b)
-            exe, c = timed_compile(run_study, flows, k_b, p_b, T0, cfg=cfg, grid=grid)
+            exe, c = timed_compile(run_study, flows, k_b, p_b, T0, **static)
             exe(flows, k_b, p_b, T0)
             t = median_time(lambda exe=exe, k_b=k_b, p_b=p_b: exe(flows, k_b, p_b, T0),
                             args.repeats)

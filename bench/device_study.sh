@@ -7,8 +7,11 @@
 #            `jaxvo study` chooses against each hand-picked batch of CURVE;
 #   example  the example study (examples/thesis_parameters.toml) through the CLI as a user
 #            runs it (its batch "chosen"), or at each batch of EXAMPLE_BATCHES (default "chosen");
-#   tests    the study and pipeline tests on that JAX (CPU backend): jaxvo runs on the JAX
-#            users install.
+#   pipeline bench/bench_pipeline.py on that machine: `jaxvo run` and OpenCV's odometry as
+#            processes, `Odometry` streaming (its step on the CPU), the whole-sequence scan on
+#            the accelerator;
+#   tests    TEST_PATHS (default the study and pipeline tests) on that JAX (CPU backend):
+#            jaxvo runs on the JAX users install.
 # Results go to OUT as at most 8 plain files (the device tool brings back no more).
 #
 # Run: [STEPS="bench example tests"] bash bench/device_study.sh OUT [SIZED] [CURVE]
@@ -33,6 +36,12 @@ if [[ " $steps " == *" bench "* ]]; then
   cp "$work"/bench/study.json "$work"/bench/study.md "$out"/ 2>/dev/null
 fi
 
+if [[ " $steps " == *" pipeline "* ]]; then
+  timeout "${PIPELINE_TIMEOUT:-150}" $py bench/bench_pipeline.py --warm-runs 1 --peer-runs 1 \
+    --out "$work/pipeline" 2>&1 | tee "$out/pipeline.log"
+  cp "$work"/pipeline/pipeline.json "$work"/pipeline/pipeline.md "$out"/ 2>/dev/null
+fi
+
 if [[ " $steps " == *" example "* ]]; then
   i=0
   for b in ${EXAMPLE_BATCHES:-chosen}; do
@@ -48,6 +57,6 @@ fi
 
 if [[ " $steps " == *" tests "* ]]; then
   JAX_PLATFORMS=cpu timeout "${TEST_TIMEOUT:-150}" $py -m pytest -q -p no:cacheprovider \
-    -m "not slow" ${PYTEST_ARGS--n 8} tests/test_study.py tests/test_pipeline.py 2>&1 \
-    | tail -25 | tee "$out/tests.log"
+    ${PYTEST_ARGS--n 8 -m "not slow"} ${TEST_PATHS:-tests/test_study.py tests/test_pipeline.py} \
+    2>&1 | tail -40 | tee "$out/tests.log"
 fi

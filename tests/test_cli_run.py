@@ -260,7 +260,7 @@ def test_sigterm_to_a_background_job_of_a_script_keeps_what_was_finished(seq_dir
     import subprocess
     import sys
 
-    from rosbags.highlevel import AnyReader
+    AnyReader = pytest.importorskip("rosbags.highlevel").AnyReader
     from test_recording import _looped, _wait_for_a_pose
 
     from jaxvo.host.writers.bagout import ODOMETRY_TOPIC
