@@ -404,10 +404,14 @@ def default_params() -> Params:
 
 
 def params_as_arrays(params: Params) -> Params:
-    """Float32 arrays for every field, so the values are traced rather than baked in."""
-    import jax.numpy as jnp  # here, so that host-only commands (jaxvo eval) never load JAX
+    """Float32 arrays for every field, so the values are traced rather than baked in.
 
-    return Params(*(jnp.asarray(v, jnp.float32) for v in params))
+    Made by NumPy and put on the device as they are: ``jnp.asarray`` compiled a conversion
+    for each field in a process's first call."""
+    import jax  # here, so that host-only commands (jaxvo eval) never load JAX
+    import numpy as np
+
+    return jax.device_put(Params(*(np.asarray(v, np.float32) for v in params)))
 
 
 def check_param(field: str, value, *, name: str | None = None) -> None:

@@ -29,7 +29,7 @@ from jaxvo.core.inputs import GridFlow, KeyframeFlow
 from jaxvo.core.pipeline import (
     StepOutput,
     committed_poses,
-    init_pipeline,
+    jit_init,
     jit_step,
     revised_poses,
     run_scan,
@@ -277,8 +277,8 @@ class Odometry:
                                      max_dropped=self._max_dropped, keyframes=self.cfg.keyframes)
             self._grid = tracker.grid
             self._state = jax.device_put(
-                init_pipeline(cfg=self._step_options, grid=self._grid, T_w_c0=self._T_w_c0,
-                              params=self.params), self.device
+                jit_init(cfg=self._step_options, grid=self._grid, T_w_c0=self._T_w_c0,
+                         params=self.params), self.device
             )
         self._last_t = t
         flow, dropped = self._chain.push(bgr, depth)
