@@ -364,3 +364,27 @@ def test_a_broken_exported_program_is_read_as_none_and_exported_again(tmp_path, 
     path.write_bytes(data)
     assert _read_exported(path) is None
     assert _read_exported(tmp_path / "absent") is None
+
+
+def test_the_first_frame_compiles_one_program_not_an_operation_at_a_time():
+    """``Odometry``'s first ``process`` call (the grid, the start state) compiles one
+    program in a fresh process, ``jit_init``; ``Odometry(...)`` compiles none for the
+    parameters, which go to the device from NumPy (two for the PRNG key, JAX's own). Built
+    eagerly, the start state compiled a program per operation (dozens, 0.2 s of the first
+    pose; docs/speed.md)."""
+    code = ("import os; os.environ['JAXVO_COMPILE_CACHE'] = 'off'\n"
+            "import jax, numpy as np\n"
+            "from jaxvo.odometry import Odometry\n"
+            "n = [0]\n"
+            "def note(event, seconds, **kw):\n"
+            "    n[0] += event == '/jax/core/compile/backend_compile_duration'\n"
+            "jax.monitoring.register_event_duration_secs_listener(note)\n"
+            "odo = Odometry((500.0, 500.0, 160.0, 120.0))\n"
+            "print(n[0])\n"
+            "depth = np.full((240, 320), 5000, np.uint16)\n"
+            "odo.process(np.zeros((240, 320, 3), np.uint8), depth, 0.0)\n"
+            "print(n[0])\n")
+    done = python_code(code)
+    assert done.returncode == 0, done.stderr[-2000:]
+    built, first_frame = map(int, done.stdout.split()[-2:])
+    assert (built, first_frame - built) == (2, 1)
