@@ -8,15 +8,22 @@ Host only: numpy and OpenCV, never traced.
 
 from __future__ import annotations
 
+import functools
+
 import cv2
 import numpy as np
 
 
+@functools.cache
 def _patch_offsets(side: int) -> tuple[np.ndarray, np.ndarray]:
+    """The (side * side,) x and y offsets of a patch's pixels from its centre, made once per
+    side (read-only): a pair's checks sample patches two to five times."""
     r = (side - 1) / 2.0
     o = np.arange(side, dtype=np.float32) - np.float32(r)
     oy, ox = np.meshgrid(o, o, indexing="ij")
-    return ox.ravel(), oy.ravel()
+    ox, oy = ox.ravel(), oy.ravel()
+    ox.flags.writeable = oy.flags.writeable = False
+    return ox, oy
 
 
 def sample_patches(grey: np.ndarray, uv: np.ndarray, side: int) -> np.ndarray:
