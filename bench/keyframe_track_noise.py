@@ -11,6 +11,8 @@ the track's error. Per age (pairs since the keyframe's image): the lateral error
 90th percentile) and the depth error over z^2 (its robust spread, 1/m, the unit of the
 noise model's depth coefficient). The pair's own tracks, the same way, are the first row:
 what the noise model is calibrated on. The ground truth's own error is in every row alike.
+The TUM clip's oracle (``tum_walking_nopeople``: the people's depth removed, so every valid
+point is the room's) checks it against motion capture.
 
     .venv/bin/python bench/keyframe_track_noise.py [--case static_val_every1 ...]
         [--cache results/cache]
@@ -26,10 +28,12 @@ import numpy as np
 from _common import machine_line
 from _options import config_from
 from bench_robustness import prepare
+from bench_seeds import reference_case
 from splits import available, cases
 
-CASES = ("static_dev_every1", "static_dev_every2", "static_val_every1")
+CASES = ("static_dev_every1", "static_dev_every2", "static_val_every1", "tum_walking_nopeople")
 MIN_TRACKS = 200  # an age with fewer tracks than this over the sequence is left out
+MAX_DIFF = 0.02  # seconds between a frame and its ground-truth pose, as evo associates
 
 
 def keyframe_images(renew: np.ndarray) -> np.ndarray:
@@ -55,12 +59,16 @@ def track_errors(src, dst, T_true, focal: float):
 def by_age(data: dict) -> dict:
     """Each age's (and the pairs', key ``"pair"``) lateral and depth errors, concatenated."""
     times = np.asarray(data.get("gt_times", data["timestamps"]), np.float64)
-    at = np.searchsorted(times, np.asarray(data["timestamps"], np.float64))
-    poses = np.asarray(data["gt_poses"], np.float64)[np.clip(at, 0, len(times) - 1)]
+    frames = np.asarray(data["timestamps"], np.float64)
+    at = np.abs(frames[:, None] - times[None, :]).argmin(axis=1)  # nearest in time
+    has = np.abs(times[at] - frames) <= MAX_DIFF
+    poses = np.asarray(data["gt_poses"], np.float64)[at]
     focal = float(np.asarray(data["flow_focal"])[0])
     kf_image = keyframe_images(np.asarray(data["kf_renew"], bool))
     lateral, depth = collections.defaultdict(list), collections.defaultdict(list)
     for k, a in enumerate(kf_image):
+        if not (has[a] and has[k] and has[k + 1]):
+            continue  # a frame of the pair or its keyframe without a ground-truth pose
         for key, first, src, dst, valid in (
                 (k + 1 - a, a, data["kf_pts_kf"][k], data["kf_pts_cur"][k], data["kf_valid"][k]),
                 ("pair", k, data["flow_pts_prev"][k], data["flow_pts_cur"][k],
@@ -75,15 +83,18 @@ def by_age(data: dict) -> dict:
 
 def main(argv=None) -> int:
     ap = argparse.ArgumentParser(description=__doc__.splitlines()[0])
-    ap.add_argument("--case", nargs="*", default=list(CASES), help="static cases of bench/splits.py")
+    ap.add_argument("--case", nargs="*", default=list(CASES),
+                    help="static cases of bench/splits.py, or tum_walking_nopeople")
     ap.add_argument("--cache", type=Path, default=Path("results/cache"))
     args = ap.parse_args(argv)
     cfg = config_from(["keyframes=true"])
     print(machine_line())
     for name in args.case:
-        case = next((c for c in cases() if c.name == name), None)
-        if case is None or case.kind != "static":
-            print(f"{name}: not a static case of bench/splits.py")
+        static = [c for c in cases() if c.kind == "static"]
+        static += [reference_case(c) for c in cases() if c.kind == "people"]
+        case = next((c for c in static if c.name == name), None)
+        if case is None:
+            print(f"{name}: not a static case of bench/splits.py (nor the TUM clip's oracle)")
             continue
         why = available(case)
         if why:
