@@ -25,15 +25,16 @@ import collections
 from pathlib import Path
 
 import numpy as np
-from _common import machine_line
+from _common import groundtruth, machine_line
 from _options import config_from
 from bench_robustness import prepare
 from bench_seeds import reference_case
 from splits import available, cases
 
+from jaxvo.trajectory import pose_at
+
 CASES = ("static_dev_every1", "static_dev_every2", "static_val_every1", "tum_walking_nopeople")
 MIN_TRACKS = 200  # an age with fewer tracks than this over the sequence is left out
-MAX_DIFF = 0.02  # seconds between a frame and its ground-truth pose, as evo associates
 
 
 def keyframe_images(renew: np.ndarray) -> np.ndarray:
@@ -58,16 +59,13 @@ def track_errors(src, dst, T_true, focal: float):
 
 def by_age(data: dict) -> dict:
     """Each age's (and the pairs', key ``"pair"``) lateral and depth errors, concatenated."""
-    times = np.asarray(data.get("gt_times", data["timestamps"]), np.float64)
-    frames = np.asarray(data["timestamps"], np.float64)
-    at = np.abs(frames[:, None] - times[None, :]).argmin(axis=1)  # nearest in time
-    has = np.abs(times[at] - frames) <= MAX_DIFF
-    poses = np.asarray(data["gt_poses"], np.float64)[at]
+    truth = groundtruth(data)
+    poses = [pose_at(truth, t) for t in np.asarray(data["timestamps"], np.float64)]
     focal = float(np.asarray(data["flow_focal"])[0])
     kf_image = keyframe_images(np.asarray(data["kf_renew"], bool))
     lateral, depth = collections.defaultdict(list), collections.defaultdict(list)
     for k, a in enumerate(kf_image):
-        if not (has[a] and has[k] and has[k + 1]):
+        if poses[a] is None or poses[k] is None or poses[k + 1] is None:
             continue  # a frame of the pair or its keyframe without a ground-truth pose
         for key, first, src, dst, valid in (
                 (k + 1 - a, a, data["kf_pts_kf"][k], data["kf_pts_cur"][k], data["kf_valid"][k]),
@@ -89,9 +87,9 @@ def main(argv=None) -> int:
     args = ap.parse_args(argv)
     cfg = config_from(["keyframes=true"])
     print(machine_line())
+    static = [c for c in cases() if c.kind == "static"]
+    static += [reference_case(c) for c in cases() if c.kind == "people"]
     for name in args.case:
-        static = [c for c in cases() if c.kind == "static"]
-        static += [reference_case(c) for c in cases() if c.kind == "people"]
         case = next((c for c in static if c.name == name), None)
         if case is None:
             print(f"{name}: not a static case of bench/splits.py (nor the TUM clip's oracle)")
@@ -104,7 +102,8 @@ def main(argv=None) -> int:
         errors = by_age(data)
         keyframes = int(np.sum(data["kf_renew"])) + 1
         print(f"\n{name}: {len(data['kf_renew'])} pairs, {keyframes} keyframes")
-        print("| age (pairs) | tracks | lateral px median | p90 | depth error / z^2, 1.4826 MAD (1/m) |")
+        print("| age (pairs) | tracks | lateral px median | p90 "
+              "| depth error / z^2, 1.4826 MAD (1/m) |")
         print("|---|---|---|---|---|")
         ages = ["pair"] + sorted(k for k in errors if k != "pair")
         for age in ages:
