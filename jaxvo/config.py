@@ -403,15 +403,16 @@ def default_params() -> Params:
     return Params()
 
 
-def params_as_arrays(params: Params) -> Params:
-    """Float32 arrays for every field, so the values are traced rather than baked in.
+def params_as_arrays(params: Params, device=None) -> Params:
+    """Float32 arrays for every field, so the values are traced rather than baked in, on
+    ``device`` (a ``jax.Device``; None: JAX's default).
 
     Made by NumPy and put on the device as they are: ``jnp.asarray`` compiled a conversion
     for each field in a process's first call."""
     import jax  # here, so that host-only commands (jaxvo eval) never load JAX
     import numpy as np
 
-    return jax.device_put(Params(*(np.asarray(v, np.float32) for v in params)))
+    return jax.device_put(Params(*(np.asarray(v, np.float32) for v in params)), device)
 
 
 def check_param(field: str, value, *, name: str | None = None) -> None:

@@ -160,7 +160,7 @@ class Odometry:
         check_params(params)
         self._min_valid = min_valid_flow(cfg, params=params)
         self._max_dropped = max_dropped
-        self.params = jax.device_put(params_as_arrays(params), self.device)
+        self.params = params_as_arrays(params, self.device)
         self.key = jax.device_put(jax.random.key(seed), self.device)
         self._T_w_c0 = np.eye(4) if T_w_c0 is None else check_pose(T_w_c0, name="T_w_c0")
         self._chain: FrameChain | None = None
