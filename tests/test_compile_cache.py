@@ -369,15 +369,17 @@ def test_a_broken_exported_program_is_read_as_none_and_exported_again(tmp_path, 
 def test_the_first_frame_compiles_one_program_not_an_operation_at_a_time():
     """``Odometry``'s first ``process`` call (the grid, the start state) compiles one
     program in a fresh process, ``jit_init``; ``Odometry(...)`` compiles none for the
-    parameters, which go to the device from NumPy (two for the PRNG key, JAX's own). Built
-    eagerly, the start state compiled a program per operation (dozens, 0.2 s of the first
-    pose; docs/speed.md)."""
+    parameters, which go to the device from NumPy (the PRNG key's own programs, JAX's, are
+    compiled before it is counted, so that the count does not depend on JAX's version).
+    Built eagerly, the start state compiled a program per operation (dozens, 0.2 s of the
+    first pose; docs/speed.md)."""
     code = ("import os; os.environ['JAXVO_COMPILE_CACHE'] = 'off'\n"
             "import jax, numpy as np\n"
             "from jaxvo.odometry import Odometry\n"
             "n = [0]\n"
             "def note(event, seconds, **kw):\n"
             "    n[0] += event == '/jax/core/compile/backend_compile_duration'\n"
+            "jax.random.key(0)\n"
             "jax.monitoring.register_event_duration_secs_listener(note)\n"
             "odo = Odometry((500.0, 500.0, 160.0, 120.0))\n"
             "print(n[0])\n"
@@ -387,4 +389,4 @@ def test_the_first_frame_compiles_one_program_not_an_operation_at_a_time():
     done = python_code(code)
     assert done.returncode == 0, done.stderr[-2000:]
     built, first_frame = map(int, done.stdout.split()[-2:])
-    assert (built, first_frame - built) == (2, 1)
+    assert (built, first_frame - built) == (0, 1)
