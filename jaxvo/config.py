@@ -96,6 +96,10 @@ class SharedOptions:
     # each time a keyframe is taken (jaxvo.core.keyframe); 1: the latest keyframe alone; a
     # longer window was no better on the development frames (docs/report/keyframes.md)
     keyframe_window: int = whole(4, 1, "keyframe")
+    # every frame also tracks and fits the points of the window's older keyframes (their
+    # poses and depths as the window refined them), not only the latest keyframe's: the
+    # window as a local map (jaxvo.core.keyframe, docs/report/keyframes.md)
+    keyframe_track_window: bool = False
 
 
 @dataclasses.dataclass(frozen=True)

@@ -80,7 +80,7 @@ def test_each_setting_is_declared_once_with_what_a_run_can_use():
     fields = config_fields()
     assert set(fields) == names(FlowOptions) | names(StepOptions)
     assert names(FlowOptions) & names(StepOptions) == names(SharedOptions)
-    assert len(fields) == 34 and list(fields)[:len(names(SharedOptions))] == [
+    assert len(fields) == 35 and list(fields)[:len(names(SharedOptions))] == [
         f.name for f in dataclasses.fields(SharedOptions)]
     for name, spec in fields.items():
         kind = type(spec.default)

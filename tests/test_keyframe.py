@@ -5,6 +5,7 @@ other."""
 from __future__ import annotations
 
 import dataclasses
+from types import SimpleNamespace
 
 import jax
 import jax.numpy as jnp
@@ -18,12 +19,15 @@ from jaxvo.core.inputs import KeyframeFlow, invalid_keyframe_flow
 from jaxvo.core.keyframe import (
     KeyframeInputs,
     KeyframeState,
+    SupportInputs,
     _problem,
     init_keyframe,
     keyframe_index,
     keyframe_points,
+    keyframe_support,
     refine,
     update_keyframe,
+    window_points,
 )
 from jaxvo.core.noise import init_noise
 from jaxvo.core.points import frame_points
@@ -72,6 +76,76 @@ def test_keyframe_points_are_the_keyframe_points_in_the_previous_camera():
     np.testing.assert_array_equal(np.asarray(pts.valid), keep)
     np.testing.assert_allclose(np.asarray(pts.src)[:, keep], want[:, keep], atol=1e-5)
     np.testing.assert_allclose(np.asarray(pts.dst)[:, keep], p_cur.T[:, keep], atol=1e-6)
+
+
+def test_window_points_are_the_older_keyframes_points_in_the_previous_camera():
+    """With ``keyframe_track_window``, slot ``k`` (1 .. K - 2) of the window enters as
+    ``inv(T_w_prev) T_w_kf[k] p_k`` against its reading in window slot ``k - 1`` of the
+    keyframe flow, each with the cell it lay in; the oldest slot and the latest are not
+    among them, nor an empty slot, a point not static or not read (float64 numpy, 1e-5 m)."""
+    rng = np.random.default_rng(1)
+    n, K = GRID[0] * GRID[1], 4
+    cfg = dataclasses.replace(UNIT_CFG, keyframe_window=K, keyframe_track_window=True)
+    T_w_kf = np.stack([_pose(rng) for _ in range(K)])
+    T_w_prev = _pose(rng)
+    p = rng.uniform([-1, -1, 1], [1, 1, 4], (K, n, 3)).astype(np.float32)
+    static = rng.random((K, n)) > 0.2
+    taken = np.array([True, True, False, True])  # slot 2 empty: its points are not used
+    state = init_keyframe(np.eye(4), cfg=cfg, grid=GRID)._replace(
+        T_w_kf=jnp.asarray(T_w_kf, jnp.float32), point=jnp.asarray(p),
+        static=jnp.asarray(static), taken=jnp.asarray(taken), fresh=jnp.bool_(False))
+    cur = rng.uniform([-1, -1, 1], [1, 1, 4], (K - 1, n, 3)).astype(np.float32)
+    read = rng.random((K - 1, n)) > 0.2
+    cells = rng.integers(-1, n, (K - 1, n)).astype(np.int32)
+    kf = _kf_flow(n, K - 1, win_cur=cur, win_valid=read, win_cell_prev=cells)
+    pts, cell = window_points(state, kf, jnp.asarray(T_w_prev, jnp.float32), Params(),
+                              focal=525.0, scale=init_noise(Params()),
+                              index=keyframe_index(GRID, 1))
+    assert pts.valid.shape == (2 * n,) and cell.shape == (2 * n,)
+    for j, slot in enumerate((1, 2)):  # the flow's window slots 0 and 1
+        part = slice(j * n, (j + 1) * n)
+        keep = read[slot - 1] & static[slot] & taken[slot]
+        want = (np.linalg.inv(T_w_prev) @ T_w_kf[slot] @ np.c_[p[slot], np.ones(n)].T)[:3]
+        np.testing.assert_array_equal(np.asarray(pts.valid[part]), keep)
+        np.testing.assert_allclose(np.asarray(pts.src)[:, part][:, keep], want[:, keep],
+                                   atol=1e-5)
+        np.testing.assert_array_equal(np.asarray(pts.dst)[:, part][:, keep],
+                                      cur[slot - 1].T[:, keep])
+        np.testing.assert_array_equal(np.asarray(cell[part]), cells[slot - 1])
+
+
+@pytest.mark.parametrize("tracked", [False, True])
+def test_the_fit_takes_the_older_keyframes_points_only_with_the_window_tracked(tracked):
+    """keyframe_support joins the pair's points, the latest keyframe's and (with
+    ``keyframe_track_window``) slots 1 .. K - 2's, each weighted as the cell it lay in: a
+    point in a cell whose segment moves unlike the background has no weight."""
+    rng = np.random.default_rng(2)
+    n, K = GRID[0] * GRID[1], 4
+    cfg = dataclasses.replace(UNIT_CFG, keyframe_window=K, keyframe_track_window=tracked)
+    p = rng.uniform([-1, -1, 1], [1, 1, 4], (K, n, 3)).astype(np.float32)
+    state = init_keyframe(np.eye(4), cfg=cfg, grid=GRID)._replace(
+        point=jnp.asarray(p), static=jnp.ones((K, n), bool), taken=jnp.ones(K, bool),
+        fresh=jnp.bool_(False))
+    cur = p[1:] + np.float32(0.01)
+    kf = _kf_flow(n, K - 1, pts_cur=cur[-1], valid=np.ones(n, bool), win_cur=cur,
+                  win_valid=np.ones((K - 1, n), bool), cell_prev=np.arange(n, dtype=np.int32),
+                  win_cell_prev=np.tile(np.arange(n, dtype=np.int32), (K - 1, 1)))
+    pair = frame_points(jnp.asarray(p[0]), jnp.asarray(cur[0]), jnp.ones(n, bool), Params(),
+                        focal=525.0)
+    moving = np.arange(n) % 5 == 0  # believed in, but not used: its segment moves
+    bg = SimpleNamespace(use=jnp.asarray(np.where(moving, 0.0, 1.0), jnp.float32),
+                         belief=jnp.ones(n, jnp.float32))
+    pts, use, _ = keyframe_support(state, SupportInputs(
+        kf=kf, T_w_prev=jnp.eye(4), pts=pair, bg=bg, evidence=jnp.full(n, -5.0),
+        focal=jnp.float32(525.0), scale=init_noise(Params())), Params(), cfg=cfg, grid=GRID)
+    keyframes = 3 if tracked else 1
+    assert pts.valid.shape == ((1 + keyframes) * n,)
+    assert bool(jnp.all(pts.valid))
+    for k in range(keyframes):
+        part = slice((1 + k) * n, (2 + k) * n)
+        np.testing.assert_array_equal(np.asarray(use[part]) > 0, ~moving)
+    if tracked:  # slot 1's points, seen from the previous camera (the identity here)
+        np.testing.assert_allclose(np.asarray(pts.src)[:, 2 * n:3 * n], p[1].T, atol=1e-6)
 
 
 def _first_keyframe(seed: int, x: float, static):
@@ -288,6 +362,38 @@ def test_stream_and_scan_take_the_same_keyframes_and_poses(kf_seq):
     assert off.outputs.keyframes is None
     # the switch changes the poses (the keyframe points enter the fit)
     assert np.abs(off.trajectory.poses - res.trajectory.poses).max() > 1e-7
+
+
+def test_with_the_window_tracked_every_pair_reads_the_window_keyframes(shifted_frames):
+    """``keyframe_track_window``: every pair, not only a keyframe's, reads the points of the
+    window's older keyframes, 12 px per frame since that keyframe to the left (median, to
+    0.2 px), with the cell of the previous image each lay in (where that keyframe's point
+    was, 12 px further right per frame before); the latest keyframe's slot is the pair's
+    own keyframe flow."""
+    cfg = dataclasses.replace(CFG, keyframes=True, keyframe_window=3, keyframe_overlap=0.9,
+                              keyframe_track_window=True)
+    chain = FrameChain(GridFlowTracker(K, cfg, height=H, width=W), min_valid=5, keyframes=True)
+    chain.push(bgr(shifted_frames[0]), plane(2.0))
+    taken = [0]
+    read_between = 0  # pairs that read an older keyframe without taking one
+    for i, img in enumerate(shifted_frames[1:], start=1):
+        chain.push(bgr(img), plane(2.0))
+        kf = chain.keyframe_flow
+        np.testing.assert_array_equal(kf.win_valid[-1], kf.valid)
+        v = kf.win_valid[0]
+        if len(taken) >= 2 and v.sum() >= 20:
+            k = taken[-2]
+            x = kf.win_cur[0, v, 0] * K.fx / kf.win_cur[0, v, 2] + K.cx + 12.0 * (i - k)
+            f = (x - (cfg.cell - 1) / 2) / cfg.cell
+            assert np.median(np.abs(f - np.round(f))) * cfg.cell < 0.2, (k, i)
+            # the previous image held the point 12 px to the right of where it is now
+            col = np.floor((x - 12.0 * (i - k) + 12.0) / cfg.cell).astype(int)
+            got = kf.win_cell_prev[0, v] % (W // cfg.cell)
+            assert np.mean(got == col) > 0.9
+            read_between += not kf.renew
+        if kf.renew:
+            taken.append(i)
+    assert len(taken) >= 3 and read_between >= 1
 
 
 def test_a_new_keyframe_reads_the_points_of_the_window_keyframes(shifted_frames):

@@ -60,7 +60,8 @@ def _scene(rigid: bool = False):
         valid=np.ones(N, bool), renew=np.bool_(False),
         win_cur=np.zeros((CFG.keyframe_window - 1, N, 3), np.float32),
         win_valid=np.zeros((CFG.keyframe_window - 1, N), bool),
-        new_kf=np.zeros((N, 3), np.float32), cell_prev=np.arange(N, dtype=np.int32))
+        new_kf=np.zeros((N, 3), np.float32), cell_prev=np.arange(N, dtype=np.int32),
+        win_cell_prev=np.full((CFG.keyframe_window - 1, N), -1, np.int32))
     return kf, box, moved[:, 2].astype(np.float32)
 
 

@@ -50,15 +50,19 @@ class KeyframeFlow(NamedTuple):
     pts_cur: np.ndarray  # (n, 3) float32 metres, the same in the current camera frame
     valid: np.ndarray  # (n,) bool, passed LK, similarity and depth checks
     renew: np.ndarray  # () bool, the current frame becomes the keyframe after this pair
-    # where renew: each window keyframe's points (slot 0 the oldest, W - 1 the latest) in
-    # the current camera (the device holds them in their own), and which passed the checks;
-    # W is cfg.keyframe_window - 1; all False where the keyframe is kept
+    # where renew (with cfg.keyframe_track_window, every pair): each window keyframe's
+    # points (slot 0 the oldest, W - 1 the latest) in the current camera (the device holds
+    # them in their own), and which passed the checks; W is cfg.keyframe_window - 1; all
+    # False where the keyframe is kept
     win_cur: np.ndarray  # (W, n, 3) float32 metres
     win_valid: np.ndarray  # (W, n) bool
     new_kf: np.ndarray  # (n, 3) float32 metres, where renew: the new keyframe's points
     # (n,) int32 the grid cell of the pair's previous image each latest keyframe point lay
     # in (its segment and evidence are that cell's), -1 where unknown
     cell_prev: np.ndarray
+    # (W, n) int32 the same for each window keyframe's points (with
+    # cfg.keyframe_track_window; -1 elsewhere)
+    win_cell_prev: np.ndarray
 
 
 def invalid_flow(uv_grid: np.ndarray, status: int = Status.BAD_INPUT, *,
@@ -100,7 +104,7 @@ def invalid_keyframe_flow(n: int, window: int) -> KeyframeFlow:
     z = np.zeros((n, 3), np.float32)
     return KeyframeFlow(z, z.copy(), np.zeros(n, bool), np.bool_(True),
                         np.zeros((W, n, 3), np.float32), np.zeros((W, n), bool), z.copy(),
-                        np.full(n, -1, np.int32))
+                        np.full(n, -1, np.int32), np.full((W, n), -1, np.int32))
 
 
 def keyframe_grid(grid: tuple[int, int], stride: int) -> tuple[int, int]:

@@ -27,6 +27,15 @@ single reading; a keyframe seen again from a later one ties the two directly ins
 through the chain of frames between them. The latest keyframe's refined points are what
 the following frames are then tracked against, and its refined pose what they chain from.
 
+The window as a local map (``cfg.keyframe_track_window``, off by default). The host then
+finds the older window keyframes' points in every new image, not only in a new keyframe,
+and each frame's fit takes them beside the latest keyframe's (:func:`window_points`: slots
+``1 .. K - 2``; the oldest leaves at the next keyframe), each as the window refined it and
+weighted as the cell of the previous image it lay in. A frame is then held to the poses
+of up to ``K - 1`` keyframes. Measured in ``docs/report/keyframes.md``: it pays on the
+real validation frames and the synthetic scenes, costs two composites with boxes and
+about a fifth more time a frame, so it stays off.
+
 Conventions (:mod:`jaxvo.core.geometry`): poses are camera-to-world ``T_w_c``, slots are
 ordered oldest first, slot ``K - 1`` the latest keyframe; ``obs[j, i]`` is keyframe
 ``i``'s point read in keyframe ``j``'s camera (``j > i``).
@@ -123,6 +132,30 @@ def keyframe_points(state: KeyframeState, kf, T_w_prev, params: Params, *, focal
     return frame_points(src, kf.pts_cur[index], use, params, focal=focal, scale=scale)
 
 
+def window_points(state: KeyframeState, kf, T_w_prev, params: Params, *, focal,
+                  scale: NoiseScale, index) -> tuple[Points, jax.Array]:
+    """The older window keyframes' static points tracked into this image
+    (``cfg.keyframe_track_window``), as :func:`keyframe_points` gives the latest's: slots
+    ``1 .. K - 2`` (the oldest is not tracked: it leaves at the next keyframe), each
+    keyframe's points as the window refined them.
+
+    Returns:
+      ``(Points, cell)``: ``(K - 2) m`` points, slot by slot, and the cell of the pair's
+      previous image each lay in (``kf.win_cell_prev``; -1 unknown).
+    """
+    K = state.T_w_kf.shape[0]
+    older = slice(1, K - 1)  # window slots 0 .. W - 2 of the keyframe flow
+    P = state.point[older]  # (K - 2, m, 3)
+    use = (kf.win_valid[:K - 2][:, index] & state.static[older] & state.taken[older, None]
+           & ~state.fresh & (P[..., 2] > 0))
+    T_prev_kf = invert_pose(T_w_prev)[None] @ state.T_w_kf[older]
+    src = jnp.einsum("kab,kmb->kma", T_prev_kf[:, :3, :3], P) + T_prev_kf[:, None, :3, 3]
+    flat = lambda x: x.reshape(-1, *x.shape[2:])
+    pts = frame_points(flat(src), flat(kf.win_cur[:K - 2][:, index]), flat(use), params,
+                       focal=focal, scale=scale)
+    return pts, flat(kf.win_cell_prev[:K - 2][:, index])
+
+
 def join_points(a: Points, b: Points) -> Points:
     """The points of ``a`` then those of ``b`` (n_a + n_b) as one set, ``a``'s tests."""
     cat = lambda x, y: jnp.concatenate([x, y], axis=-1)
@@ -158,9 +191,13 @@ def keyframe_support(state: KeyframeState, inputs: SupportInputs, params: Params
     kf, T_w_prev, pts, bg, evidence, focal, scale = inputs
     index = keyframe_index(grid, cfg.keyframe_stride)
     kpts = keyframe_points(state, kf, T_w_prev, params, focal=focal, scale=scale, index=index)
+    cell = kf.cell_prev[index]
+    if cfg.keyframe_track_window and cfg.keyframe_window > 2:
+        wpts, wcell = window_points(state, kf, T_w_prev, params, focal=focal, scale=scale,
+                                    index=index)
+        kpts, cell = join_points(kpts, wpts), jnp.concatenate([cell, wcell])
     prior = belief_weights(evidence, params)
     moving_seg = pts.valid & (bg.belief > 0) & (bg.use == 0)
-    cell = kf.cell_prev[index]
     at = jnp.maximum(cell, 0)
     belief = jnp.where(kpts.valid & (cell >= 0), prior[at], 0.0)
     use = jnp.where(moving_seg[at], 0.0, belief)

@@ -14,7 +14,8 @@ lie in the current image. For the latest keyframe one forward LK from there, on 
 two levels, finds them every frame (a seeded track needs no coarse level, and no backward
 pass: the patch similarity and the depth checks reject the failures, and the robust fits
 the rest); the older keyframes' points are found the same way only when a new keyframe is
-taken, from the positions the flow predicted. The keyframe is renewed when fewer than
+taken, from the positions the flow predicted (with ``cfg.keyframe_track_window``, every
+pair, as the latest keyframe's are). The keyframe is renewed when fewer than
 ``cfg.keyframe_overlap`` of the points its first pair tracked are still tracked, and at the
 latest ``cfg.keyframe_max_age`` pairs after it was taken: where a near mover holds most of
 the keyframe's points, they stay tracked while the world's leave the view, and the test
@@ -128,8 +129,15 @@ class KeyframeTracker:
         """The keyframe flow of the frame just pushed to the tracker, whose pair flow is
         ``flow`` and depth ``depth`` (H, W) metres; renews the keyframe when it says so."""
         cfg, n, W = self.t.cfg, self.t.n, self._window
+        every = cfg.keyframe_track_window  # the older keyframes' points found every pair
+        keys = self._keys[-W:] if W else []  # the window slots' keyframes, the latest last
+        slots = list(enumerate(keys, start=W - len(keys)))
         cell_prev = np.full(n, -1, np.int32)
         cell_prev[self._keys[-1].idx] = self._cell(self._keys[-1].track)
+        win_cell = np.full((W, n), -1, np.int32)
+        if every:
+            for w, key in slots:
+                win_cell[w, key.idx] = self._cell(key.track)
         d = self._displacement(flow)
         for key in self._keys:
             key.track = self._predict(d, key.track)
@@ -145,21 +153,24 @@ class KeyframeTracker:
         win_cur = np.zeros((W, n, 3), np.float32)
         win_valid = np.zeros((W, n), bool)
         new_kf = np.zeros((n, 3), np.float32)
-        if renew:
-            # the older keyframes' points were not searched since they were taken: their
-            # predicted positions may be a few pixels off, one pyramid level more
-            keys = self._keys[-W:] if W else []
-            for w, key in enumerate(keys, start=W - len(keys)):
+        if renew or every:
+            for w, key in slots:
                 if key is latest:
                     win_cur[w], win_valid[w] = pts_cur, valid
+                elif every:  # found every pair, as the latest keyframe's points are
+                    _, win_cur[w], win_valid[w], ok_w, found_w = self._find(key, depth, levels=1)
+                    key.track = np.where(ok_w[:, None], found_w, key.track).astype(np.float32)
                 else:
+                    # the older keyframes' points were not searched since they were taken:
+                    # their predicted positions may be a few pixels off, one pyramid level more
                     _, win_cur[w], win_valid[w], _, _ = self._find(key, depth, levels=2)
+        if renew:
             cur = self.t.last
             use = cur.z_grid_ok & self._sub
             new_kf[use] = backproject(cur.uv[use], cur.z_grid[use], self.t.K)
             self._renew()
         return KeyframeFlow(pts_kf, pts_cur, valid, np.bool_(renew), win_cur, win_valid, new_kf,
-                            cell_prev)
+                            cell_prev, win_cell)
 
     def _cell(self, uv: np.ndarray) -> np.ndarray:
         """(m,) int32 the grid cell holding each position ``uv`` (m, 2), -1 off the grid."""
