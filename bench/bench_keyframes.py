@@ -1,9 +1,10 @@
 """Keyframes and their local window (``Config.keyframes``, issues 27 and 39) against frame to
 frame, over seeds, beside ORB-SLAM3.
 
-Three settings on the same cached flows: keyframes off (the default), the latest keyframe
-only (``keyframe_window=1``, issue 27's tracking) and the local window
-(``keyframe_window``'s default: the recent keyframes' poses and points refined together).
+Four settings on the same cached flows: keyframes off (the default), the latest keyframe
+only (``keyframe_window=1``, issue 27's tracking), the local window (``keyframe_window``'s
+default: the recent keyframes' poses and points refined together) and that window tracked
+every pair (``keyframe_track_window``: every frame also fits the older keyframes' points).
 Cases: all 300 shared 7-Scenes frames at every 1st, 2nd and 4th frame (issue 39's target
 frames), and ``bench/splits.py``'s development and validation splits (static halves,
 composites, the TUM walking clip). Every figure is the median [best-worst] over ``--seeds``
@@ -41,6 +42,8 @@ SETTINGS = {
     "off": Config(),
     "latest keyframe": Config(keyframes=True, keyframe_window=1),
     "window": Config(keyframes=True),
+    # every pair also tracked against the window's older keyframes (issue 52's first step)
+    "window tracked": Config(keyframes=True, keyframe_track_window=True),
 }
 
 
