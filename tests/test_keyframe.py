@@ -26,6 +26,7 @@ from jaxvo.core.keyframe import (
     keyframe_points,
     keyframe_support,
     refine,
+    track_evidence,
     update_keyframe,
     window_points,
 )
@@ -146,6 +147,37 @@ def test_the_fit_takes_the_older_keyframes_points_only_with_the_window_tracked(t
         np.testing.assert_array_equal(np.asarray(use[part]) > 0, ~moving)
     if tracked:  # slot 1's points, seen from the previous camera (the identity here)
         np.testing.assert_allclose(np.asarray(pts.src)[:, 2 * n:3 * n], p[1].T, atol=1e-6)
+
+
+def test_a_keyframe_point_the_frames_motion_keeps_failing_to_explain_leaves_its_keyframe():
+    """track_evidence: each slot's tracks' noise is the robust scale of its weighed points'
+    residuals (here 2x the pair's in slot 1, at least 1 in the latest slot, as it was in
+    slot 2 where nothing was weighed); a point whose residual stays beyond that noise
+    (10 in its units, every frame) leaves its keyframe's static points after a few frames,
+    one beyond it in a single frame (12) does not."""
+    n, K = GRID[0] * GRID[1], 4
+    cfg = dataclasses.replace(UNIT_CFG, keyframe_window=K, keyframe_track_window=True)
+    state = init_keyframe(np.eye(4), cfg=cfg, grid=GRID)._replace(
+        static=jnp.ones((K, n), bool), taken=jnp.ones(K, bool), fresh=jnp.bool_(False))
+    rng = np.random.default_rng(3)
+    chi2 = lambda scale: (scale * rng.standard_normal((n, 3))).__pow__(2).sum(1)
+    weighed = np.ones((K - 1, n), bool)
+    weighed[2] = False  # slot 2: none weighed
+    moving, once = 7, 11
+    for frame in range(8):
+        d2 = np.stack([chi2(0.5), chi2(2.0), chi2(1.0)]).astype(np.float32)
+        d2[0, moving], d2[1, moving] = 10.0, 40.0  # 10 in each slot's units, every frame
+        if frame == 0:
+            d2[1, once] = 48.0  # 12 in its units, once
+        state = track_evidence(state, jnp.asarray(d2.ravel()), jnp.asarray(weighed.ravel()),
+                               Params())
+    noise = np.asarray(state.track_noise)
+    assert noise[3] == 1.0 and noise[2] == 1.0 and noise[0] == 1.0  # latest: at least 1
+    assert 1.7 < noise[1] < 2.3
+    static = np.asarray(state.static)
+    assert not static[3, moving] and not static[1, moving]  # the latest slot and slot 1
+    assert static[1, once] and static[2, moving]  # one frame; slot 2 not weighed
+    assert static.sum() >= K * n - 2 - 3  # a chance point or so of pure noise at most
 
 
 def _first_keyframe(seed: int, x: float, static):

@@ -66,7 +66,14 @@ from jaxvo.core.keyframe import (
     keyframe_support,
     update_keyframe,
 )
-from jaxvo.core.noise import NoiseInputs, NoiseScale, init_noise, transfer, update_noise
+from jaxvo.core.noise import (
+    NoiseInputs,
+    NoiseScale,
+    init_noise,
+    residuals,
+    transfer,
+    update_noise,
+)
 from jaxvo.core.occlusion import (
     OcclusionInputs,
     OcclusionState,
@@ -205,8 +212,8 @@ def step(state: PipelineState, flow: GridFlow, key, params: Params, *, cfg: Step
         labels=labels, identifiers=state.temporal.identifiers,
         evidence=state.temporal.evidence, scale=state.noise, T_w_c=state.ego.T_w_c,
         occluded=occ.occluded), params, **stage)
-    ego, eo = update_egomotion(state.ego._replace(T_w_c=bg.T_w_prev), _ego_inputs(
-        state, flow, keyframe, pts, seg, bg, params, **stage), params, cfg=cfg)
+    ei = _ego_inputs(state, flow, keyframe, pts, seg, bg, params, **stage)
+    ego, eo = update_egomotion(state.ego._replace(T_w_c=bg.T_w_prev), ei, params, cfg=cfg)
     eo = eo._replace(used=eo.used[:pts.valid.shape[0]])  # the pair's points, not the keyframe's
     ev = moving_evidence(EvidenceInputs(
         seg_labels=seg.labels, pts=pts, T_cur_prev=eo.T_cur_prev, d2_seg=bg.d2_seg, ok=eo.ok,
@@ -224,7 +231,8 @@ def step(state: PipelineState, flow: GridFlow, key, params: Params, *, cfg: Step
         kf_state, kout = update_keyframe(state.keyframe, KeyframeInputs(
             kf=keyframe, T_w_c=ego.T_w_c, static=temporal.evidence <= moving_logodds(params),
             T_cur_prev=eo.T_cur_prev, T_w_prev=bg.T_w_prev, pts=pts, used=eo.used,
-            noise=noise, focal=flow.focal, ok=eo.ok & ~regrounded), params, **stage)
+            noise=noise, focal=flow.focal, ok=eo.ok & ~regrounded,
+            **_track_residuals(ei, eo, pts.valid.shape[0], cfg=cfg)), params, **stage)
         ego = ego._replace(T_w_c=kout.T_w_c)
     out = _output(ego, eo, seg, bg, tout, noise, pts.valid, params, kout=kout, sep=sep,
                   tested=None if sep is None else state.keyframe.count, **stage)
@@ -249,6 +257,17 @@ def _separated(state: PipelineState, flow: GridFlow, keyframe: KeyframeFlow | No
         prior=state.temporal.evidence, pair_delta=ev.delta), params, cfg=cfg, grid=grid)
     return (ego._replace(T_w_c=sep.T_w_c),
             ev._replace(delta=jnp.where(sep.decided, sep.delta, ev.delta)), separation, sep)
+
+
+def _track_residuals(ei: EgoInputs, eo, n: int, *, cfg: StepOptions) -> dict:
+    """With ``cfg.keyframe_track_window``, the keyframe points' normalised residuals under
+    the pair's ego-motion and which the fit weighed (``KeyframeInputs`` fields: each
+    point's own test over frames, :func:`jaxvo.core.keyframe.track_evidence`); else none."""
+    if not cfg.keyframe_track_window:
+        return {}
+    noise = jax.tree.map(lambda x: x[..., n:], ei.pts.noise)
+    return {"track_d2": residuals(eo.T_cur_prev, ei.pts.src[:, n:], ei.pts.dst[:, n:], noise)[0],
+            "track_weighed": (ei.weights[n:] > 0) & ei.pts.valid[n:]}
 
 
 def _regrounded(bg: BackgroundOut, sep, eo):
