@@ -459,8 +459,8 @@ def check_config(
 
     Every setting as its declaration says (:func:`whole`: a whole number at its least;
     :func:`number`: a float in its span, not NaN; a bool: True or False); the depth band
-    not empty; with the image size, 2 x 2 grid cells on it and, with keyframes, enough
-    points in a keyframe for a fit.
+    not empty; the keyframe window tracked only with keyframes; with the image size, 2 x 2
+    grid cells on it and, with keyframes, enough points in a keyframe for a fit.
 
     Args:
       cfg: the settings.
@@ -477,6 +477,9 @@ def check_config(
         problem = _setting_problem(spec, getattr(cfg, field))
         if problem:
             raise InputError(f"{name(field)} {problem}")
+    if cfg.keyframe_track_window and not cfg.keyframes:
+        raise InputError(f"{name('keyframe_track_window')} tracks the keyframes' window: it "
+                         f"needs {name('keyframes')}")
     if not cfg.depth_max > cfg.depth_min:
         raise InputError(f"{name('depth_max')} {cfg.depth_max} must be beyond "
                          f"{name('depth_min')} {cfg.depth_min}")

@@ -106,6 +106,8 @@ def test_config_is_built_in_its_class_not_patched_at_import():
     ({"lk_eps": 0.0}, r"^Config.lk_eps must be a number in \(0, inf\), got 0.0$"),
     ({"depth_smooth": "yes"}, r"^Config.depth_smooth must be True or False, got 'yes'$"),
     ({"noise_calibration": 0}, r"^Config.noise_calibration must be True or False, got 0$"),
+    ({"keyframe_track_window": True},
+     r"^Config.keyframe_track_window tracks the keyframes' window: it needs Config.keyframes$"),
 ])
 def test_check_config_reads_each_setting_as_declared(settings, needle):
     with pytest.raises(InputError, match=needle):

@@ -94,10 +94,12 @@ class KeyframeState(NamedTuple):
     # () bool a frame since the latest keyframe (or that keyframe's own) had no measured
     # ego-motion: the next keyframe starts a new window, as a new chain does on the host
     blind: jax.Array = np.bool_(False)
-    # (K,) float32 each slot's tracks' noise over the pair's noise model, the robust scale
-    # of their residuals under the frames' motions (cfg.keyframe_track_window)
+    # (cfg.keyframe_track_window; init_keyframe sizes them, the defaults only let a window
+    # built by hand for its refinement leave them out) each slot's tracks' noise over the
+    # pair's noise model, the robust scale of their residuals under the frames' motions,
+    # (K,) float32, and each point's evidence sum (K, m) float32 (track_evidence)
     track_noise: jax.Array = np.ones(1, np.float32)
-    cusum: jax.Array = np.zeros((1, 1), np.float32)  # (K, m) each point's evidence sum
+    cusum: jax.Array = np.zeros((1, 1), np.float32)
 
 
 class KeyframeOut(NamedTuple):
