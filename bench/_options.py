@@ -14,7 +14,8 @@ import argparse
 import dataclasses
 from collections.abc import Callable, Iterable
 
-from jaxvo.config import Config, Params, check_config, check_params, config_fields
+from jaxvo.config import (Config, Params, check_config, check_params, config_fields,
+                          setting_problem)
 from jaxvo.errors import InputError
 from jaxvo.host.readers.io import data_root
 
@@ -76,8 +77,16 @@ def _checked(text: str, build: Callable, check: Callable) -> str:
 
 
 def config_setting(text: str) -> str:
-    """An argparse ``type`` for a ``--config NAME=VALUE``: checked alone, kept as given."""
-    return _checked(text, config_from, check_config)
+    """An argparse ``type`` for a ``--config NAME=VALUE``: its value checked alone, kept as
+    given (what the settings decide together :func:`check_options` checks)."""
+    name = text.partition("=")[0]
+
+    def check(cfg: Config) -> None:
+        problem = setting_problem(name, getattr(cfg, name))
+        if problem:
+            raise InputError(f"Config.{name} {problem}")
+
+    return _checked(text, config_from, check)
 
 
 def params_setting(text: str) -> str:

@@ -473,8 +473,8 @@ def check_config(
     def name(field: str) -> str:
         return (names or {}).get(field, f"Config.{field}")
 
-    for field, spec in config_fields().items():
-        problem = _setting_problem(spec, getattr(cfg, field))
+    for field in config_fields():
+        problem = setting_problem(field, getattr(cfg, field))
         if problem:
             raise InputError(f"{name(field)} {problem}")
     if cfg.keyframe_track_window and not cfg.keyframes:
@@ -487,10 +487,12 @@ def check_config(
         _check_image(cfg, height, width, name)
 
 
-def _setting_problem(spec: dataclasses.Field, value) -> str | None:
-    """What is wrong with ``value`` for the setting ``spec`` declares (None: nothing)."""
+def setting_problem(field: str, value) -> str | None:
+    """What is wrong with ``value`` for the setting ``field`` as its declaration says, alone
+    (None: nothing); :func:`check_config` adds what the settings decide together."""
     import numpy as np
 
+    spec = config_fields()[field]
     if isinstance(spec.default, bool):
         if not isinstance(value, bool | np.bool_):
             return f"must be True or False, got {value!r}"

@@ -35,6 +35,15 @@ def test_a_bad_config_setting_is_one_line(seeds, text, says):
     assert "\n" not in str(e.value)
 
 
+def test_settings_that_run_only_together_each_pass_alone(seeds):
+    """``keyframe_track_window=true`` needs ``keyframes=true``: each passes as a value (the
+    pair is checked together, by ``check_options``); it was refused alone, so no run could
+    ask for it."""
+    pair = ["keyframes=true", "keyframe_track_window=true"]
+    assert [seeds.config_setting(t) for t in pair] == pair
+    assert seeds.config_from(pair).keyframe_track_window
+
+
 def test_a_bad_params_setting_is_one_line(seeds):
     with pytest.raises(argparse.ArgumentTypeError, match="Params.lam"):
         seeds.params_setting("lam=-1")
@@ -61,6 +70,8 @@ def _refused(capsys, script: str, *argv: str) -> str:
     (["--config", "num_hypotheses=100000000"], ("argument --config: a run with "
                                                "num_hypotheses=100000000 needs about")),
     (["--config", "cell=1000"], "argument --config: Config.cell 1000 leaves fewer than 2 x 2"),
+    (["--config", "keyframe_track_window=true"], ("argument --config: "
+                                                 "Config.keyframe_track_window tracks")),
     (["--skip", "200", "--frames", "100"], "argument --skip: 200 leaves no frame to time"),
     (["--frames", "1"], "argument --frames: must be at least 2"),
 ])
