@@ -7,9 +7,10 @@ over the seeds' keys (one compiled program for every 640x480 case, the same fram
 ``run_scan``). Per case and seed: ATE against the ground truth, moving F at the grid
 points (composites and synthetic scenes), the share of grid cells reported moving (static
 frames), the points the ego-motion used. On the TUM walking clip: the ATE against TUM's
-ground truth (``ground_truth/`` under the data root), and the same for the *oracle*: jaxvo on
-the clip with the depth under the hand-drawn people masks set to 0 (``bench/annotations``),
-which splits the error into what the segmentation lets in and what the tracking loses.
+ground truth (``ground_truth/`` under the data root). On the clip and on the composites the
+same for the *oracle*: jaxvo with the depth under the movers set to 0 (the clip's hand-drawn
+people masks, ``bench/annotations``; the composites' exact box masks), which splits the
+error into what the segmentation lets in and what the tracking loses.
 
 Run: ``.venv/bin/python bench/bench_seeds.py [--split dev|val|all] [--only CASE ...]
 [--seeds 5] [--set NAME=VALUE ...] [--out results/]``; writes ``seeds.md`` and
@@ -107,8 +108,14 @@ def add_run_options(ap: argparse.ArgumentParser) -> None:
 
 
 def reference_case(case: Case) -> Case:
-    """The people case with the depth under the hand-drawn people masks set to 0 (the
-    oracle: the same frames and ground truth, the people's depth removed)."""
+    """The case's oracle: the same frames and ground truth with the depth under the movers
+    set to 0. The people case's movers are its hand-drawn people masks (``_nopeople``), a
+    composite's its boxes' exact masks (``_nobox``)."""
+    if case.kind == "composite":
+        def build():
+            seq = case.build()
+            return without_people(seq, {i: f.mask > 0 for i, f in enumerate(seq)})
+        return case._replace(name=f"{case.name}_nobox", build=build)
     folder = data_root() / case.source
     return case._replace(name=f"{case.name}_nopeople", build=lambda: without_people(
         case.build(), people_masks(folder)))
@@ -152,7 +159,7 @@ def score_case(case: Case, data: dict, params: Params, seeds: int, cache: Path,
             fs.append(sc.as_dict()["f_measure"])
         row["moving_f"] = {"median": float(np.median(fs)), "worst": float(np.min(fs)),
                            "best": float(np.max(fs)), "values": [float(x) for x in fs]}
-    if case.kind == "people" and "gt_poses" in data:
+    if case.kind in ("people", "composite") and "gt_poses" in data:
         oracle = prepare(reference_case(case), cache, cfg)
         refs, _ = run_seeds(oracle, T0, params, cfg, seeds)
         gt = groundtruth(data)
@@ -169,7 +176,7 @@ def _fmt(s: dict | None, spec: str = ".1f") -> str:
 
 def table(rows: list[dict]) -> str:
     head = ["case", "ATE mm median [best-worst]", "worst/best", "best OpenCV peer mm",
-            "median / best peer", "ORB-SLAM3 mm (one run)", "oracle ATE mm (people's depth removed)",
+            "median / best peer", "ORB-SLAM3 mm (one run)", "oracle ATE mm (movers' depth removed)",
             "worst/best",
             "moving F median [worst-best]", "moving cells %", "points used", "skipped"]
     cells = []
