@@ -98,8 +98,9 @@ class SharedOptions:
     keyframe_window: int = whole(4, 1, "keyframe")
     # every frame also tracks and fits the points of the window's older keyframes (their
     # poses and depths as the window refined them), not only the latest keyframe's, and
-    # each keyframe point is tested over the frames at its tracks' measured noise: the
-    # window as a local map (jaxvo.core.keyframe, docs/report/keyframes.md)
+    # each keyframe point is tested over the frames at its tracks' measured noise and keeps
+    # its own evidence, added to its cell's: the window as a local map (jaxvo.core.keyframe,
+    # docs/report/keyframes.md)
     keyframe_track_window: bool = False
 
 

@@ -30,6 +30,7 @@ from jaxvo.core.keyframe import (
     update_keyframe,
     window_points,
 )
+from jaxvo.core.evidence import moving_logodds
 from jaxvo.core.noise import init_noise
 from jaxvo.core.points import frame_points
 from jaxvo.host.frontend.flow import FrameChain, GridFlowTracker
@@ -178,6 +179,51 @@ def test_a_keyframe_point_the_frames_motion_keeps_failing_to_explain_leaves_its_
     assert not static[3, moving] and not static[1, moving]  # the latest slot and slot 1
     assert static[1, once] and static[2, moving]  # one frame; slot 2 not weighed
     assert static.sum() >= K * n - 2 - 3  # a chance point or so of pure noise at most
+
+
+def test_a_keyframe_point_its_frames_keep_explaining_counts_as_established_background():
+    """track_evidence also keeps each point's own moving log-odds, updated by its residuals
+    as the grid's cells are by theirs: after frames of residuals of pure noise at its
+    keyframe's noise the point is established, and the fit then weighs it as established
+    background (1) where its cell is only unestablished (0.1 before), still 0 where the
+    cell is believed to move. A point its frames never weighed learns nothing."""
+    n, K = GRID[0] * GRID[1], 4
+    cfg = dataclasses.replace(UNIT_CFG, keyframe_window=K, keyframe_track_window=True)
+    rng = np.random.default_rng(4)
+    p = rng.uniform([-1, -1, 1], [1, 1, 4], (K, n, 3)).astype(np.float32)
+    state = init_keyframe(np.eye(4), cfg=cfg, grid=GRID)._replace(
+        point=jnp.asarray(p), static=jnp.ones((K, n), bool), taken=jnp.ones(K, bool),
+        fresh=jnp.bool_(False))
+    weighed = np.ones((K - 1, n), bool)
+    weighed[:, 0] = False  # never weighed
+    young = state
+    for _ in range(6):
+        d2 = (rng.standard_normal((K - 1, n, 3)) ** 2).sum(-1).astype(np.float32)
+        state = track_evidence(state, jnp.asarray(d2.ravel()), jnp.asarray(weighed.ravel()),
+                               Params())
+    L = float(moving_logodds(Params()))
+    e = np.asarray(state.point_evidence)[1:]
+    assert np.all(e[:, 0] == 0.0)
+    assert np.mean(e[:, 1:] <= -L) > 0.95
+    cells = np.where(np.arange(n) % 3 == 0, 10.0, 0.0).astype(np.float32)  # moving / unknown
+    kf = _kf_flow(n, K - 1, pts_cur=p[-1], valid=np.ones(n, bool), win_cur=p[1:],
+                  win_valid=np.ones((K - 1, n), bool), cell_prev=np.arange(n, dtype=np.int32),
+                  win_cell_prev=np.tile(np.arange(n, dtype=np.int32), (K - 1, 1)))
+    pair = frame_points(jnp.asarray(p[0]), jnp.asarray(p[0]), jnp.ones(n, bool), Params(),
+                        focal=525.0)
+    bg = SimpleNamespace(use=jnp.ones(n, jnp.float32), belief=jnp.ones(n, jnp.float32))
+    weights = []
+    for st in (young, state):
+        _, use, _ = keyframe_support(st, SupportInputs(
+            kf=kf, T_w_prev=jnp.eye(4), pts=pair, bg=bg, evidence=jnp.asarray(cells),
+            focal=jnp.float32(525.0), scale=init_noise(Params())), Params(), cfg=cfg,
+            grid=GRID)
+        weights.append(np.asarray(use[n:]).reshape(K - 1, n))
+    unknown = cells == 0
+    assert np.all(weights[0][:, unknown] == Params().unestablished_weight)
+    established = (np.concatenate([e[-1:], e[:-1]]) <= -L) & unknown  # latest first
+    assert np.all(weights[1][established] == 1.0)
+    assert np.all(weights[1][:, ~unknown] == 0.0)
 
 
 def _first_keyframe(seed: int, x: float, static):

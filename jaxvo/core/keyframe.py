@@ -37,6 +37,11 @@ frames (:func:`track_evidence`): its residual under each frame's motion, in unit
 keyframe's measured track noise (a keyframe's tracks err more than a pair's, and more
 with their age), adds to a CUSUM, and a point whose sum crosses the inlier test leaves
 for good: a box that kept still on a keyframe stops holding the frames once it moves.
+And each point keeps its own moving log-odds, from its residuals at that noise as the
+grid's cells have theirs from the pairs (:func:`jaxvo.core.evidence.update_evidence`); in
+the fit a point's log-odds and its cell's add (two independent pieces of evidence), so a
+room point its frames have kept explaining counts as established background where a
+person passing over its cell took the cell's evidence away.
 Measured in ``docs/report/keyframes.md``: it pays on the TUM clip and the synthetic
 scenes, costs stop_start and about a fifth more time a frame, so it stays off.
 
@@ -56,6 +61,7 @@ import optax
 
 from jaxvo.config import Params, StepOptions
 from jaxvo.core.background import BackgroundOut, belief_weights
+from jaxvo.core.evidence import static_loglik, update_evidence
 from jaxvo.core.geometry import (
     adjoint,
     invert_pose,
@@ -100,6 +106,9 @@ class KeyframeState(NamedTuple):
     # (K,) float32, and each point's evidence sum (K, m) float32 (track_evidence)
     track_noise: jax.Array = np.ones(1, np.float32)
     cusum: jax.Array = np.zeros((1, 1), np.float32)
+    # (K, m) float32 each point's own moving log-odds, from its track's residuals as the
+    # grid's cells have theirs from the pairs' (track_evidence); 0 when its keyframe is taken
+    point_evidence: jax.Array = np.zeros((1, 1), np.float32)
 
 
 class KeyframeOut(NamedTuple):
@@ -128,6 +137,7 @@ def init_keyframe(T_w_c0, *, cfg: StepOptions, grid: tuple[int, int]) -> Keyfram
         link_g=jnp.zeros((K, 6), jnp.float32),
         track_noise=jnp.ones((K,), jnp.float32),
         cusum=jnp.zeros((K, m), jnp.float32),
+        point_evidence=jnp.zeros((K, m), jnp.float32),
     )
 
 
@@ -184,7 +194,11 @@ def track_evidence(state: KeyframeState, d2, weighed, params: Params) -> Keyfram
     1 .. K - 2's) under the frame's motion, over the pair's noise model (at least 1; as it
     was where too few were weighed). At that noise each point's residual adds to a CUSUM,
     ``S <- max(0, S + d2 / s^2 - 2 * 3)`` (3 the mean of chi-square(3)), and a point whose
-    sum crosses the inlier test leaves its keyframe's static points for good."""
+    sum crosses the inlier test leaves its keyframe's static points for good. At the same
+    noise the residual is also the point's evidence, moving over static, as a cell's is
+    (:func:`jaxvo.core.evidence.static_loglik`, :func:`jaxvo.core.evidence.update_evidence`:
+    decayed, bounded; a point not weighed learns nothing), which
+    :func:`keyframe_support` adds to its cell's."""
     K, m = state.static.shape
     order = jnp.concatenate([jnp.array([K - 1]), jnp.arange(1, K - 1)])
     d2, weighed = d2.reshape(-1, m), weighed.reshape(-1, m)
@@ -195,9 +209,18 @@ def track_evidence(state: KeyframeState, d2, weighed, params: Params) -> Keyfram
     S = jnp.maximum(state.cusum[order] + jnp.where(weighed, d2 / (s * s)[:, None] - 6.0, 0.0),
                     0.0)
     out = S > chi2_quantile(3, params.confidence)
+    e = update_evidence(state.point_evidence[order], static_loglik(d2 / (s * s)[:, None], params),
+                        weighed, ~weighed, params)
     return state._replace(track_noise=state.track_noise.at[order].set(s),
                           cusum=state.cusum.at[order].set(jnp.where(out, 0.0, S)),
-                          static=state.static.at[order].set(state.static[order] & ~out))
+                          static=state.static.at[order].set(state.static[order] & ~out),
+                          point_evidence=state.point_evidence.at[order].set(e))
+
+
+def _in_order(x):
+    """(K, m) per-point values as the ego-motion's keyframe points come: the latest
+    keyframe's, then slots ``1 .. K - 2``'s ((K - 1) m,)."""
+    return jnp.concatenate([x[-1], x[1:-1].reshape(-1)])
 
 
 def join_points(a: Points, b: Points) -> Points:
@@ -230,7 +253,9 @@ def keyframe_support(state: KeyframeState, inputs: SupportInputs, params: Params
     :func:`jaxvo.core.background.belief_weights` of ``evidence``), and not at all where this
     frame's segment there moves unlike the background (``bg``, the background's output:
     a valid point it believes in but does not use). So a keyframe taken while a box stood
-    still does not pull the ego-motion along once the box moves.
+    still does not pull the ego-motion along once the box moves. With the window tracked,
+    a point counts by its own moving log-odds and its cell's together (their sum, where
+    the cell is not believed to move; :func:`track_evidence`).
     """
     kf, T_w_prev, pts, bg, evidence, focal, scale = inputs
     index = keyframe_index(grid, cfg.keyframe_stride)
@@ -244,6 +269,11 @@ def keyframe_support(state: KeyframeState, inputs: SupportInputs, params: Params
     moving_seg = pts.valid & (bg.belief > 0) & (bg.use == 0)
     at = jnp.maximum(cell, 0)
     belief = jnp.where(kpts.valid & (cell >= 0), prior[at], 0.0)
+    if cfg.keyframe_track_window and cfg.keyframe_window > 2:
+        # a point's own track and its cell are independent evidence: their log-odds add,
+        # where the cell is not believed to move
+        own = belief_weights(_in_order(state.point_evidence) + evidence[at], params)
+        belief = jnp.where(belief > 0, own, 0.0)
     use = jnp.where(moving_seg[at], 0.0, belief)
     return (join_points(pts, kpts), jnp.concatenate([bg.use, use.astype(bg.use.dtype)]),
             jnp.concatenate([bg.belief, belief.astype(bg.belief.dtype)]))
@@ -477,7 +507,8 @@ def _take(state: KeyframeState, kf, T_w_c, static, index, link, measured) -> Key
                          _shift(state.link_T, T_meas), _shift(state.link_H, H),
                          _shift(state.link_g, g), state.blind,
                          _shift(state.track_noise, jnp.float32(1.0)),
-                         _shift(state.cusum, jnp.zeros_like(state.cusum[0])))
+                         _shift(state.cusum, jnp.zeros_like(state.cusum[0])),
+                         _shift(state.point_evidence, jnp.zeros_like(state.point_evidence[0])))
 
 
 def _learn_first(state: KeyframeState, kf, index) -> KeyframeState:
