@@ -101,7 +101,8 @@ def prepare(case: Case, cache: Path, cfg: Config) -> dict:
             log(f"{case.name}: the moving truth of every grid cell (cached in {truth})")
             np.savez_compressed(truth, grid_gt=np.stack(
                 [moving_grid_truth(seq, k, cfg.cell) for k in range(len(seq))]))
-        data["grid_gt"] = np.load(truth)["grid_gt"]
+        grid_gt = np.load(truth)["grid_gt"]
+        data["grid_gt"] = grid_gt[data["frames"]] if "frames" in data else grid_gt
     return data
 
 
@@ -127,12 +128,15 @@ def build_flow(case: Case, path: Path, cfg: Config):
     data = {f"flow_{k}": np.asarray(v) for k, v in sf.flows._asdict().items()}
     if sf.keyframes is not None:
         data.update({f"kf_{k}": np.asarray(v) for k, v in sf.keyframes._asdict().items()})
-    data["timestamps"] = np.asarray(seq.timestamps, np.float64)
+    # the frames the chain kept: a frame it dropped (too few valid tracks, e.g. an oracle's
+    # frame whose depth was mostly a mover's) has no pose
+    data["frames"] = np.asarray(sf.frames, np.int64)
+    data["timestamps"] = np.asarray(seq.timestamps, np.float64)[data["frames"]]
     data["size"] = np.array([seq.height, seq.width])
     gt = seq.groundtruth
     if gt is not None and len(gt) > 0:
         data["gt_poses"] = np.asarray(gt.poses, np.float64)
-        if len(gt) != len(seq):  # a ground truth of some frames (associated by time)
+        if len(gt) != len(data["timestamps"]):  # of some frames (associated by time)
             data["gt_times"] = np.asarray(gt.timestamps, np.float64)
     path.parent.mkdir(parents=True, exist_ok=True)
     np.savez_compressed(path, **data)
