@@ -200,7 +200,7 @@ def track_evidence(state: KeyframeState, d2, weighed, params: Params) -> Keyfram
     decayed, bounded; a point not weighed learns nothing), which
     :func:`keyframe_support` adds to its cell's."""
     K, m = state.static.shape
-    order = jnp.concatenate([jnp.array([K - 1]), jnp.arange(1, K - 1)])
+    order = _fitted_slots(K)
     d2, weighed = d2.reshape(-1, m), weighed.reshape(-1, m)
     med = jax.vmap(lambda x, w: masked_median(x, w, 12))(d2, weighed)
     was = state.track_noise[order]
@@ -217,10 +217,10 @@ def track_evidence(state: KeyframeState, d2, weighed, params: Params) -> Keyfram
                           point_evidence=state.point_evidence.at[order].set(e))
 
 
-def _in_order(x):
-    """(K, m) per-point values as the ego-motion's keyframe points come: the latest
-    keyframe's, then slots ``1 .. K - 2``'s ((K - 1) m,)."""
-    return jnp.concatenate([x[-1], x[1:-1].reshape(-1)])
+def _fitted_slots(K: int):
+    """(K - 1,) the slots whose points the ego-motion fits, in the order it takes them: the
+    latest keyframe's, then slots ``1 .. K - 2``'s (:func:`keyframe_support`)."""
+    return jnp.concatenate([jnp.array([K - 1]), jnp.arange(1, K - 1)])
 
 
 def join_points(a: Points, b: Points) -> Points:
@@ -272,7 +272,8 @@ def keyframe_support(state: KeyframeState, inputs: SupportInputs, params: Params
     if cfg.keyframe_track_window and cfg.keyframe_window > 2:
         # a point's own track and its cell are independent evidence: their log-odds add,
         # where the cell is not believed to move
-        own = belief_weights(_in_order(state.point_evidence) + evidence[at], params)
+        mine = state.point_evidence[_fitted_slots(state.static.shape[0])].reshape(-1)
+        own = belief_weights(mine + evidence[at], params)
         belief = jnp.where(belief > 0, own, 0.0)
     use = jnp.where(moving_seg[at], 0.0, belief)
     return (join_points(pts, kpts), jnp.concatenate([bg.use, use.astype(bg.use.dtype)]),
