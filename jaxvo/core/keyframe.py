@@ -206,11 +206,11 @@ def track_evidence(state: KeyframeState, d2, weighed, params: Params) -> Keyfram
     was = state.track_noise[order]
     s = jnp.sqrt(jnp.maximum(med / chi2_quantile(3, 0.5), 1.0))
     s = jnp.where(jnp.sum(weighed, axis=1) >= params.min_static_points, s, was)
-    S = jnp.maximum(state.cusum[order] + jnp.where(weighed, d2 / (s * s)[:, None] - 6.0, 0.0),
-                    0.0)
+    z2 = d2 / (s * s)[:, None]  # in units of the slot's track noise
+    S = jnp.maximum(state.cusum[order] + jnp.where(weighed, z2 - 6.0, 0.0), 0.0)
     out = S > chi2_quantile(3, params.confidence)
-    e = update_evidence(state.point_evidence[order], static_loglik(d2 / (s * s)[:, None], params),
-                        weighed, ~weighed, params)
+    e = update_evidence(state.point_evidence[order], static_loglik(z2, params), weighed,
+                        ~weighed, params)
     return state._replace(track_noise=state.track_noise.at[order].set(s),
                           cusum=state.cusum.at[order].set(jnp.where(out, 0.0, S)),
                           static=state.static.at[order].set(state.static[order] & ~out),
@@ -261,20 +261,20 @@ def keyframe_support(state: KeyframeState, inputs: SupportInputs, params: Params
     index = keyframe_index(grid, cfg.keyframe_stride)
     kpts = keyframe_points(state, kf, T_w_prev, params, focal=focal, scale=scale, index=index)
     cell = kf.cell_prev[index]
-    if cfg.keyframe_track_window and cfg.keyframe_window > 2:
+    tracked = cfg.keyframe_track_window and cfg.keyframe_window > 2
+    if tracked:
         wpts, wcell = window_points(state, kf, T_w_prev, params, focal=focal, scale=scale,
                                     index=index)
         kpts, cell = join_points(kpts, wpts), jnp.concatenate([cell, wcell])
-    prior = belief_weights(evidence, params)
     moving_seg = pts.valid & (bg.belief > 0) & (bg.use == 0)
     at = jnp.maximum(cell, 0)
-    belief = jnp.where(kpts.valid & (cell >= 0), prior[at], 0.0)
-    if cfg.keyframe_track_window and cfg.keyframe_window > 2:
+    weight = belief_weights(evidence, params)[at]  # as its cell
+    if tracked:
         # a point's own track and its cell are independent evidence: their log-odds add,
         # where the cell is not believed to move
         mine = state.point_evidence[_fitted_slots(state.static.shape[0])].reshape(-1)
-        own = belief_weights(mine + evidence[at], params)
-        belief = jnp.where(belief > 0, own, 0.0)
+        weight = jnp.where(weight > 0, belief_weights(mine + evidence[at], params), 0.0)
+    belief = jnp.where(kpts.valid & (cell >= 0), weight, 0.0)
     use = jnp.where(moving_seg[at], 0.0, belief)
     return (join_points(pts, kpts), jnp.concatenate([bg.use, use.astype(bg.use.dtype)]),
             jnp.concatenate([bg.belief, belief.astype(bg.belief.dtype)]))

@@ -46,6 +46,10 @@ class _Keyframe:
         self.idx = np.flatnonzero(frame.z_grid_ok & sub)  # points with depth, subsampled
         self.track = frame.uv[self.idx].copy()  # (m, 2) their positions in the latest image
 
+    def follow(self, found: np.ndarray, ok: np.ndarray) -> None:
+        """The points' positions in the latest image: ``found`` (m, 2) where ``ok`` (m,)."""
+        self.track = np.where(ok[:, None], found, self.track).astype(np.float32)
+
 
 class KeyframeTracker:
     """The latest keyframe's points tracked into each new image, and the window's points
@@ -143,7 +147,7 @@ class KeyframeTracker:
             key.track = self._predict(d, key.track)
         latest = self._keys[-1]
         pts_kf, pts_cur, valid, ok, found = self._find(latest, depth, levels=1)
-        latest.track = np.where(ok[:, None], found, latest.track).astype(np.float32)
+        latest.follow(found, ok)
         count = int(ok.sum())
         self._age += 1
         if self._age == 1:
@@ -159,7 +163,7 @@ class KeyframeTracker:
                     win_cur[w], win_valid[w] = pts_cur, valid
                 elif every:  # found every pair, as the latest keyframe's points are
                     _, win_cur[w], win_valid[w], ok_w, found_w = self._find(key, depth, levels=1)
-                    key.track = np.where(ok_w[:, None], found_w, key.track).astype(np.float32)
+                    key.follow(found_w, ok_w)
                 else:
                     # the older keyframes' points were not searched since they were taken:
                     # their predicted positions may be a few pixels off, one pyramid level more
