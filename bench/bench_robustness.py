@@ -23,6 +23,7 @@ import datetime
 import hashlib
 import inspect
 import json
+import io
 import sys
 import time
 from pathlib import Path
@@ -45,7 +46,7 @@ from jaxvo.evaluation.metrics import SegmentationScores
 from jaxvo.evaluation.scores import moving_at_grid, trajectory_scores
 from jaxvo.host.frontend.flow import sequence_flows
 from jaxvo.host.services.peers import OPENCV_PEERS
-from jaxvo.host.writers.outputs import write_text
+from jaxvo.host.writers.outputs import write_bytes, write_text
 from jaxvo.host.writers.plugin import iter_dynamic_masks
 from jaxvo.status import Status
 from jaxvo.study import runner as study
@@ -99,7 +100,7 @@ def prepare(case: Case, cache: Path, cfg: Config) -> dict:
         if not truth.is_file():
             seq = seq if seq is not None else case.build()
             log(f"{case.name}: the moving truth of every grid cell (cached in {truth})")
-            np.savez_compressed(truth, grid_gt=np.stack(
+            save_npz(truth, grid_gt=np.stack(
                 [moving_grid_truth(seq, k, cfg.cell) for k in range(len(seq))]))
         grid_gt = np.load(truth)["grid_gt"]
         data["grid_gt"] = grid_gt[data["frames"]] if "frames" in data else grid_gt
@@ -139,8 +140,17 @@ def build_flow(case: Case, path: Path, cfg: Config):
         if len(gt) != len(data["timestamps"]):  # of some frames (associated by time)
             data["gt_times"] = np.asarray(gt.timestamps, np.float64)
     path.parent.mkdir(parents=True, exist_ok=True)
-    np.savez_compressed(path, **data)
+    save_npz(path, **data)
     return data, seq
+
+
+def save_npz(path: Path, **arrays) -> None:
+    """``arrays`` as the compressed ``.npz`` cache file ``path``, whole or not at all: a run
+    stopped while writing (Ctrl-C, a full disk) leaves no truncated cache for the next run
+    to fail on."""
+    buf = io.BytesIO()
+    np.savez_compressed(buf, **arrays)
+    write_bytes(path, buf.getvalue())
 
 
 # An object moves in a frame pair when a corner of its box moves by more than this (metres):

@@ -3,6 +3,8 @@ drops keeps a pose for each frame it kept, and its ground truth and grid truth l
 
 from __future__ import annotations
 
+from pathlib import Path
+
 import numpy as np
 from conftest import bench_module
 
@@ -31,3 +33,27 @@ def test_a_dropped_frame_has_no_timestamp_and_the_truth_keeps_its_times(tmp_path
     est = Trajectory(data["timestamps"], data["gt_poses"][kept])  # the truth at the kept frames
     scores = trajectory_scores(bench_module("_common").groundtruth(data), est)
     assert scores["ate_rmse_m"] < 1e-9
+
+
+def test_a_cache_file_stopped_while_written_is_not_left_behind(tmp_path, monkeypatch):
+    """The flow cache is written whole or not at all: Ctrl-C during the write leaves no file
+    (a truncated ``.npz`` failed the next run's load with a traceback)."""
+    robustness = bench_module("bench_robustness")
+    target = tmp_path / "flow.npz"
+
+    def interrupted(file, **arrays):  # numpy's writer stopped halfway, path or file object
+        if isinstance(file, (str, Path)):
+            Path(file).write_bytes(b"PK partial")
+        else:
+            file.write(b"PK partial")
+        raise KeyboardInterrupt
+
+    monkeypatch.setattr(robustness.np, "savez_compressed", interrupted)
+    try:
+        robustness.save_npz(target, a=np.zeros(3))
+    except KeyboardInterrupt:
+        pass
+    assert not target.exists() and list(tmp_path.iterdir()) == []
+    monkeypatch.undo()
+    robustness.save_npz(target, a=np.arange(3))
+    np.testing.assert_array_equal(np.load(target)["a"], np.arange(3))
