@@ -1,5 +1,6 @@
 """The benches' cached flows (``bench/bench_robustness.py``): a case whose frames the chain
-drops keeps a pose for each frame it kept, and its ground truth and grid truth line up."""
+drops keeps a pose for each frame it kept, and its ground truth and grid truth line up; a
+cache file is written whole or not at all."""
 
 from __future__ import annotations
 
