@@ -14,8 +14,7 @@ import argparse
 import dataclasses
 from collections.abc import Callable, Iterable
 
-from jaxvo.config import (Config, Params, check_config, check_params, config_fields,
-                          setting_problem)
+from jaxvo.config import Config, Params, check_config, check_params, config_fields, setting_problem
 from jaxvo.errors import InputError
 from jaxvo.host.readers.io import data_root
 

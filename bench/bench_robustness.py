@@ -22,8 +22,8 @@ import argparse
 import datetime
 import hashlib
 import inspect
-import json
 import io
+import json
 import sys
 import time
 from pathlib import Path

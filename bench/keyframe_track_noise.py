@@ -29,6 +29,7 @@ from __future__ import annotations
 
 import argparse
 import collections
+import itertools
 from pathlib import Path
 
 import numpy as np
@@ -111,12 +112,14 @@ def by_displacement(errors: dict) -> list[tuple[str, str, str]]:
     :data:`DISPLACEMENT_BINS` ("-" under :data:`MIN_TRACKS` tracks)."""
     kinds = {"pair": [errors["pair"]],
              "keyframe": [e for key, e in errors.items() if key != "pair"]}
-    lat = {k: np.concatenate([e[0] for e in v]) if v else np.zeros(0) for k, v in kinds.items()}
-    moved = {k: np.concatenate([e[2] for e in v]) if v else np.zeros(0)
-             for k, v in kinds.items()}
+
+    def joined(kind: str, column: int) -> np.ndarray:
+        return np.concatenate([e[column] for e in kinds[kind]] or [np.zeros(0)])
+
+    lat = {k: joined(k, 0) for k in kinds}
+    moved = {k: joined(k, 2) for k in kinds}
     rows = []
-    edges = list(DISPLACEMENT_BINS) + [np.inf]
-    for lo, hi in zip(edges[:-1], edges[1:]):
+    for lo, hi in itertools.pairwise([*DISPLACEMENT_BINS, np.inf]):
         cells = []
         for kind in ("pair", "keyframe"):
             inside = (moved[kind] >= lo) & (moved[kind] < hi)
