@@ -9,7 +9,7 @@ depth band of each frame, the spacing of the distinct values read there (their m
 difference), over the band's centre squared; the table gives each band's median over the
 frames, and the sequence's ``q`` is the median over its bands.
 
-    .venv/bin/python bench/depth_quantisation.py [--frames 10] [SEQ_DIR ...]
+    .venv/bin/python bench/depth_quantisation.py [--frames 10] [--camera PRESET] [SEQ_DIR ...]
 
 Without folders it reads the real sequences of the data root (``$JAXVO_DATA``) that are
 there.
@@ -18,11 +18,14 @@ there.
 from __future__ import annotations
 
 import argparse
+import sys
 from pathlib import Path
 
 import numpy as np
 from _common import REAL_SEQUENCES, machine_line
+from _options import count
 
+from jaxvo.errors import InputError
 from jaxvo.host.readers.io import data_root, open_sequence
 
 # depth bands, metres: each about a tenth of its depth wide
@@ -48,8 +51,9 @@ def band_steps(depth: np.ndarray, bands=BANDS) -> list[float]:
 def quantisation(depths, bands=BANDS) -> dict:
     """Over frames ``depths`` (each (H, W) metres): each band's median spacing (metres),
     that spacing over the band's centre squared (1/m), and the median of the latter over
-    the bands that have one (``q``, NaN where none has)."""
+    the bands that have one (``q``, NaN where none has: no frame, or no reading)."""
     steps = np.array([band_steps(d, bands) for d in depths], np.float64)  # (frames, bands)
+    steps = steps.reshape(-1, len(bands))
     have = np.isfinite(steps).any(axis=0)
     step = np.full(len(bands), np.nan)
     step[have] = np.nanmedian(steps[:, have], axis=0)
@@ -62,7 +66,9 @@ def quantisation(depths, bands=BANDS) -> dict:
 def main(argv=None) -> int:
     ap = argparse.ArgumentParser(description=__doc__.splitlines()[0])
     ap.add_argument("folders", nargs="*", type=Path, help="TUM-layout sequences")
-    ap.add_argument("--frames", type=int, default=10, help="frames read, evenly spread")
+    ap.add_argument("--frames", type=count(1), default=10, help="frames read, evenly spread")
+    ap.add_argument("--camera", help="a camera preset or file, for a folder without camera.txt "
+                                     "(only its depth scale matters here)")
     args = ap.parse_args(argv)
     folders = args.folders or [data_root() / name for name in REAL_SEQUENCES
                                if (data_root() / name).is_dir()]
@@ -73,12 +79,17 @@ def main(argv=None) -> int:
     print("\n| sequence | " + " | ".join(f"{lo}-{hi} m" for lo, hi in BANDS) + " | q (1/m) |")
     print("|---|" + "---|" * (len(BANDS) + 1))
     for folder in folders:
-        seq = open_sequence(folder)
-        picks = np.unique(np.linspace(0, len(seq) - 1, min(args.frames, len(seq))).astype(int))
-        r = quantisation([seq[int(i)].depth for i in picks])
+        try:
+            seq = open_sequence(folder, camera=args.camera)
+            picks = np.unique(np.linspace(0, len(seq) - 1, min(args.frames, len(seq))).astype(int))
+            r = quantisation([seq[int(i)].depth for i in picks])
+        except InputError as e:
+            print(f"depth_quantisation.py: {e}", file=sys.stderr)
+            return 2
         cells = [f"{1e3 * s:.1f} mm ({1e3 * c:.2f}e-3)" if np.isfinite(s) else "-"
-                 for s, c in zip(r["step"], r["coeff"])]
-        print(f"| {folder.name} | " + " | ".join(cells) + f" | {1e3 * r['q']:.2f}e-3 |")
+                 for s, c in zip(r["step"], r["coeff"], strict=True)]
+        q = f"{1e3 * r['q']:.2f}e-3" if np.isfinite(r["q"]) else "- (no band with readings)"
+        print(f"| {folder.name} | " + " | ".join(cells) + f" | {q} |")
     return 0
 
 

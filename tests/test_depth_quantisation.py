@@ -38,3 +38,8 @@ def test_unquantised_depth_reads_as_no_step_and_an_empty_band_as_none(quant):
     inside = [lo >= 1.0 and hi <= 3.0 for lo, hi in quant.BANDS]
     assert all(s <= 2 * quant.RESOLUTION for s, i in zip(steps, inside) if i)
     assert all(np.isnan(s) for s, i in zip(steps, inside) if not i)  # no reading there
+
+
+def test_depth_without_readings_or_frames_has_no_step(quant):
+    assert np.isnan(quant.quantisation([np.zeros((48, 64))])["q"])
+    assert np.isnan(quant.quantisation([])["q"])
