@@ -355,8 +355,9 @@ def main(argv=None) -> int:
     check_options(ap, args, cases=[c.name for c in cases()])
     params = params_from(args.set)
 
-    todo = [c for c in cases() if (args.split == "all" or c.split == args.split)
-            and (not args.only or c.name in args.only)]
+    todo = [c for c in cases() if c.split == args.split
+            or (args.split == "all" and c.split != "draws")]
+    todo = [c for c in todo if not args.only or c.name in args.only]
     rows = []
     todo, skipped = runnable(todo)
     for name, why in skipped.items():

@@ -196,7 +196,7 @@ def table(rows: list[dict]) -> str:
 
 def main(argv=None) -> int:
     ap = argparse.ArgumentParser(description=__doc__.split("\n\n")[0])
-    ap.add_argument("--split", choices=("dev", "val", "fresh", "all"), default="val")
+    ap.add_argument("--split", choices=("dev", "val", "fresh", "draws", "all"), default="val")
     ap.add_argument("--only", nargs="*", help="case names")
     ap.add_argument("--seeds", type=count(1), default=5)
     add_run_options(ap)

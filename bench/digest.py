@@ -66,7 +66,7 @@ def main(argv=None) -> int:
     args = ap.parse_args(argv)
     print("case " + " ".join(FIELDS) + " all", flush=True)
     for case in cases():
-        if (args.split != "all" and case.split != args.split) or (
+        if (case.split != args.split and (args.split != "all" or case.split == "draws")) or (
                 args.only and case.name not in args.only):
             continue
         why = available(case)

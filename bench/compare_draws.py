@@ -1,0 +1,102 @@
+"""Two or more settings compared over the composites' draws, not over one composite.
+
+A composite is one draw of its boxes (their textures and the sensor noise on them, the
+composite's seed), and ``bench_seeds.py`` varies only the method's seeds over it. A setting
+can then win or lose a composite by the draw: the keyframes' schedule, for one, decides
+which frames hold a box as static, and a ±0.05 change of ``keyframe_overlap`` moved the
+validation three_boxes from 22.4 to 41.6 mm (docs/report/keyframes.md). The ``draws``
+split (``bench/splits.py``) holds each composite at five more draws on the validation
+frames; this script reads the ``seeds.json`` of ``bench_seeds.py --split draws`` run once
+per setting and gives, per scenario:
+
+* each setting's ATE pooled over every draw and seed: median [best-worst];
+* the same for its oracle (the boxes' depth removed);
+* against the first setting, draw by draw: the ratio of the medians over seeds, its median
+  over the draws [lowest-highest], and in how many draws the setting is within 5 % or better.
+
+    .venv/bin/python bench/compare_draws.py results/draws_off results/draws_keyframes
+"""
+
+from __future__ import annotations
+
+import argparse
+import json
+import re
+import sys
+from pathlib import Path
+
+import numpy as np
+from _common import markdown_table
+
+WITHIN = 1.05  # "within 5 % or better"
+_DRAW = re.compile(r"^(?P<scenario>.+)_draw(?P<draw>\d+)$")
+
+
+def by_scenario(rows: list[dict], key: str = "ate_mm") -> dict[str, dict[int, list[float]]]:
+    """Each scenario's per-seed figures ``key`` by draw, from ``seeds.json`` rows named
+    ``<scenario>_draw<k>`` (other rows and rows without the figure are left out)."""
+    out: dict[str, dict[int, list[float]]] = {}
+    for r in rows:
+        m = _DRAW.match(r["case"])
+        if m and r.get(key):
+            out.setdefault(m["scenario"], {})[int(m["draw"])] = list(r[key]["values"])
+    return out
+
+
+def pooled(draws: dict[int, list[float]]) -> str:
+    v = np.concatenate([np.asarray(x, np.float64) for x in draws.values()])
+    return f"{np.median(v):.1f} [{v.min():.1f}-{v.max():.1f}]"
+
+
+def paired(base: dict[int, list[float]], other: dict[int, list[float]]) -> str:
+    """The per-draw ratio of ``other``'s median to ``base``'s, over the draws both have."""
+    common = sorted(set(base) & set(other))
+    if not common:
+        return "-"
+    r = np.array([np.median(other[k]) / np.median(base[k]) for k in common])
+    return (f"{np.median(r):.2f} [{r.min():.2f}-{r.max():.2f}], "
+            f"{int(np.sum(r <= WITHIN))}/{len(r)} within 5 %")
+
+
+def load(folder: Path) -> tuple[str, list[dict]]:
+    path = folder / "seeds.json"
+    if not path.is_file():
+        raise SystemExit(f"error: {path} not found (run bench/bench_seeds.py --split draws "
+                         f"--out {folder})")
+    doc = json.loads(path.read_text())
+    title = doc.get("meta", {}).get("title") or folder.name
+    return title, doc["rows"]
+
+
+def main(argv=None) -> int:
+    ap = argparse.ArgumentParser(description=__doc__.splitlines()[0])
+    ap.add_argument("runs", nargs="+", type=Path, help="bench_seeds.py --out folders, the "
+                    "first the setting the others are compared with")
+    args = ap.parse_args(argv)
+    runs = [load(f) for f in args.runs]
+    ates = [by_scenario(rows) for _, rows in runs]
+    oracles = [by_scenario(rows, "oracle_ate_mm") for _, rows in runs]
+    scenarios = sorted(set().union(*ates))
+    if not scenarios:
+        print("error: no <scenario>_draw<k> rows in these runs", file=sys.stderr)
+        return 2
+    head = ["scenario", "draws"]
+    for i, (title, _) in enumerate(runs):
+        head += [f"{title}: ATE mm", "oracle"] + ([f"{title} / {runs[0][0]}"] if i else [])
+    cells = []
+    for s in scenarios:
+        row = [s, str(len(ates[0].get(s, {})))]
+        for i in range(len(runs)):
+            a, o = ates[i].get(s), oracles[i].get(s)
+            row += [pooled(a) if a else "-", pooled(o) if o else "-"]
+            if i:
+                row.append(paired(ates[0][s], a) if a and s in ates[0] else "-")
+        cells.append(row)
+    print(f"ATE over every draw and seed, median [best-worst]; ratios per draw of the medians "
+          f"over seeds ({', '.join(str(f) for f in args.runs)})\n")
+    print(markdown_table(head, cells))
+    return 0
+
+
+if __name__ == "__main__":
+    raise SystemExit(main())
