@@ -36,7 +36,7 @@ sys.path.insert(0, str(Path(__file__).resolve().parent))
 import orbslam3_peer
 from _common import first_pose, groundtruth, log, machine, markdown_table
 from _options import check_options, params_from, params_setting
-from splits import Case, cases, runnable
+from splits import Case, cases, in_split, runnable
 
 import jaxvo.host.frontend.keyframes
 from jaxvo.config import Config, Params, config_fields, grid_shape, params_as_arrays
@@ -355,9 +355,8 @@ def main(argv=None) -> int:
     check_options(ap, args, cases=[c.name for c in cases()])
     params = params_from(args.set)
 
-    todo = [c for c in cases() if c.split == args.split
-            or (args.split == "all" and c.split != "draws")]
-    todo = [c for c in todo if not args.only or c.name in args.only]
+    todo = [c for c in cases() if in_split(c, args.split)
+            and (not args.only or c.name in args.only)]
     rows = []
     todo, skipped = runnable(todo)
     for name, why in skipped.items():

@@ -1,10 +1,10 @@
 """Two or more settings compared over the composites' draws, not over one composite.
 
-A composite is one draw of its boxes (their textures and the sensor noise on them, the
-composite's seed), and ``bench_seeds.py`` varies only the method's seeds over it. A setting
-can then win or lose a composite by the draw: the keyframes' schedule, for one, decides
-which frames hold a box as static, and a ±0.05 change of ``keyframe_overlap`` moved the
-validation three_boxes from 22.4 to 41.6 mm (docs/report/keyframes.md). The ``draws``
+A composite is one draw of its boxes (their textures, paths and the sensor noise on them:
+the composite's seed), and ``bench_seeds.py`` varies only the method's seeds over it. A setting
+can then win or lose a composite by the draw: a ±0.05 change of ``keyframe_overlap``,
+which only moves when keyframes are taken, moved the validation three_boxes from 22.4 to
+41.6 mm with keyframes on (docs/report/keyframes.md). The ``draws``
 split (``bench/splits.py``) holds each composite at five more draws on the validation
 frames; this script reads the ``seeds.json`` of ``bench_seeds.py --split draws`` run once
 per setting and gives, per scenario:

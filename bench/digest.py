@@ -24,7 +24,7 @@ import numpy as np
 
 sys.path.insert(0, str(Path(__file__).resolve().parent))
 from bench_robustness import _flow_key, build_flow, run_jaxvo
-from splits import available, cases
+from splits import available, cases, in_split
 
 from jaxvo.config import Config, Params
 
@@ -66,8 +66,7 @@ def main(argv=None) -> int:
     args = ap.parse_args(argv)
     print("case " + " ".join(FIELDS) + " all", flush=True)
     for case in cases():
-        if (case.split != args.split and (args.split != "all" or case.split == "draws")) or (
-                args.only and case.name not in args.only):
+        if not in_split(case, args.split) or (args.only and case.name not in args.only):
             continue
         why = available(case)
         if why:

@@ -14,7 +14,7 @@ frames 150-299 and the TUM walking clip, which no development case reads.
 | val | ``static_val_every<k>`` | 7-Scenes frames 150-299 at every k-th frame |
 | val | ``tum_walking`` | the TUM fr3 walking clip: two people, TUM's ground truth (kept apart in the data root's ``ground_truth/``) |
 | fresh | ``comp_<scenario>_fresh``, ``synth_<scenario>_fresh`` | the composites on frames 150-299 and the synthetic scenes at seed 3: run once, after the last change, to check the validation split was not tuned on by looking at it |
-| draws | ``comp_<scenario>_draw<k>`` | the composites on frames 150-299 at five more draws of their boxes (seeds 4-8): one composite is one draw of its boxes' textures and noise, and a setting's effect on it can be the draw's (``bench/compare_draws.py`` pools them) |
+| draws | ``comp_<scenario>_draw<k>`` | the composites on frames 150-299 at five more draws of their boxes (seeds 4-8): one composite is one draw of its boxes' textures, paths and sensor noise, and a setting's effect on it can be the draw's (``bench/compare_draws.py`` pools them) |
 
 The composites' scenarios are the failure cases of issue 18: three boxes covering about half
 the view (``three_boxes``), boxes entering and leaving the view (``enter_leave``), a box
@@ -37,6 +37,7 @@ SYNTHETIC = ("fixed_camera_1", "fixed_camera_2", "handheld_fast", "handheld_slow
 COMPOSITES = ("three_boxes", "enter_leave", "stop_start", "handheld_slow", "fixed_camera_2")
 HALF = 150  # 7-Scenes frames per split
 DRAWS = (4, 5, 6, 7, 8)  # the composites' seeds of the draws split (0 dev, 1 val, 3 fresh)
+MAIN = ("dev", "val", "fresh")  # what a script's "--split all" runs: the draws only by name
 
 
 class Case(NamedTuple):
@@ -83,6 +84,11 @@ def cases() -> list[Case]:
     out += [Case(f"comp_{s}_draw{k}", "draws", "composite", SEVEN_SCENES, _composite(s, HALF, k))
             for s in COMPOSITES for k in DRAWS]
     return out
+
+
+def in_split(case: Case, split: str) -> bool:
+    """Whether ``case`` belongs to ``split``, ``"all"`` meaning every split of ``MAIN``."""
+    return case.split == split or (split == "all" and case.split in MAIN)
 
 
 def available(case: Case) -> str | None:
