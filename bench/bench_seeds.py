@@ -168,7 +168,8 @@ def score_case(case: Case, data: dict, params: Params, seeds: int, cache: Path,
     return row
 
 
-def _fmt(s: dict | None, spec: str = ".1f") -> str:
+def fmt_spread(s: dict | None, spec: str = ".1f") -> str:
+    """A :func:`spread` as ``median [best-worst]``; "-" for none."""
     if not s:
         return "-"
     return f"{s['median']:{spec}} [{s['best']:{spec}}-{s['worst']:{spec}}]"
@@ -184,13 +185,13 @@ def table(rows: list[dict]) -> str:
         a, d = r.get("ate_mm"), r.get("oracle_ate_mm")
         f = r.get("moving_f")
         cells.append([
-            r["case"], _fmt(a), f"{a['spread']:.2f}" if a else "-",
+            r["case"], fmt_spread(a), f"{a['spread']:.2f}" if a else "-",
             f"{r['best_peer_mm']:.1f}" if "best_peer_mm" in r else "-",
             f"{a['median'] / r['best_peer_mm']:.2f}" if a and "best_peer_mm" in r else "-",
             f"{r['orbslam3_mm']:.1f}" if "orbslam3_mm" in r else "-",
-            _fmt(d), f"{d['spread']:.2f}" if d else "-",
+            fmt_spread(d), f"{d['spread']:.2f}" if d else "-",
             f"{f['median']:.3f} [{f['worst']:.3f}-{f['best']:.3f}]" if f else "-",
-            _fmt(r["moving_cells_pct"], ".2f"), f"{r['used_points']:.0f}", str(r["skipped"])])
+            fmt_spread(r["moving_cells_pct"], ".2f"), f"{r['used_points']:.0f}", str(r["skipped"])])
     return markdown_table(head, cells)
 
 
@@ -213,7 +214,7 @@ def main(argv=None) -> int:
         row = score_case(case, prepare(case, args.cache, cfg), params, args.seeds, args.cache,
                          cfg)
         rows.append(row)
-        log(f"{case.name}: ATE {_fmt(row.get('ate_mm'))} oracle {_fmt(row.get('oracle_ate_mm'))}"
+        log(f"{case.name}: ATE {fmt_spread(row.get('ate_mm'))} oracle {fmt_spread(row.get('oracle_ate_mm'))}"
             f" F {row.get('moving_f', {}).get('median', float('nan')):.3f}"
             f" cells {row['moving_cells_pct']['median']:.2f} % used {row['used_points']:.0f}")
     args.out.mkdir(parents=True, exist_ok=True)

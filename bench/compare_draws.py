@@ -27,6 +27,7 @@ from pathlib import Path
 
 import numpy as np
 from _common import markdown_table
+from bench_seeds import fmt_spread, spread
 
 WITHIN = 1.05  # "within 5 % or better"
 _DRAW = re.compile(r"^(?P<scenario>.+)_draw(?P<draw>\d+)$")
@@ -38,14 +39,17 @@ def by_scenario(rows: list[dict], key: str = "ate_mm") -> dict[str, dict[int, li
     out: dict[str, dict[int, list[float]]] = {}
     for r in rows:
         m = _DRAW.match(r["case"])
-        if m and r.get(key):
-            out.setdefault(m["scenario"], {})[int(m["draw"])] = list(r[key]["values"])
+        figure = r.get(key)
+        values = figure.get("values") if isinstance(figure, dict) else None
+        if m and values:
+            out.setdefault(m["scenario"], {})[int(m["draw"])] = list(values)
     return out
 
 
 def pooled(draws: dict[int, list[float]]) -> str:
-    v = np.concatenate([np.asarray(x, np.float64) for x in draws.values()])
-    return f"{np.median(v):.1f} [{v.min():.1f}-{v.max():.1f}]"
+    """Every draw's figures together, as ``median [best-worst]``."""
+    return fmt_spread(spread(np.concatenate([np.asarray(x, np.float64)
+                                             for x in draws.values()])))
 
 
 def paired(base: dict[int, list[float]], other: dict[int, list[float]]) -> str:
@@ -59,13 +63,21 @@ def paired(base: dict[int, list[float]], other: dict[int, list[float]]) -> str:
 
 
 def load(folder: Path) -> tuple[str, list[dict]]:
+    """A run's title and rows; ``ValueError`` saying why in one line when it has none."""
     path = folder / "seeds.json"
     if not path.is_file():
-        raise SystemExit(f"error: {path} not found (run bench/bench_seeds.py --split draws "
+        raise ValueError(f"{path} not found (run bench/bench_seeds.py --split draws "
                          f"--out {folder})")
-    doc = json.loads(path.read_text())
-    title = doc.get("meta", {}).get("title") or folder.name
-    return title, doc["rows"]
+    try:
+        doc = json.loads(path.read_text())
+    except ValueError as e:
+        raise ValueError(f"{path} is not JSON ({e})") from None
+    rows = doc.get("rows") if isinstance(doc, dict) else None
+    if not isinstance(rows, list) or not all(isinstance(r, dict) and "case" in r for r in rows):
+        raise ValueError(f"{path} is not a bench_seeds.py result (no rows with a case)")
+    meta = doc.get("meta")
+    title = (meta.get("title") if isinstance(meta, dict) else None) or folder.name
+    return title, rows
 
 
 def main(argv=None) -> int:
@@ -73,7 +85,11 @@ def main(argv=None) -> int:
     ap.add_argument("runs", nargs="+", type=Path, help="bench_seeds.py --out folders, the "
                     "first the setting the others are compared with")
     args = ap.parse_args(argv)
-    runs = [load(f) for f in args.runs]
+    try:
+        runs = [load(f) for f in args.runs]
+    except ValueError as e:
+        print(f"error: {e}", file=sys.stderr)
+        return 2
     ates = [by_scenario(rows) for _, rows in runs]
     oracles = [by_scenario(rows, "oracle_ate_mm") for _, rows in runs]
     scenarios = sorted(set().union(*ates))

@@ -156,7 +156,7 @@ def main(argv=None) -> int:
         errors = by_age(data, args.reference)
         keyframes = int(np.sum(data["kf_renew"])) + 1
         print(f"\n{name}: {len(data['kf_renew'])} pairs, {keyframes} keyframes, "
-              f"errors under the {'ground truth' if args.reference == 'truth' else 'jaxvo'}'s "
+              f"errors under {'the ground truth' if args.reference == 'truth' else 'jaxvo'}'s "
               "poses")
         print("| age (pairs) | tracks | lateral px median | p90 "
               "| depth error / z^2, 1.4826 MAD (1/m) |")

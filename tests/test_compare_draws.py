@@ -54,8 +54,23 @@ def test_the_table_compares_every_setting_with_the_first(draws, tmp_path, capsys
     assert "1.07 [0.95-1.20], 1/2 within 5 %" in out
 
 
-def test_a_folder_without_results_is_one_line(draws, tmp_path):
-    with pytest.raises(SystemExit, match="seeds.json not found"):
-        draws.main([str(tmp_path)])
+def test_a_folder_without_results_is_one_line(draws, tmp_path, capsys):
+    assert draws.main([str(tmp_path)]) == 2
+    err = capsys.readouterr().err
+    assert "seeds.json not found" in err and err.count("\n") == 1
     empty = _write(tmp_path / "e", "x", [_row("comp_s_val", [1.0])])
     assert draws.main([str(empty)]) == 2
+
+
+@pytest.mark.parametrize("text", ["", "{not json", "[1, 2]", '{"rows": [{"ate_mm": {}}]}'])
+def test_a_malformed_result_is_one_line(draws, tmp_path, capsys, text):
+    (tmp_path / "seeds.json").write_text(text)
+    assert draws.main([str(tmp_path)]) == 2
+    err = capsys.readouterr().err
+    assert err.startswith("error: ") and "seeds.json" in err and err.count("\n") == 1
+
+
+def test_a_figure_without_per_seed_values_is_left_out(draws):
+    rows = [{"case": "comp_s_draw4", "ate_mm": {"median": 3.0}},
+            {"case": "comp_s_draw5", "ate_mm": [1.0]}, _row("comp_s_draw6", [2.0])]
+    assert draws.by_scenario(rows) == {"comp_s": {6: [2.0]}}
