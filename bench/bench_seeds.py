@@ -53,6 +53,7 @@ from jaxvo.evaluation.metrics import SegmentationScores
 from jaxvo.evaluation.scores import trajectory_scores
 from jaxvo.host.readers.io import data_root
 from jaxvo.host.services.peers import OPENCV_PEERS
+from jaxvo.host.writers.outputs import write_text
 from jaxvo.trajectory import Trajectory
 
 
@@ -221,11 +222,11 @@ def main(argv=None) -> int:
     meta = {"date": datetime.datetime.now().isoformat(timespec="seconds"),
             "seeds": args.seeds, "set": args.set, "config": args.config, "title": args.title,
             "skipped": skipped}
-    (args.out / "seeds.json").write_text(json.dumps({"meta": meta, "rows": rows}, indent=1))
+    write_text(args.out / "seeds.json", json.dumps({"meta": meta, "rows": rows}, indent=1))
     md = [f"# jaxvo over {args.seeds} seeds\n", machine_line(), "",
           args.title, "", table(rows), ""]
     md += [f"{k}: skipped, {v}" for k, v in skipped.items()]
-    (args.out / "seeds.md").write_text("\n".join(md) + "\n")
+    write_text(args.out / "seeds.md", "\n".join(md) + "\n")
     print("\n".join(md))
     return 0
 
