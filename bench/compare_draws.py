@@ -9,6 +9,7 @@ split (``bench/splits.py``) holds each composite at five more draws on the valid
 frames; this script reads the ``seeds.json`` of ``bench_seeds.py --split draws`` run once
 per setting and gives, per scenario:
 
+* the best OpenCV peer's ATE on the same frames, over the draws: median [best-worst];
 * each setting's ATE pooled over every draw and seed: median [best-worst];
 * the same for its oracle (the boxes' depth removed);
 * against the first setting, draw by draw: the ratio of the medians over seeds, its median
@@ -35,12 +36,14 @@ _DRAW = re.compile(r"^(?P<scenario>.+)_draw(?P<draw>\d+)$")
 
 def by_scenario(rows: list[dict], key: str = "ate_mm") -> dict[str, dict[int, list[float]]]:
     """Each scenario's per-seed figures ``key`` by draw, from ``seeds.json`` rows named
-    ``<scenario>_draw<k>`` (other rows and rows without the figure are left out)."""
+    ``<scenario>_draw<k>`` (other rows and rows without the figure are left out); a figure
+    of one number (the best peer's) is one value."""
     out: dict[str, dict[int, list[float]]] = {}
     for r in rows:
         m = _DRAW.match(r["case"])
         figure = r.get(key)
-        values = figure.get("values") if isinstance(figure, dict) else None
+        values = (figure.get("values") if isinstance(figure, dict)
+                  else [figure] if isinstance(figure, (int, float)) else None)
         if m and values:
             out.setdefault(m["scenario"], {})[int(m["draw"])] = list(values)
     return out
@@ -96,12 +99,13 @@ def main(argv=None) -> int:
     if not scenarios:
         print("error: no <scenario>_draw<k> rows in these runs", file=sys.stderr)
         return 2
-    head = ["scenario", "draws"]
+    peers = by_scenario(runs[0][1], "best_peer_mm")  # the same frames in every run
+    head = ["scenario", "draws", "best OpenCV peer mm"]
     for i, (title, _) in enumerate(runs):
         head += [f"{title}: ATE mm", "oracle"] + ([f"{title} / {runs[0][0]}"] if i else [])
     cells = []
     for s in scenarios:
-        row = [s, str(len(ates[0].get(s, {})))]
+        row = [s, str(len(ates[0].get(s, {}))), pooled(peers[s]) if s in peers else "-"]
         for i in range(len(runs)):
             a, o = ates[i].get(s), oracles[i].get(s)
             row += [pooled(a) if a else "-", pooled(o) if o else "-"]

@@ -50,7 +50,7 @@ def test_the_table_compares_every_setting_with_the_first(draws, tmp_path, capsys
                                       _row("comp_s_draw5", [19.0], [8.5])])
     assert draws.main([str(a), str(b)]) == 0
     out = capsys.readouterr().out
-    assert "| comp_s | 2 | 15.0 [10.0-20.0] | 9.2 [9.0-9.5] | 15.5 [12.0-19.0] |" in out
+    assert "| comp_s | 2 | - | 15.0 [10.0-20.0] | 9.2 [9.0-9.5] | 15.5 [12.0-19.0] |" in out
     assert "1.07 [0.95-1.20], 1/2 within 5 %" in out
 
 
@@ -68,6 +68,12 @@ def test_a_malformed_result_is_one_line(draws, tmp_path, capsys, text):
     assert draws.main([str(tmp_path)]) == 2
     err = capsys.readouterr().err
     assert err.startswith("error: ") and "seeds.json" in err and err.count("\n") == 1
+
+
+def test_the_best_peer_is_one_value_a_draw(draws):
+    rows = [{"case": "comp_s_draw4", "best_peer_mm": 50.0},
+            {"case": "comp_s_draw5", "best_peer_mm": 70}]
+    assert draws.pooled(draws.by_scenario(rows, "best_peer_mm")["comp_s"]) == "60.0 [50.0-70.0]"
 
 
 def test_a_figure_without_per_seed_values_is_left_out(draws):
